@@ -1,0 +1,69 @@
+# Bloom: `make` builds every scene in configs/ end to end; `make test` runs the tests.
+# Each stage writes one artifact under outputs/<scene>/; make reruns only what changed.
+SHELL := bash
+.SHELLFLAGS := -eu -o pipefail -c
+.DELETE_ON_ERROR:
+.SUFFIXES:
+MAKEFLAGS += --warn-undefined-variables --no-builtin-rules
+
+PYTHON ?= python3
+VENV := .venv
+BLOOM := $(VENV)/bin/bloom
+INSTALLED := $(VENV)/.installed
+OUT := outputs
+SCENES ?= $(sort $(basename $(notdir $(wildcard configs/*.toml))))
+PYTEST_ARGS ?=
+
+# A stage's artifacts depend on the library and on the stage's own module.
+LIB := $(wildcard pipeline/*.py pipeline/sim/*.py) stages/cli.py stages/common.py
+
+.PHONY: all test venv clean clean-venv help
+all: $(SCENES:%=$(OUT)/%/render/bloom.mp4)  ## build every scene: artifacts, frames, MP4
+
+help:  ## list the targets
+	@grep -E '^[a-z-]+:.*## ' $(MAKEFILE_LIST) | sed -E 's/:.*## /\t/'
+
+venv: $(INSTALLED)  ## create .venv and install bloom into it
+$(INSTALLED): pyproject.toml constraints.txt
+	test -x $(VENV)/bin/python || $(PYTHON) -m venv $(VENV)
+	$(VENV)/bin/python -m pip install --quiet --disable-pip-version-check --upgrade pip
+	$(VENV)/bin/python -m pip install --quiet --disable-pip-version-check \
+		-c constraints.txt -e '.[test]'
+	touch $@
+
+test: $(INSTALLED)  ## run the test suite
+	$(VENV)/bin/python -m pytest $(PYTEST_ARGS)
+
+# The input mesh of a scene is named in its config (scene.mesh): record it as a dependency.
+$(OUT)/%/mesh.d: configs/%.toml | $(INSTALLED)
+	@mkdir -p $(@D)
+	@echo "$(OUT)/$*/remesh.h5: $$($(BLOOM) config $< --mesh-path)" > $@
+
+ifeq ($(filter test venv clean clean-venv help,$(MAKECMDGOALS)),)
+-include $(SCENES:%=$(OUT)/%/mesh.d)
+endif
+
+# The pipeline, in order.
+$(OUT)/%/remesh.h5: configs/%.toml stages/remesh.py $(LIB) | $(INSTALLED)
+	$(BLOOM) remesh --config $< --out $@
+
+$(OUT)/%/axis.h5: $(OUT)/%/remesh.h5 configs/%.toml stages/axis.py $(LIB)
+	$(BLOOM) axis $< --config configs/$*.toml --out $@
+
+$(OUT)/%/growth.h5: $(OUT)/%/axis.h5 configs/%.toml stages/growth.py $(LIB)
+	$(BLOOM) growth $< --config configs/$*.toml --out $@
+
+$(OUT)/%/sim.h5: $(OUT)/%/growth.h5 configs/%.toml stages/simulate.py $(LIB)
+	$(BLOOM) simulate $< --config configs/$*.toml --out $@
+
+$(OUT)/%/render/bloom.mp4: $(OUT)/%/sim.h5 configs/%.toml stages/render.py $(LIB)
+	$(BLOOM) render $< --config configs/$*.toml --out $(OUT)/$*/render
+
+# Keep intermediate artifacts: they are the point of the pipeline.
+.PRECIOUS: $(OUT)/%/remesh.h5 $(OUT)/%/axis.h5 $(OUT)/%/growth.h5 $(OUT)/%/sim.h5
+
+clean:  ## remove outputs/ (never configs/ or assets/)
+	rm -rf $(OUT)
+
+clean-venv:  ## remove the virtual environment
+	rm -rf $(VENV)

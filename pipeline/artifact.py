@@ -1,0 +1,163 @@
+"""HDF5 artifacts: written whole or not at all, each with its provenance.
+
+Every artifact carries the root attributes ``stage``, ``command``, ``config`` (JSON of
+the values used), ``inputs`` (JSON: path -> sha256) and ``version``. It is written to a
+temporary file beside the target and renamed when complete, so an interrupted stage
+never leaves a half-written file that make would take as done.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import sys
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Any, Iterator
+
+import h5py
+import numpy as np
+
+from . import __version__
+from .errors import BloomError
+
+#: The stages in pipeline order, and the datasets each one adds.
+STAGE_DATASETS = {
+    "remesh": ("mesh/vertices", "mesh/faces", "mesh/petal"),
+    "axis": ("axis/base", "axis/on_axis", "axis/tip", "axis/plane", "axis/x", "axis/s"),
+    "growth": ("growth/edges", "growth/alpha", "growth/stiffness", "growth/hinges",
+               "growth/rest_angle", "growth/connections"),
+    "simulate": ("frames/time", "frames/positions", "mesh/faces"),
+}
+STAGES = tuple(STAGE_DATASETS)
+
+
+def sha256_file(path: str | Path) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
+def command_line() -> str:
+    return " ".join([Path(sys.argv[0]).name, *sys.argv[1:]])
+
+
+def is_artifact_of(path: Path, stages: tuple[str, ...]) -> bool:
+    """True if ``path`` is an HDF5 file written by one of ``stages``."""
+    try:
+        with h5py.File(path, "r") as f:
+            return f.attrs.get("stage") in stages
+    except Exception:
+        return False
+
+
+def check_output(path: str | Path, stage: str, overwrite: bool) -> Path:
+    """Refuse an output path that holds something this stage did not write.
+
+    A stage replaces its own artifact (that is what make asks of it when an input has
+    changed); anything else at that path is the user's and stays, unless ``--overwrite``.
+    """
+    path = Path(path)
+    if path.is_dir():
+        raise BloomError("is a folder; --out needs a file path", where=str(path))
+    if path.exists() and not overwrite and not is_artifact_of(path, (stage,)):
+        raise BloomError(f"exists and is not a {stage} artifact; not overwriting it "
+                         "(pass --overwrite to replace it)", where=str(path))
+    parent = path.parent
+    if not parent.exists():
+        parent.mkdir(parents=True, exist_ok=True)
+    return path
+
+
+@contextmanager
+def writing(path: str | Path, *, stage: str, config_json: str, inputs: dict[str, str],
+            attrs: dict[str, Any] | None = None) -> Iterator[h5py.File]:
+    """Open a temporary HDF5 file for ``path``; rename it into place if the block succeeds.
+
+    On any exception (including KeyboardInterrupt) the temporary file is removed and the
+    previous artifact at ``path``, if any, is left as it was.
+    """
+    path = Path(path)
+    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
+    try:
+        with h5py.File(tmp, "w", track_order=True) as f:
+            f.attrs["stage"] = stage
+            f.attrs["command"] = command_line()
+            f.attrs["config"] = config_json
+            f.attrs["inputs"] = json.dumps(inputs, sort_keys=True)
+            f.attrs["version"] = __version__
+            for key, value in (attrs or {}).items():
+                f.attrs[key] = value
+            yield f
+        os.replace(tmp, path)
+    finally:
+        if tmp.exists():
+            tmp.unlink()
+
+
+def put(f: h5py.File, name: str, data: Any, doc: str | None = None) -> None:
+    """Write one dataset (compressed when large), with an optional one-line description."""
+    arr = np.asarray(data)
+    kwargs = {}
+    if arr.size > 4096:
+        kwargs = {"compression": "gzip", "compression_opts": 4, "shuffle": True}
+    ds = f.create_dataset(name, data=arr, **kwargs)
+    if doc:
+        ds.attrs["doc"] = doc
+
+
+class Artifact:
+    """A read-only view of an artifact, checked to hold what a stage needs."""
+
+    def __init__(self, path: str | Path, needs: str, reader: str):
+        self.path = Path(path)
+        where = str(self.path)
+        if not self.path.exists():
+            raise BloomError("file not found", where=where)
+        if self.path.is_dir():
+            raise BloomError("is a folder, not an HDF5 artifact", where=where)
+        try:
+            self.file = h5py.File(self.path, "r")
+        except OSError:
+            raise BloomError("not an HDF5 artifact (unreadable or truncated)", where=where) from None
+        stage = self.file.attrs.get("stage")
+        if stage not in STAGES:
+            self.file.close()
+            raise BloomError("not a Bloom artifact (no 'stage' attribute)", where=where)
+        wanted = STAGES.index(needs)
+        for name in STAGE_DATASETS[needs]:
+            if name not in self.file:
+                self.file.close()
+                got = f"written by `bloom {stage}`" if stage else "unknown"
+                raise BloomError(f"`bloom {reader}` needs the output of `bloom {needs}` "
+                                 f"({name} missing; this file was {got})", where=where)
+        self.stage = stage
+        self.order = wanted
+
+    def __enter__(self) -> "Artifact":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.file.close()
+
+    def __contains__(self, name: str) -> bool:
+        return name in self.file
+
+    def __getitem__(self, name: str) -> np.ndarray:
+        return self.file[name][()]
+
+    @property
+    def attrs(self) -> h5py.AttributeManager:
+        return self.file.attrs
+
+    def config(self) -> dict:
+        return json.loads(self.file.attrs["config"])
+
+    def copy_to(self, out: h5py.File, names: tuple[str, ...]) -> None:
+        """Carry datasets forward unchanged, so later stages need not open earlier files."""
+        for name in names:
+            if name in self.file:
+                self.file.copy(self.file[name], out, name=name)

@@ -1,0 +1,124 @@
+"""Cleaning a triangle mesh: weld, drop degenerate and duplicate faces, orient, scale."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from . import topology
+
+
+@dataclass
+class CleanReport:
+    """What :func:`clean_mesh` changed, for the log and the artifact."""
+
+    welded: int = 0
+    degenerate_faces: int = 0
+    duplicate_faces: int = 0
+    unreferenced: int = 0
+    flipped_faces: int = 0
+    notes: list = field(default_factory=list)
+
+
+def weld(vertices: np.ndarray, faces: np.ndarray, tolerance: float):
+    """Merge vertices closer than ``tolerance``; the first vertex of a group is kept.
+
+    Returns ``(vertices, faces, merged_count)``.
+    """
+    from scipy.spatial import cKDTree
+
+    pairs = cKDTree(vertices).query_pairs(tolerance, output_type="ndarray")
+    if len(pairs) == 0:
+        return vertices, faces, 0
+    import scipy.sparse as sp
+    from scipy.sparse.csgraph import connected_components
+
+    n = len(vertices)
+    g = sp.coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(n, n))
+    _, label = connected_components(g, directed=False)
+    _, first = np.unique(label, return_index=True)
+    keep = np.sort(first)
+    new_index = np.empty(n, dtype=np.int64)
+    rank = np.empty(label.max() + 1, dtype=np.int64)
+    rank[label[keep]] = np.arange(len(keep))
+    new_index[:] = rank[label]
+    return vertices[keep], new_index[faces], n - len(keep)
+
+
+def orient_consistently(faces: np.ndarray, vertex_count: int) -> tuple[np.ndarray, int]:
+    """Flip faces so that every edge-manifold component has one orientation.
+
+    Breadth-first over face adjacency from the lowest face of each component; a face is
+    flipped when it runs the same way as its already-placed neighbour along their edge.
+    Returns ``(faces, flipped_count)``; the first face of each component keeps its winding.
+    """
+    faces = faces.copy()
+    he, _ = topology.half_edges(faces)
+    _, he_edge, count = topology.unique_edges(faces)
+    nf = len(faces)
+    face_of = np.tile(np.arange(nf), 3)
+    order = np.argsort(he_edge, kind="stable")
+    se = he_edge[order]
+    first = np.flatnonzero(np.r_[True, se[1:] != se[:-1]])
+    pair_ok = count[se[first]] == 2
+    a = order[first[pair_ok]]
+    b = order[first[pair_ok] + 1]
+    fa, fb = face_of[a], face_of[b]
+    same_dir = he[a, 0] == he[b, 0]  # both faces run the edge the same way: mismatch
+    neighbours = [[] for _ in range(nf)]
+    for x, y, s in zip(fa.tolist(), fb.tolist(), same_dir.tolist()):
+        neighbours[x].append((y, s))
+        neighbours[y].append((x, s))
+    flip = np.zeros(nf, dtype=bool)
+    seen = np.zeros(nf, dtype=bool)
+    for start in range(nf):
+        if seen[start]:
+            continue
+        seen[start] = True
+        queue = [start]
+        while queue:
+            f = queue.pop()
+            for g, mismatch in neighbours[f]:
+                if not seen[g]:
+                    seen[g] = True
+                    flip[g] = flip[f] ^ mismatch
+                    queue.append(g)
+    faces[flip] = faces[flip][:, [0, 2, 1]]
+    return faces, int(flip.sum())
+
+
+def clean_mesh(vertices: np.ndarray, faces: np.ndarray, weld_tolerance: float = 1e-6):
+    """Weld near-duplicate vertices (``weld_tolerance`` x bounding-box diagonal), drop
+    degenerate and duplicate faces and unused vertices, and orient faces consistently.
+
+    Returns ``(vertices, faces, CleanReport)``.
+    """
+    report = CleanReport()
+    v = np.asarray(vertices, dtype=np.float64)
+    f = np.asarray(faces, dtype=np.int64)
+    diag = float(np.linalg.norm(v.max(axis=0) - v.min(axis=0)))
+    v, f, report.welded = weld(v, f, weld_tolerance * max(diag, 1e-300))
+    # degenerate: repeated index or (numerically) zero area
+    repeated = (f[:, 0] == f[:, 1]) | (f[:, 1] == f[:, 2]) | (f[:, 2] == f[:, 0])
+    area2 = np.linalg.norm(topology.face_normals(v, f), axis=1)
+    flat = area2 <= 1e-12 * max(diag, 1e-300) ** 2
+    bad = repeated | flat
+    report.degenerate_faces = int(bad.sum())
+    f = f[~bad]
+    key = np.sort(f, axis=1)
+    _, first = np.unique(key, axis=0, return_index=True)
+    report.duplicate_faces = len(f) - len(first)
+    f = f[np.sort(first)]
+    used = np.zeros(len(v), dtype=bool)
+    used[f.ravel()] = True
+    report.unreferenced = int((~used).sum())
+    remap = np.cumsum(used) - 1
+    v, f = v[used], remap[f]
+    f, report.flipped_faces = orient_consistently(f, len(v))
+    return v, f, report
+
+
+def mean_edge_length(vertices: np.ndarray, faces: np.ndarray) -> float:
+    edges, _, _ = topology.unique_edges(faces)
+    return float(np.linalg.norm(vertices[edges[:, 0]] - vertices[edges[:, 1]], axis=1).mean())

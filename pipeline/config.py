@@ -1,0 +1,317 @@
+"""Scene configuration: a TOML file checked against a schema when loaded.
+
+Every key is declared once in ``SCHEMA`` with its type, default, allowed range and a
+one-line description (``bloom config --help-keys`` prints them). An unknown key, a
+wrong type or a value out of range is a :class:`BloomError` naming the file and the key.
+``--set section.key=value`` overrides go through the same checks.
+"""
+
+from __future__ import annotations
+
+import copy
+import json
+import math
+import tomllib
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Callable
+
+from .errors import BloomError
+from .expr import check_curve
+
+
+@dataclass(frozen=True)
+class Key:
+    """One config key: its type, default and allowed values."""
+
+    kind: type
+    default: Any
+    doc: str
+    choices: tuple = ()
+    low: float | None = None  # inclusive unless low_open
+    high: float | None = None  # inclusive unless high_open
+    low_open: bool = False
+    high_open: bool = False
+    check: Callable[[Any], None] | None = None  # raises ValueError with a reason
+
+
+SCHEDULES = ("linear", "smoothstep", "smootherstep")
+INTEGRATORS = ("semi-implicit", "explicit-damping")
+
+SCHEMA: dict[str, Any] = {
+    "scene": {
+        "name": Key(str, "", "scene name (default: the config file's name)"),
+        "mesh": Key(str, "", "input mesh (OBJ/PLY/STL/OFF/GLB), relative to the config file"),
+        "description": Key(str, "", "free text, shown by `bloom inspect`"),
+    },
+    "remesh": {
+        "target_edge": Key(float, 0.0, "target edge length in the input's units; 0 keeps the "
+                           "input's triangles (the mesh is scaled to mean edge 1 either way)",
+                           low=0.0),
+        "symmetrize": Key(bool, True, "make each petal mirror-symmetric about its center plane"),
+    },
+    "axis": {
+        "base": Key(str, "auto", "which end of a petal is its base: auto (nearest the flower's "
+                    "axis, or the narrow end of a lone petal) or narrow", choices=("auto", "narrow")),
+        "base_fraction": Key(float, 0.04, "boundary vertices this close to the base end, as a "
+                             "fraction of the petal's length, are fixed", low=0.0, high=0.5,
+                             low_open=True),
+    },
+    "growth": {
+        "curve": Key(str, "0.2*x**2", "growth ratio alpha as an expression of the cross-section "
+                     "coordinate x in [-1, 1] (Eq. 6); parsed safely, never eval'd",
+                     check=check_curve),
+        "schedule": Key(str, "smootherstep", "shape of A(t) from 0 to 1: linear, smoothstep (C1) "
+                        "or smootherstep (C2)", choices=SCHEDULES),
+        "ramp": Key(float, 0.6, "fraction of the simulated time over which A(t) rises from 0 "
+                    "to 1; the rest is a hold at full growth", low=0.0, high=1.0, low_open=True),
+    },
+    "simulate": {
+        "steps": Key(int, 200_000, "number of time steps", low=1),
+        "frames": Key(int, 121, "number of frames stored, the first at t = 0", low=2),
+        "h": Key(float, 1.0, "time step (paper: 1.0)", low=0.0, low_open=True),
+        "eta": Key(float, 0.1, "damping factor of the semi-implicit scheme (Eq. 8): 1/2 is "
+                   "Verlet, smaller damps", low=0.0, high=0.5),
+        "integrator": Key(str, "semi-implicit", "semi-implicit (Eq. 7-8) or explicit-damping "
+                          "(Eq. 9, for comparison)", choices=INTEGRATORS),
+        "damping": Key(float, 0.999, "velocity factor d of the explicit-damping integrator "
+                       "(Eq. 9)", low=0.0, high=1.0),
+        "stretch_stiffness": Key(float, 0.1, "K_s, per edge (paper: 0.1)", low=0.0, low_open=True),
+        "bending_stiffness": Key(float, 0.0005, "K_b, per interior edge (paper: 0.0005)",
+                                 low=0.0),
+        "mass": Key(float, 1.0, "mass of every vertex (paper: 1)", low=0.0, low_open=True),
+    },
+    "effects": {
+        "curl": {
+            "enabled": Key(bool, False, "out-of-plane curl: rest dihedral angles decay (Eq. 11)"),
+            "beta": Key(float, 0.5, "curl growth beta in [0, 1]", low=0.0, high=1.0),
+        },
+        "wrinkles": {
+            "enabled": Key(bool, False, "extra growth on boundary edges (Eq. 12)"),
+            "alpha_add": Key(float, 0.1, "additional growth ratio of boundary edges", low=0.0),
+            "boundary_stiffness": Key(float, 0.5, "factor on boundary edges' stretch stiffness",
+                                      low=0.0, high=1.0, low_open=True),
+        },
+        "collisions": {
+            "enabled": Key(bool, False, "vertex-triangle collisions between petals"),
+            "offset": Key(float, 0.01, "push-back offset in mesh units", low=0.0, low_open=True),
+        },
+        "connections": {
+            "enabled": Key(bool, False, "springs between petals that break past a stretch"),
+            "critical_stretch": Key(float, 1.5, "a connection breaks when its length exceeds "
+                                    "this factor times its rest length", low=1.0, low_open=True),
+        },
+        "center_plane": {
+            "enabled": Key(bool, False, "axis vertices keep their distance to the center plane"),
+        },
+    },
+    "render": {
+        "width": Key(int, 800, "frame width in pixels (even)", low=64, high=8192),
+        "height": Key(int, 600, "frame height in pixels (even)", low=64, high=8192),
+        "fps": Key(int, 24, "frame rate of the MP4", low=1, high=240),
+        "color": Key(str, "#f4a6c1", "petal colour (a name or #rrggbb)"),
+        "contact_frames": Key(int, 8, "frames on the contact sheet", low=1, high=64),
+    },
+}
+
+
+def _flatten(schema: dict, prefix: str = "") -> dict[str, Key]:
+    out = {}
+    for name, item in schema.items():
+        dotted = f"{prefix}{name}"
+        if isinstance(item, Key):
+            out[dotted] = item
+        else:
+            out.update(_flatten(item, dotted + "."))
+    return out
+
+
+KEYS: dict[str, Key] = _flatten(SCHEMA)
+
+
+def _type_name(kind: type) -> str:
+    return {int: "an integer", float: "a number", bool: "true or false", str: "a string"}[kind]
+
+
+def _coerce(dotted: str, key: Key, value: Any, where: str) -> Any:
+    """Check one value against its key; return it in the key's type."""
+    ok = False
+    if key.kind is bool:
+        ok = isinstance(value, bool)
+    elif key.kind is int:
+        ok = isinstance(value, int) and not isinstance(value, bool)
+    elif key.kind is float:
+        ok = isinstance(value, (int, float)) and not isinstance(value, bool)
+        if ok:
+            value = float(value)
+            if not math.isfinite(value):
+                raise BloomError(f"{dotted}: must be finite, got {value}", where=where)
+    elif key.kind is str:
+        ok = isinstance(value, str)
+    if not ok:
+        raise BloomError(f"{dotted}: expected {_type_name(key.kind)}, got {value!r}", where=where)
+    if key.choices and value not in key.choices:
+        raise BloomError(f"{dotted}: must be one of {', '.join(key.choices)}; got {value!r}",
+                         where=where)
+    if key.low is not None and (value < key.low or (key.low_open and value == key.low)):
+        rel = ">" if key.low_open else ">="
+        raise BloomError(f"{dotted}: must be {rel} {key.low:g}, got {value!r}", where=where)
+    if key.high is not None and (value > key.high or (key.high_open and value == key.high)):
+        rel = "<" if key.high_open else "<="
+        raise BloomError(f"{dotted}: must be {rel} {key.high:g}, got {value!r}", where=where)
+    if key.check is not None:
+        try:
+            key.check(value)
+        except ValueError as exc:
+            raise BloomError(f"{dotted}: {exc}", where=where) from None
+    return value
+
+
+def _walk(table: dict, where: str, prefix: str = ""):
+    """Yield (dotted key, value) for every leaf of a parsed TOML table."""
+    for name, value in table.items():
+        dotted = f"{prefix}{name}"
+        if isinstance(value, dict):
+            if dotted in KEYS:  # a table where a value belongs
+                raise BloomError(f"{dotted}: expected {_type_name(KEYS[dotted].kind)}, got a table",
+                                 where=where)
+            if not any(k.startswith(dotted + ".") for k in KEYS):
+                raise BloomError(f"{dotted}: unknown section", where=where)
+            yield from _walk(value, where, dotted + ".")
+        else:
+            yield dotted, value
+
+
+def _suggest(dotted: str) -> str:
+    import difflib
+
+    close = difflib.get_close_matches(dotted, list(KEYS), n=1)
+    return f" (did you mean {close[0]}?)" if close else ""
+
+
+class Config:
+    """A validated scene configuration.
+
+    ``cfg["simulate.h"]`` reads a value by its dotted key; ``cfg.section("simulate")``
+    returns the values of one section; ``cfg.to_json()`` is what artifacts record.
+    """
+
+    def __init__(self, values: dict[str, Any], path: Path | None):
+        self._values = values
+        self.path = path
+
+    def __getitem__(self, dotted: str) -> Any:
+        return self._values[dotted]
+
+    def section(self, prefix: str) -> dict[str, Any]:
+        n = len(prefix) + 1
+        return {k[n:]: v for k, v in self._values.items() if k.startswith(prefix + ".")}
+
+    @property
+    def name(self) -> str:
+        if self._values["scene.name"]:
+            return self._values["scene.name"]
+        return self.path.stem if self.path else "scene"
+
+    def mesh_path(self) -> Path | None:
+        """``scene.mesh`` resolved against the config file's folder (or the working one)."""
+        mesh = self._values["scene.mesh"]
+        if not mesh:
+            return None
+        p = Path(mesh)
+        if not p.is_absolute() and self.path is not None:
+            p = self.path.parent / p
+        return p
+
+    def effects_enabled(self) -> list[str]:
+        return sorted(k.split(".")[1] for k, v in self._values.items()
+                      if k.startswith("effects.") and k.endswith(".enabled") and v)
+
+    def nested(self) -> dict[str, Any]:
+        out: dict[str, Any] = {}
+        for dotted, value in self._values.items():
+            node = out
+            *parents, leaf = dotted.split(".")
+            for p in parents:
+                node = node.setdefault(p, {})
+            node[leaf] = value
+        return out
+
+    def to_json(self) -> str:
+        return json.dumps(self.nested(), sort_keys=True)
+
+    def with_values(self, **dotted_values: Any) -> "Config":
+        """A copy with some values replaced (checked like an override)."""
+        values = copy.copy(self._values)
+        for dotted, value in dotted_values.items():
+            values[dotted] = _coerce(dotted, KEYS[dotted], value, "override")
+        return Config(values, self.path)
+
+
+def parse_override(text: str) -> tuple[str, Any]:
+    """Split ``section.key=value``; the value is read as a TOML value, else as a string."""
+    if "=" not in text:
+        raise BloomError(f"--set {text!r}: expected section.key=value")
+    dotted, raw = (part.strip() for part in text.split("=", 1))
+    if dotted not in KEYS:
+        raise BloomError(f"--set {dotted}: unknown key{_suggest(dotted)}")
+    try:
+        value = tomllib.loads(f"v = {raw}")["v"]
+    except tomllib.TOMLDecodeError:
+        value = raw
+    if KEYS[dotted].kind is str and not isinstance(value, str):
+        value = raw
+    return dotted, value
+
+
+def load_config(path: str | Path | None = None, overrides: tuple[str, ...] | list[str] = ()) -> Config:
+    """Read and check a scene file (or the defaults when ``path`` is None), then apply
+    ``--set`` overrides. Raises :class:`BloomError` naming the file and key on any problem."""
+    values = {dotted: key.default for dotted, key in KEYS.items()}
+    cfg_path = None
+    if path is not None:
+        cfg_path = Path(path)
+        where = str(cfg_path)
+        try:
+            text = cfg_path.read_bytes().decode("utf-8")
+        except FileNotFoundError:
+            raise BloomError("config file not found", where=where) from None
+        except IsADirectoryError:
+            raise BloomError("is a folder, not a config file", where=where) from None
+        except PermissionError:
+            raise BloomError("config file not readable (permission denied)", where=where) from None
+        except UnicodeDecodeError:
+            raise BloomError("not a text file (expected TOML)", where=where) from None
+        try:
+            table = tomllib.loads(text)
+        except tomllib.TOMLDecodeError as exc:
+            raise BloomError(f"not valid TOML: {exc}", where=where) from None
+        for dotted, value in _walk(table, where):
+            if dotted not in KEYS:
+                raise BloomError(f"{dotted}: unknown key{_suggest(dotted)}", where=where)
+            values[dotted] = _coerce(dotted, KEYS[dotted], value, where)
+    for text in overrides:
+        dotted, value = parse_override(text)
+        values[dotted] = _coerce(dotted, KEYS[dotted], value, f"--set {dotted}")
+    cfg = Config(values, cfg_path)
+    _check_together(cfg, str(cfg_path) if cfg_path else "defaults")
+    return cfg
+
+
+def _check_together(cfg: Config, where: str) -> None:
+    """Checks that involve more than one key."""
+    if cfg["simulate.frames"] > cfg["simulate.steps"] + 1:
+        raise BloomError(f"simulate.frames: {cfg['simulate.frames']} frames need at least "
+                         f"{cfg['simulate.frames'] - 1} steps (simulate.steps = "
+                         f"{cfg['simulate.steps']})", where=where)
+    if cfg["render.width"] % 2 or cfg["render.height"] % 2:
+        raise BloomError("render.width, render.height: must be even (H.264)", where=where)
+
+
+def describe_keys() -> str:
+    """All keys with type, default and description, for `bloom config --keys`."""
+    lines = []
+    for dotted, key in KEYS.items():
+        default = json.dumps(key.default)
+        lines.append(f"{dotted:36s} {key.kind.__name__:5s} = {default:16s} {key.doc}")
+    return "\n".join(lines)

@@ -1,0 +1,117 @@
+"""Model (static), State (changing) and Control (prescribed in time), after newton's split."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from . import kernels
+
+
+def _c(a, dtype) -> np.ndarray:
+    return np.ascontiguousarray(a, dtype=dtype)
+
+
+@dataclass
+class Model:
+    """What does not change while simulating. Built once by :meth:`build`, which checks it."""
+
+    vertex_count: int
+    vertex_mass: np.ndarray  #: (V,) mass of each vertex
+    vertex_inv_mass: np.ndarray  #: (V,) 1/mass; 0 for pinned (base) vertices
+    edge_indices: np.ndarray  #: (E, 2) int64 vertex pairs; every edge carries a stretch spring
+    edge_rest_length: np.ndarray  #: (E,) rest length at t = 0 (the input mesh's lengths)
+    edge_growth: np.ndarray  #: (E,) growth ratio alpha (Eq. 6)
+    edge_stiffness: np.ndarray  #: (E,) K_s of each spring
+    hinge_indices: np.ndarray  #: (H, 4) int64, see kernels
+    hinge_rest_cos: np.ndarray  #: (H,) cos of the rest dihedral angle at t = 0
+    hinge_rest_sin: np.ndarray  #: (H,) sin of the rest dihedral angle at t = 0
+    hinge_stiffness: np.ndarray  #: (H,) K_b of each hinge
+
+    @property
+    def edge_count(self) -> int:
+        return len(self.edge_indices)
+
+    @property
+    def hinge_count(self) -> int:
+        return len(self.hinge_indices)
+
+    @property
+    def pinned(self) -> np.ndarray:
+        return self.vertex_inv_mass == 0.0
+
+    @classmethod
+    def build(cls, vertices, edges, edge_growth, edge_stiffness, hinges, hinge_stiffness,
+              pinned, mass: float = 1.0) -> "Model":
+        """Rest lengths and rest angles are measured on ``vertices`` (the initial mesh)."""
+        X = _c(vertices, np.float64)
+        edges = _c(edges, np.int64).reshape(-1, 2)
+        hinges = _c(hinges, np.int64).reshape(-1, 4)
+        n = len(X)
+        for name, idx in (("edges", edges), ("hinges", hinges)):
+            if idx.size and (idx.min() < 0 or idx.max() >= n):
+                raise ValueError(f"{name} index a vertex outside 0..{n - 1}")
+        rest = np.empty(len(edges))
+        kernels.edge_lengths(X, edges, rest)
+        if np.any(rest <= 0.0):
+            raise ValueError(f"{int(np.sum(rest <= 0))} edges have zero length")
+        cos0 = np.empty(len(hinges))
+        sin0 = np.empty(len(hinges))
+        kernels.hinge_cos_sin(X, hinges, cos0, sin0)
+        vmass = np.full(n, float(mass))
+        inv = 1.0 / vmass
+        inv[_c(pinned, bool)] = 0.0
+        edge_growth = _c(np.broadcast_to(edge_growth, (len(edges),)), np.float64)
+        if np.any(1.0 + edge_growth <= 0.0):
+            raise ValueError("a growth ratio <= -1 would make a rest length zero or negative")
+        return cls(
+            vertex_count=n, vertex_mass=vmass, vertex_inv_mass=inv,
+            edge_indices=edges, edge_rest_length=rest, edge_growth=edge_growth,
+            edge_stiffness=_c(np.broadcast_to(edge_stiffness, (len(edges),)), np.float64),
+            hinge_indices=hinges, hinge_rest_cos=cos0, hinge_rest_sin=sin0,
+            hinge_stiffness=_c(np.broadcast_to(hinge_stiffness, (len(hinges),)), np.float64),
+        )
+
+
+@dataclass
+class State:
+    """Positions, velocities and the forces at those positions (and that state's time)."""
+
+    positions: np.ndarray  #: (V, 3)
+    velocities: np.ndarray  #: (V, 3)
+    forces: np.ndarray  #: (V, 3) f(positions) at time ``step * h``
+    step: int = 0  #: index of the time step this state is at
+    potential_energy: float = 0.0
+    scratch: np.ndarray = field(default=None, repr=False)  #: (V, 3) the integrator's f(X[n+1])
+
+    @classmethod
+    def at_rest(cls, model: Model, positions, control: "Control") -> "State":
+        X = _c(positions, np.float64).copy()
+        state = cls(X, np.zeros_like(X), np.zeros_like(X), 0, 0.0, np.zeros_like(X))
+        state.potential_energy = kernels.internal_forces(
+            X, model.edge_indices, model.edge_rest_length, model.edge_growth,
+            model.edge_stiffness, model.hinge_indices, model.hinge_rest_cos,
+            model.hinge_rest_sin, model.hinge_stiffness, control.growth_at(0.0), state.forces)
+        return state
+
+    def kinetic_energy(self, model: Model) -> float:
+        return float(0.5 * np.sum(model.vertex_mass[:, None] * self.velocities ** 2))
+
+    def max_speed(self) -> float:
+        return float(np.sqrt(np.max(np.sum(self.velocities ** 2, axis=1)))) if len(self.velocities) else 0.0
+
+
+@dataclass
+class Control:
+    """Growth prescribed over time: A(t) rises from 0 to 1 over ``ramp_time`` (Eq. 6)."""
+
+    schedule: str  #: linear, smoothstep or smootherstep
+    ramp_time: float  #: time at which A reaches 1
+
+    @property
+    def schedule_code(self) -> int:
+        return kernels.SCHEDULE_CODES[self.schedule]
+
+    def growth_at(self, t: float) -> float:
+        return float(kernels.schedule_value(self.schedule_code, float(t), float(self.ramp_time)))

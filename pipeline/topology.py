@@ -1,0 +1,113 @@
+"""Mesh topology over plain arrays: edges, boundaries, hinges, components.
+
+All functions take ``faces (F, 3) int`` (and the vertex count where needed) and return
+arrays; they never modify their inputs.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import scipy.sparse as sp
+from scipy.sparse.csgraph import connected_components
+
+
+def half_edges(faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Directed edges of every face and the vertex opposite each.
+
+    Returns ``(he (3F, 2), opposite (3F,))``; for face ``(a, b, c)`` the half-edges are
+    ``(a, b), (b, c), (c, a)`` with opposite vertices ``c, a, b``.
+    """
+    f = np.asarray(faces, dtype=np.int64)
+    he = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
+    opposite = np.concatenate([f[:, 2], f[:, 0], f[:, 1]])
+    return he, opposite
+
+
+def unique_edges(faces: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Undirected edges, each once, sorted.
+
+    Returns ``(edges (E, 2), he_edge (3F,), count (E,))``: edges with ``i < j`` in
+    lexicographic order, the edge index of every half-edge, and how many faces use
+    each edge (1 on the boundary, 2 inside, more where the mesh is non-manifold).
+    """
+    he, _ = half_edges(faces)
+    key = np.sort(he, axis=1)
+    edges, he_edge, count = np.unique(key, axis=0, return_inverse=True, return_counts=True)
+    return edges, he_edge.reshape(-1), count
+
+
+def boundary_vertices(faces: np.ndarray, vertex_count: int) -> np.ndarray:
+    """``(V,) bool``: vertices on an edge used by exactly one face."""
+    edges, _, count = unique_edges(faces)
+    flag = np.zeros(vertex_count, dtype=bool)
+    flag[edges[count == 1].ravel()] = True
+    return flag
+
+
+def hinges(faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Interior edges with their two opposite vertices, oriented for the signed angle.
+
+    Returns ``(hinges (H, 4), edge_index (H,))``. Row ``(i, j, k, l)``: the edge ``i-j``,
+    ``k`` opposite it in the face that runs ``i -> j``, ``l`` opposite it in the face
+    that runs ``j -> i``. ``edge_index`` points into :func:`unique_edges`' edges.
+
+    Notes
+    -----
+    Needs a consistently oriented, edge-manifold mesh: an interior edge whose two faces
+    run the same way, or an edge with more than two faces, raises ``ValueError``.
+    """
+    he, opposite = half_edges(faces)
+    edges, he_edge, count = unique_edges(faces)
+    if np.any(count > 2):
+        raise ValueError(f"{int(np.sum(count > 2))} non-manifold edges (used by 3+ faces)")
+    order = np.argsort(he_edge, kind="stable")
+    sorted_edge = he_edge[order]
+    first = np.flatnonzero(np.r_[True, sorted_edge[1:] != sorted_edge[:-1]])
+    interior = count[sorted_edge[first]] == 2
+    a = order[first[interior]]
+    b = order[first[interior] + 1]
+    if np.any(he[a, 0] != he[b, 1]):
+        raise ValueError("inconsistent face orientation (two faces run the same way along an edge)")
+    out = np.stack([he[a, 0], he[a, 1], opposite[a], opposite[b]], axis=1)
+    return out, he_edge[a]
+
+
+def components(faces: np.ndarray, vertex_count: int) -> np.ndarray:
+    """``(V,) int``: connected-component label of every vertex, numbered by first vertex."""
+    f = np.asarray(faces, dtype=np.int64)
+    rows = np.concatenate([f[:, 0], f[:, 1], f[:, 2]])
+    cols = np.concatenate([f[:, 1], f[:, 2], f[:, 0]])
+    graph = sp.coo_matrix((np.ones(rows.size), (rows, cols)), shape=(vertex_count, vertex_count))
+    _, labels = connected_components(graph, directed=False)
+    # relabel in order of each component's first vertex, so labels do not depend on scipy
+    _, first = np.unique(labels, return_index=True)
+    rank = np.empty_like(first)
+    rank[np.argsort(first)] = np.arange(first.size)
+    return rank[labels]
+
+
+def edge_graph(vertices: np.ndarray, edges: np.ndarray) -> sp.csr_matrix:
+    """Symmetric sparse matrix of edge lengths, for shortest paths along the mesh."""
+    v = np.asarray(vertices, dtype=np.float64)
+    length = np.linalg.norm(v[edges[:, 0]] - v[edges[:, 1]], axis=1)
+    n = v.shape[0]
+    g = sp.coo_matrix((np.r_[length, length], (np.r_[edges[:, 0], edges[:, 1]],
+                                               np.r_[edges[:, 1], edges[:, 0]])), shape=(n, n))
+    return g.tocsr()
+
+
+def face_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """``(F, 3)`` area-weighted normals (length = 2 x area)."""
+    v = np.asarray(vertices, dtype=np.float64)
+    f = np.asarray(faces, dtype=np.int64)
+    return np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
+
+
+def vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """``(V, 3)`` unit normals, area-weighted average of the incident faces."""
+    fn = face_normals(vertices, faces)
+    vn = np.zeros((len(vertices), 3))
+    for c in range(3):
+        np.add.at(vn, faces[:, c], fn)
+    norm = np.linalg.norm(vn, axis=1, keepdims=True)
+    return vn / np.where(norm > 0, norm, 1.0)

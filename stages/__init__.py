@@ -1,0 +1,1 @@
+"""Click commands, one module per command; thin wrappers around ``pipeline``."""

@@ -1,0 +1,43 @@
+"""bloom axis: base, tip, center plane, axis vertices, s and x of every petal."""
+
+from __future__ import annotations
+
+import click
+import numpy as np
+
+from .common import config_options, input_hashes, load, log, output_options
+
+CARRIED = ("mesh/vertices", "mesh/faces", "mesh/petal")
+
+
+@click.command("axis")
+@click.argument("remesh_h5", type=click.Path(dir_okay=False))
+@config_options
+@output_options
+def command(remesh_h5: str, config_path, overrides, out, overwrite) -> None:
+    """Find each petal's base, tip, center plane and cross-section coordinates."""
+    from pipeline import artifact
+    from pipeline.axis import find_axes
+
+    cfg = load(config_path, overrides)
+    out = artifact.check_output(out, "axis", overwrite)
+    with artifact.Artifact(remesh_h5, needs="remesh", reader="axis") as src:
+        v, f, petal = src["mesh/vertices"], src["mesh/faces"], src["mesh/petal"]
+        axes = find_axes(v, f, petal, base_mode=cfg["axis.base"],
+                         base_fraction=cfg["axis.base_fraction"])
+        for p in range(len(axes.tip)):
+            mine = petal == p
+            log.info("petal %d: %d base vertices, %d on the axis, tip %d, x in [%.3f, %.3f]",
+                     p, int(axes.base[mine].sum()), int(axes.on_axis[mine].sum()),
+                     int(axes.tip[p]), axes.x[mine].min(), axes.x[mine].max())
+        attrs = {"scale": src.attrs["scale"], "flower_axis": axes.flower_axis}
+        with artifact.writing(out, stage="axis", config_json=cfg.to_json(),
+                              inputs=input_hashes(cfg, remesh_h5), attrs=attrs) as h5:
+            src.copy_to(h5, CARRIED)
+            artifact.put(h5, "axis/base", axes.base, "(V,) fixed base vertices")
+            artifact.put(h5, "axis/on_axis", axes.on_axis, "(V,) vertices on the petal axis")
+            artifact.put(h5, "axis/tip", axes.tip.astype(np.int64), "(P,) tip vertex per petal")
+            artifact.put(h5, "axis/plane", axes.plane, "(P, 4) center plane: unit normal, offset")
+            artifact.put(h5, "axis/x", axes.x, "(V,) cross-section coordinate in [-1, 1]")
+            artifact.put(h5, "axis/s", axes.s, "(V,) distance from the base, 0 at base, 1 at tip")
+    log.info("wrote %s", out)

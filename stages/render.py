@@ -1,0 +1,140 @@
+"""bloom render: PNG frames, an MP4 and a contact sheet of sim.h5; a debug view of any
+earlier artifact (petals, axis and base, growth map)."""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+from pathlib import Path
+
+import click
+import numpy as np
+
+from pipeline.errors import BloomError
+
+from .common import config_options, load, log
+
+MARKER = "render.json"
+
+
+def _prepare(out: Path, overwrite: bool) -> Path:
+    if out.exists() and not out.is_dir():
+        raise BloomError("exists and is not a folder; --out needs a folder", where=str(out))
+    if out.is_dir() and any(out.iterdir()) and not (out / MARKER).exists() and not overwrite:
+        raise BloomError("folder exists and was not written by `bloom render`; not "
+                         "overwriting it (pass --overwrite)", where=str(out))
+    out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = out.with_name(f".{out.name}.tmp-{os.getpid()}")
+    if tmp.exists():
+        shutil.rmtree(tmp)
+    tmp.mkdir()
+    return tmp
+
+
+def _commit(tmp: Path, out: Path) -> None:
+    """Swap the finished folder into place; the old one is removed only after."""
+    old = out.with_name(f".{out.name}.old-{os.getpid()}")
+    if out.exists():
+        os.replace(out, old)
+    os.replace(tmp, out)
+    if old.exists():
+        shutil.rmtree(old)
+
+
+@click.command("render")
+@click.argument("artifact_h5", type=click.Path(dir_okay=False))
+@config_options
+@click.option("--out", required=True, type=click.Path(file_okay=False), help="Folder to write.")
+@click.option("--overwrite", is_flag=True,
+              help="Replace --out even if `bloom render` did not write it.")
+def command(artifact_h5: str, config_path, overrides, out, overwrite) -> None:
+    """Render ARTIFACT_H5 off-screen into the folder --out.
+
+    sim.h5 gives OUT/frames/NNNN.png, OUT/bloom.mp4 and OUT/contact_sheet.png; remesh.h5,
+    axis.h5 and growth.h5 give OUT/<stage>.png, a still for debugging that stage.
+    """
+    from pipeline import artifact, render
+
+    cfg = load(config_path, overrides)
+    rc = cfg.section("render")
+    out = Path(out)
+    with artifact.Artifact(artifact_h5, needs="remesh" if _stage(artifact_h5) != "simulate"
+                           else "simulate", reader="render") as src:
+        stage = src.stage
+        tmp = _prepare(out, overwrite)
+        try:
+            up = _up_direction(src)
+            if stage == "simulate":
+                pos = src["frames/positions"]
+                times = src["frames/time"]
+                labels = [f"t = {t:,.0f}" for t in times]
+                if "diagnostics/opening_angle" in src:
+                    angle = src["diagnostics/opening_angle"]
+                    labels = [f"{lab}   opening {a:+.1f} deg" for lab, a in zip(labels, angle)]
+                render.render_frames(pos, src["mesh/faces"], tmp, width=rc["width"],
+                                     height=rc["height"], fps=rc["fps"], color=rc["color"],
+                                     contact_frames=rc["contact_frames"], times=times, up=up,
+                                     labels=labels)
+                written = {"frames": len(pos), "mp4": "bloom.mp4",
+                           "contact_sheet": "contact_sheet.png"}
+            else:
+                name = f"{stage}.png"
+                _debug_view(src, stage, tmp / name, rc, up)
+                written = {"still": name}
+            (tmp / MARKER).write_text(json.dumps({"source": str(artifact_h5), "stage": stage,
+                                                  "render": rc, **written}, indent=2))
+        except BaseException:
+            shutil.rmtree(tmp, ignore_errors=True)
+            raise
+    _commit(tmp, out)
+    log.info("wrote %s", out)
+
+
+def _stage(path: str) -> str | None:
+    import h5py
+
+    try:
+        with h5py.File(path, "r") as f:
+            return f.attrs.get("stage")
+    except Exception:
+        return None
+
+
+def _up_direction(src) -> np.ndarray | None:
+    """The flower's axis, pointing from the petals' bases toward their tips."""
+    axis = src.attrs.get("flower_axis")
+    if axis is None or not np.all(np.isfinite(axis)):
+        return None
+    d = np.asarray(axis[3:], dtype=np.float64)
+    if "axis/tip" in src and "axis/base" in src:
+        v = src["mesh/vertices"] if "mesh/vertices" in src else src["frames/positions"][0]
+        if (v[src["axis/tip"]].mean(axis=0) - v[src["axis/base"]].mean(axis=0)) @ d < 0:
+            d = -d
+    return d
+
+
+def _debug_view(src, stage: str, path: Path, rc: dict, up) -> None:
+    from pipeline import render
+
+    v, f = src["mesh/vertices"], src["mesh/faces"]
+    kw = dict(width=rc["width"], height=rc["height"], up=up)
+    if stage == "remesh":
+        render.render_debug(v, f, path, scalars=src["mesh/petal"].astype(float),
+                            scalar_name="petal", cmap="tab10", title="remesh: petals", **kw)
+        return
+    base, on_axis, tip = src["axis/base"], src["axis/on_axis"], src["axis/tip"]
+    points = {"base": (v[base], "#d62728"), "axis": (v[on_axis], "#222222"),
+              "tip": (v[tip], "#ffbf00")}
+    if stage == "axis":
+        render.render_debug(v, f, path, scalars=src["axis/x"], scalar_name="x", cmap="coolwarm",
+                            clim=(-1, 1), points=points, title="axis: x, base, tip", **kw)
+        return
+    edges, alpha = src["growth/edges"], src["growth/alpha"]
+    total = np.zeros(len(v))
+    count = np.zeros(len(v))
+    for c in range(2):
+        np.add.at(total, edges[:, c], alpha)
+        np.add.at(count, edges[:, c], 1.0)
+    render.render_debug(v, f, path, scalars=total / np.maximum(count, 1), scalar_name="alpha",
+                        cmap="viridis", points=points, title="growth: alpha per vertex", **kw)
