@@ -35,6 +35,13 @@ class Key:
     check: Callable[[Any], None] | None = None  # raises ValueError with a reason
 
 
+def _check_color(value: str) -> None:
+    from matplotlib.colors import is_color_like
+
+    if not is_color_like(value):
+        raise ValueError(f"{value!r} is not a colour name or #rrggbb")
+
+
 SCHEDULES = ("linear", "smoothstep", "smootherstep")
 INTEGRATORS = ("semi-implicit", "explicit-damping")
 
@@ -74,7 +81,7 @@ SCHEMA: dict[str, Any] = {
                    "Verlet, smaller damps", low=0.0, high=0.5),
         "integrator": Key(str, "semi-implicit", "semi-implicit (Eq. 7-8) or explicit-damping "
                           "(Eq. 9, for comparison)", choices=INTEGRATORS),
-        "damping": Key(float, 0.999, "velocity factor d of the explicit-damping integrator "
+        "damping": Key(float, 0.9999, "velocity factor d of the explicit-damping integrator "
                        "(Eq. 9)", low=0.0, high=1.0),
         "stretch_stiffness": Key(float, 0.1, "K_s, per edge (paper: 0.1)", low=0.0, low_open=True),
         "bending_stiffness": Key(float, 0.0005, "K_b, per interior edge (paper: 0.0005)",
@@ -109,7 +116,7 @@ SCHEMA: dict[str, Any] = {
         "width": Key(int, 800, "frame width in pixels (even)", low=64, high=8192),
         "height": Key(int, 600, "frame height in pixels (even)", low=64, high=8192),
         "fps": Key(int, 24, "frame rate of the MP4", low=1, high=240),
-        "color": Key(str, "#f4a6c1", "petal colour (a name or #rrggbb)"),
+        "color": Key(str, "#f4a6c1", "petal colour (a name or #rrggbb)", check=_check_color),
         "contact_frames": Key(int, 8, "frames on the contact sheet", low=1, high=64),
     },
 }

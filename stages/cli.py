@@ -58,7 +58,7 @@ class LazyGroup(click.Group):
         try:
             return super().invoke(ctx)
         except BloomError as exc:
-            name = ctx.protected_args[0] if ctx.protected_args else (ctx.invoked_subcommand or "")
+            name = ctx.invoked_subcommand or ""
             raise StageError(name, exc) from None
 
 

@@ -1,0 +1,40 @@
+"""Shared fixtures: small procedural petals and buds taken through the library stages."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from pipeline import asset, clean
+from pipeline.axis import find_axes
+from pipeline.growth import assign_growth
+from pipeline.sim.model import Control, Model
+
+ROOT = Path(__file__).resolve().parents[1]
+SHARED = ROOT.parent / "shared"
+
+
+def prepared(petals: int = 1, vertices: int = 150, seed: int = 0, curve: str = "0.2*x**2"):
+    """A procedural petal or bud at mean edge 1, with its axes and growth map."""
+    v, f, petal = asset.bud(petals, vertices, seed)
+    v = v / clean.mean_edge_length(v, f)
+    axes = find_axes(v, f, petal)
+    growth = assign_growth(v, f, axes.x, curve)
+    return v, f, petal, axes, growth
+
+
+def build_model(v, growth, axes, ks=0.1, kb=0.0005, pinned=None) -> Model:
+    return Model.build(v, growth.edges, growth.alpha, ks * growth.stiffness, growth.hinges, kb,
+                       axes.base if pinned is None else pinned)
+
+
+@pytest.fixture(scope="session")
+def small_petal():
+    return prepared(1, 150)
+
+
+@pytest.fixture
+def control_linear():
+    return Control("linear", 1000.0)

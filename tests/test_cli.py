@@ -1,0 +1,211 @@
+"""The commands, driven through Click's runner; every artifact is opened and checked."""
+
+import json
+
+import h5py
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from stages.cli import cli
+
+SHORT = ["--set", "simulate.steps=600", "--set", "simulate.frames=4"]
+
+
+def invoke(*args):
+    result = CliRunner().invoke(cli, [str(a) for a in args], catch_exceptions=False)
+    return result
+
+
+@pytest.fixture(scope="module")
+def chain(tmp_path_factory):
+    """A small bud taken through every stage; the paths of its artifacts."""
+    d = tmp_path_factory.mktemp("chain")
+    mesh = d / "bud.obj"
+    scene = d / "scene.toml"
+    scene.write_text('[scene]\nmesh = "bud.obj"\n[render]\nwidth = 160\nheight = 120\n')
+    r = invoke("asset", "bud", "--petals", 3, "--vertices", 360, "--seed", 4, "--out", mesh)
+    assert r.exit_code == 0, r.output
+    paths = {name: d / f"{name}.h5" for name in ("remesh", "axis", "growth", "sim")}
+    assert invoke("remesh", "--config", scene, "--out", paths["remesh"]).exit_code == 0
+    assert invoke("axis", paths["remesh"], "--config", scene, "--out", paths["axis"]).exit_code == 0
+    assert invoke("growth", paths["axis"], "--config", scene, "--out", paths["growth"]).exit_code == 0
+    r = invoke("simulate", paths["growth"], "--config", scene, "--out", paths["sim"], *SHORT)
+    assert r.exit_code == 0, r.output
+    paths["scene"] = scene
+    paths["mesh"] = mesh
+    return paths
+
+
+def test_asset_is_reproducible(tmp_path):
+    a, b = tmp_path / "a.obj", tmp_path / "b.obj"
+    invoke("asset", "bud", "--petals", 5, "--vertices", 500, "--seed", 3, "--out", a)
+    invoke("asset", "bud", "--petals", 5, "--vertices", 500, "--seed", 3, "--out", b)
+    assert a.read_bytes() == b.read_bytes()
+    text = a.read_text()
+    assert text.count("\no petal_") == 5
+    invoke("asset", "bud", "--petals", 5, "--vertices", 500, "--seed", 4, "--out", b)
+    assert a.read_bytes() != b.read_bytes()
+
+
+def test_remesh_artifact(chain):
+    with h5py.File(chain["remesh"]) as f:
+        v, faces, petal = f["mesh/vertices"][()], f["mesh/faces"][()], f["mesh/petal"][()]
+        assert f.attrs["stage"] == "remesh"
+        assert f.attrs["scale"] > 0
+        inputs = json.loads(f.attrs["inputs"])
+        assert str(chain["mesh"]) in inputs and str(chain["scene"]) in inputs
+        assert json.loads(f.attrs["config"])["scene"]["mesh"] == "bud.obj"
+        assert np.all(f.attrs["asymmetry_after"] < 1e-9)
+    edges = np.unique(np.sort(np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]]), axis=1), axis=0)
+    mean_edge = np.linalg.norm(v[edges[:, 0]] - v[edges[:, 1]], axis=1).mean()
+    assert abs(mean_edge - 1.0) < 0.02  # symmetrize moves vertices by rounding only
+    assert set(np.unique(petal)) == {0, 1, 2}
+
+
+def test_axis_artifact(chain):
+    with h5py.File(chain["axis"]) as f:
+        x, s, base = f["axis/x"][()], f["axis/s"][()], f["axis/base"][()]
+        on_axis, tip, plane = f["axis/on_axis"][()], f["axis/tip"][()], f["axis/plane"][()]
+        petal = f["mesh/petal"][()]
+    assert x.min() == -1.0 and x.max() == 1.0
+    assert np.all(x[on_axis] == 0.0)
+    assert np.all((s >= 0) & (s <= 1)) and np.all(s[base] == 0.0) and np.all(s[tip] == 1.0)
+    assert tip.shape == (3,) and plane.shape == (3, 4)
+    np.testing.assert_allclose(np.linalg.norm(plane[:, :3], axis=1), 1.0)
+    for p in range(3):
+        assert base[petal == p].sum() >= 3
+
+
+def test_growth_artifact(chain):
+    with h5py.File(chain["growth"]) as f:
+        alpha, edges, x = f["growth/alpha"][()], f["growth/edges"][()], f["axis/x"][()]
+        hinges, rest = f["growth/hinges"][()], f["growth/rest_angle"][()]
+        assert f["growth/connections"].shape == (0, 2)
+    xe = 0.5 * (x[edges[:, 0]] + x[edges[:, 1]])
+    np.testing.assert_allclose(alpha, 0.2 * xe ** 2)
+    assert hinges.shape[1] == 4 and len(rest) == len(hinges)
+    assert np.all(np.abs(rest) <= np.pi)
+
+
+def test_sim_artifact(chain):
+    with h5py.File(chain["sim"]) as f:
+        pos, t = f["frames/positions"][()], f["frames/time"][()]
+        assert f.attrs["stage"] == "simulate" and f.attrs["steps"] == 600
+        assert f.attrs["wall_seconds"] > 0 and f.attrs["effects"] == ""
+        ke, speed = f["diagnostics/kinetic_energy"][()], f["diagnostics/max_speed"][()]
+        faces = f["mesh/faces"][()]
+    with h5py.File(chain["growth"]) as g:
+        v0 = g["mesh/vertices"][()]
+        assert np.array_equal(faces, g["mesh/faces"][()])
+    assert pos.shape == (4, len(v0), 3)
+    np.testing.assert_array_equal(t, [0, 200, 400, 600])
+    assert np.array_equal(pos[0], v0)
+    assert ke.shape == (4,) and ke[0] == 0.0 and ke[-1] > 0
+    assert speed.shape == (4,) and np.all(np.isfinite(pos))
+
+
+def test_rerun_gives_identical_arrays(chain, tmp_path):
+    again = tmp_path / "sim.h5"
+    invoke("simulate", chain["growth"], "--config", chain["scene"], "--out", again, *SHORT)
+    with h5py.File(chain["sim"]) as a, h5py.File(again) as b:
+        assert np.array_equal(a["frames/positions"][()], b["frames/positions"][()])
+
+
+def test_inspect_shows_provenance(chain):
+    r = invoke("inspect", chain["sim"])
+    assert r.exit_code == 0
+    assert "written by `bloom simulate`" in r.output and "frames/positions" in r.output
+    info = json.loads(invoke("inspect", chain["growth"], "--json").output)
+    assert info["attributes"]["stage"] == "growth"
+    assert info["datasets"]["growth/alpha"]["max"] == pytest.approx(0.2, abs=0.02)
+
+
+def test_render_writes_frames_movie_and_sheet(chain, tmp_path):
+    out = tmp_path / "render"
+    r = invoke("render", chain["sim"], "--config", chain["scene"], "--out", out)
+    assert r.exit_code == 0, r.output
+    import imageio.v2 as imageio
+
+    frames = sorted((out / "frames").glob("*.png"))
+    assert len(frames) == 4
+    first, last = imageio.imread(frames[0]), imageio.imread(frames[-1])
+    assert first.shape[:2] == (120, 160)
+    assert np.abs(first.astype(int) - last.astype(int)).sum() > 0  # the petals moved
+    assert first.std() > 5  # not a blank image
+    assert (out / "bloom.mp4").stat().st_size > 1000
+    assert imageio.imread(out / "contact_sheet.png").shape[:2] == (120, 4 * 160)
+    still = tmp_path / "axis_view"
+    assert invoke("render", chain["axis"], "--out", still).exit_code == 0
+    assert imageio.imread(still / "axis.png").std() > 5
+
+
+@pytest.mark.parametrize("stage, needs", [("axis", "remesh"), ("growth", "axis"), ("simulate", "growth")])
+def test_missing_input_is_one_line_and_writes_nothing(tmp_path, stage, needs):
+    out = tmp_path / "out.h5"
+    r = CliRunner().invoke(cli, [stage, str(tmp_path / "missing.h5"), "--out", str(out)])
+    assert r.exit_code == 1
+    assert r.output.strip().count("\n") == 0
+    assert "missing.h5: file not found" in r.output
+    assert not out.exists()
+
+
+def test_wrong_stage_input_is_refused(chain, tmp_path):
+    out = tmp_path / "sim.h5"
+    r = CliRunner().invoke(cli, ["simulate", str(chain["axis"]), "--out", str(out)])
+    assert r.exit_code == 1
+    assert "needs the output of `bloom growth`" in r.output
+    assert str(chain["axis"]) in r.output
+    assert not out.exists()
+
+
+def test_bad_config_key_is_refused_before_work(chain, tmp_path):
+    bad = tmp_path / "bad.toml"
+    bad.write_text("[simulate]\nstepz = 10\n")
+    out = tmp_path / "sim.h5"
+    r = CliRunner().invoke(cli, ["simulate", str(chain["growth"]), "--config", str(bad), "--out", str(out)])
+    assert r.exit_code == 1
+    assert f"{bad}: simulate.stepz: unknown key" in r.output
+    assert not out.exists()
+
+
+def test_a_users_file_is_never_overwritten(chain, tmp_path):
+    precious = tmp_path / "notes.h5"
+    precious.write_bytes(b"my own data")
+    r = CliRunner().invoke(cli, ["axis", str(chain["remesh"]), "--out", str(precious)])
+    assert r.exit_code == 1 and "not overwriting" in r.output
+    assert precious.read_bytes() == b"my own data"
+    mine = tmp_path / "mine.obj"
+    mine.write_text("v 0 0 0\n")
+    r = CliRunner().invoke(cli, ["asset", "petal", "--out", str(mine)])
+    assert r.exit_code == 1 and mine.read_text() == "v 0 0 0\n"
+
+
+def test_broken_mesh_is_refused(tmp_path):
+    out = tmp_path / "remesh.h5"
+    for name, content in (("empty.obj", b""), ("junk.obj", b"\x00\xff garbage \x13" * 50),
+                          ("nan.obj", b"v nan 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n"),
+                          ("mesh.xyz", b"1 2 3\n")):
+        path = tmp_path / name
+        path.write_bytes(content)
+        r = CliRunner().invoke(cli, ["remesh", str(path), "--out", str(out)])
+        assert r.exit_code == 1, (name, r.output)
+        assert r.output.startswith(f"bloom remesh: error: {path}: "), r.output
+        assert r.output.strip().count("\n") == 0
+        assert not out.exists()
+
+
+def test_unavailable_effect_is_refused(chain, tmp_path):
+    out = tmp_path / "sim.h5"
+    r = CliRunner().invoke(cli, ["simulate", str(chain["growth"]), "--out", str(out),
+                                 "--set", "effects.collisions.enabled=true"])
+    assert r.exit_code == 1 and "effects.collisions.enabled" in r.output
+    assert not out.exists()
+
+
+def test_config_command_lists_keys_and_values(chain):
+    r = invoke("config", "--keys")
+    assert "growth.curve" in r.output and "effects.curl.beta" in r.output
+    r = invoke("config", chain["scene"], "--get", "simulate.bending_stiffness")
+    assert r.output.strip() == "0.0005"
+    assert invoke("config", chain["scene"], "--mesh-path").output.strip().endswith("bud.obj")

@@ -1,0 +1,133 @@
+"""Geometry stages on procedural meshes: invariances under mirroring, permutation,
+rotation and scaling; symmetry; the cross-section coordinate."""
+
+import numpy as np
+import pytest
+
+from pipeline import asset, clean, symmetry, topology
+from pipeline.axis import find_axes
+from tests.conftest import prepared
+
+
+def rotation(seed):
+    q, _ = np.linalg.qr(np.random.default_rng(seed).normal(size=(3, 3)))
+    return q * np.sign(np.linalg.det(q))
+
+
+def test_hinges_of_two_triangles_by_hand():
+    faces = np.array([[0, 1, 2], [1, 0, 3]])
+    h, e = topology.hinges(faces)
+    assert h.tolist() == [[0, 1, 2, 3]]
+    edges, _, count = topology.unique_edges(faces)
+    assert edges[e[0]].tolist() == [0, 1] and count.tolist() == [2, 1, 1, 1, 1]
+    with pytest.raises(ValueError, match="orientation"):
+        topology.hinges(np.array([[0, 1, 2], [0, 1, 3]]))
+    with pytest.raises(ValueError, match="non-manifold"):
+        topology.hinges(np.array([[0, 1, 2], [1, 0, 3], [0, 1, 4]]))
+
+
+def test_orientation_is_made_consistent():
+    v, f, _ = asset.bud(1, 120, 0)
+    flipped = f.copy()
+    flipped[::3] = flipped[::3][:, [0, 2, 1]]
+    _, fixed, report = clean.clean_mesh(v, flipped)
+    assert report.flipped_faces > 0
+    topology.hinges(fixed)  # raises if any edge still runs the same way twice
+
+
+def test_welding_merges_duplicates_and_drops_degenerate_faces():
+    v, f, _ = asset.bud(1, 120, 0)
+    dup = np.concatenate([v, v[:5] + 1e-9])
+    f2 = f.copy()
+    f2[f2 < 5] += len(v)  # use the duplicates in some faces
+    f2 = np.concatenate([f2[: len(f) // 2], f[len(f) // 2:], [[0, 0, 1]]])
+    v3, f3, report = clean.clean_mesh(dup, f2)
+    assert report.welded == 5 and report.degenerate_faces == 1
+    assert len(v3) == len(v) and len(f3) == len(f)
+
+
+def test_procedural_petals_are_mirror_symmetric():
+    v, f, petal = asset.bud(5, 1000, 2)
+    for p in range(5):
+        idx = np.flatnonzero(petal == p)
+        plane, err = symmetry.mirror_plane(v[idx])
+        assert err < 1e-9
+        local = np.searchsorted(idx, f[np.isin(f[:, 0], idx)])
+        assert symmetry.mirror_pairs(v[idx], plane, local) is not None
+
+
+def test_symmetrize_makes_a_perturbed_petal_symmetric_to_1e9():
+    v, f, _ = asset.bud(1, 200, 0)
+    v = v / clean.mean_edge_length(v, f)
+    noisy = v + np.random.default_rng(0).normal(scale=0.01, size=v.shape)
+    plane, before = symmetry.mirror_plane(noisy)
+    partner = symmetry.mirror_pairs(noisy, plane, f)
+    assert partner is not None and before > 1e-3
+    sym = symmetry.symmetrize(noisy, plane, partner)
+    np.testing.assert_allclose(symmetry.reflect(sym, plane)[partner], sym, atol=1e-9)
+    assert symmetry.asymmetry(sym, plane) < 1e-9
+
+
+def test_mirrored_input_mirrors_the_plane():
+    v, f, petal, axes, _ = prepared(1, 200)
+    m = v * [-1.0, 1.0, 1.0]
+    mirrored = find_axes(m, f[:, [0, 2, 1]], petal)
+    n0, n1 = axes.plane[0, :3], mirrored.plane[0, :3]
+    assert abs(abs(n1 @ (n0 * [-1, 1, 1])) - 1.0) < 1e-9
+    np.testing.assert_allclose(np.abs(mirrored.x), np.abs(axes.x), atol=1e-9)
+    np.testing.assert_allclose(mirrored.s, axes.s, atol=1e-9)
+
+
+def test_permuted_vertices_give_permuted_results():
+    v, f, petal, axes, _ = prepared(1, 200)
+    perm = np.random.default_rng(5).permutation(len(v))
+    inverse = np.argsort(perm)
+    moved = find_axes(v[perm], inverse[f], petal[perm])
+    np.testing.assert_allclose(moved.s, axes.s[perm], atol=1e-12)
+    np.testing.assert_allclose(np.abs(moved.x), np.abs(axes.x[perm]), atol=1e-12)
+    assert np.array_equal(moved.base, axes.base[perm])
+    assert inverse[axes.tip[0]] == moved.tip[0]
+
+
+@pytest.mark.parametrize("petals", [1, 6])
+def test_rotated_and_scaled_input_gives_the_same_x_and_s(petals):
+    v, f, petal, axes, _ = prepared(petals, 300 * petals)
+    R = rotation(petals)
+    moved = find_axes(3.7 * v @ R.T + [10.0, -4.0, 2.0], f, petal)
+    np.testing.assert_allclose(moved.s, axes.s, atol=1e-9)
+    np.testing.assert_allclose(np.abs(moved.x), np.abs(axes.x), atol=1e-9)
+    assert np.array_equal(moved.base, axes.base) and np.array_equal(moved.tip, axes.tip)
+
+
+def test_cross_section_coordinate():
+    v, f, petal, axes, _ = prepared(6, 1800)
+    boundary = topology.boundary_vertices(f, len(v))
+    rim = boundary & ~axes.base & ~axes.on_axis
+    assert np.all(np.abs(axes.x[rim]) == 1.0)
+    assert np.all(axes.x[axes.on_axis] == 0.0)
+    assert np.all(np.abs(axes.x) <= 1.0)
+    for p in range(6):
+        mine = petal == p
+        assert axes.x[mine].min() == -1.0 and axes.x[mine].max() == 1.0
+        # mirror partners have opposite x
+        idx = np.flatnonzero(mine)
+        partner = symmetry.mirror_pairs(v[idx], axes.plane[p], None)
+        np.testing.assert_allclose(axes.x[idx][partner], -axes.x[idx], atol=1e-9)
+        # x grows from the axis toward the rim along a cross-section
+        from scipy.stats import spearmanr
+
+        dist = np.abs(v[mine] @ axes.plane[p, :3] - axes.plane[p, 3])
+        s_bin = np.floor(axes.s[mine] * 8)
+        for b in range(1, 7):  # within one cross-section, |x| orders like the distance
+            here = s_bin == b
+            assert spearmanr(np.abs(axes.x[mine][here]), dist[here]).statistic > 0.95
+
+
+def test_bud_bases_are_found_next_to_the_flower_axis():
+    v, f, petal, axes, _ = prepared(6, 1800)
+    assert np.all(np.isfinite(axes.flower_axis))
+    direction = axes.flower_axis[3:]
+    assert abs(abs(direction[2]) - 1.0) < 1e-6  # the generator's axis is z
+    radius = np.linalg.norm(v[:, :2], axis=1)
+    assert radius[axes.base].max() < 0.15 * radius.max() + 3.0
+    assert np.all(v[axes.base, 2] < v[axes.tip, 2].min())
