@@ -54,16 +54,9 @@ def orient_consistently(faces: np.ndarray, vertex_count: int) -> tuple[np.ndarra
     Returns ``(faces, flipped_count)``; the first face of each component keeps its winding.
     """
     faces = faces.copy()
-    he, _ = topology.half_edges(faces)
-    _, he_edge, count = topology.unique_edges(faces)
+    he, _, _, _, a, b = topology.interior_pairs(faces)
     nf = len(faces)
     face_of = np.tile(np.arange(nf), 3)
-    order = np.argsort(he_edge, kind="stable")
-    se = he_edge[order]
-    first = np.flatnonzero(np.r_[True, se[1:] != se[:-1]])
-    pair_ok = count[se[first]] == 2
-    a = order[first[pair_ok]]
-    b = order[first[pair_ok] + 1]
     fa, fb = face_of[a], face_of[b]
     same_dir = he[a, 0] == he[b, 0]  # both faces run the edge the same way: mismatch
     neighbours = [[] for _ in range(nf)]

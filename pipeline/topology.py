@@ -44,6 +44,23 @@ def boundary_vertices(faces: np.ndarray, vertex_count: int) -> np.ndarray:
     return flag
 
 
+def interior_pairs(faces: np.ndarray):
+    """The two half-edges of every edge used by exactly two faces.
+
+    Returns ``(he, opposite, he_edge, count, a, b)``: the half-edges and opposite
+    vertices of :func:`half_edges`, the edge of each half-edge and face count per edge
+    (:func:`unique_edges`), and for every interior edge the indices ``a, b`` of its two
+    half-edges (``a`` the one listed first).
+    """
+    he, opposite = half_edges(faces)
+    edges, he_edge, count = unique_edges(faces)
+    order = np.argsort(he_edge, kind="stable")
+    sorted_edge = he_edge[order]
+    first = np.flatnonzero(np.r_[True, sorted_edge[1:] != sorted_edge[:-1]])
+    interior = count[sorted_edge[first]] == 2
+    return he, opposite, he_edge, count, order[first[interior]], order[first[interior] + 1]
+
+
 def hinges(faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Interior edges with their two opposite vertices, oriented for the signed angle.
 
@@ -56,16 +73,9 @@ def hinges(faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     Needs a consistently oriented, edge-manifold mesh: an interior edge whose two faces
     run the same way, or an edge with more than two faces, raises ``ValueError``.
     """
-    he, opposite = half_edges(faces)
-    edges, he_edge, count = unique_edges(faces)
+    he, opposite, he_edge, count, a, b = interior_pairs(faces)
     if np.any(count > 2):
         raise ValueError(f"{int(np.sum(count > 2))} non-manifold edges (used by 3+ faces)")
-    order = np.argsort(he_edge, kind="stable")
-    sorted_edge = he_edge[order]
-    first = np.flatnonzero(np.r_[True, sorted_edge[1:] != sorted_edge[:-1]])
-    interior = count[sorted_edge[first]] == 2
-    a = order[first[interior]]
-    b = order[first[interior] + 1]
     if np.any(he[a, 0] != he[b, 1]):
         raise ValueError("inconsistent face orientation (two faces run the same way along an edge)")
     out = np.stack([he[a, 0], he[a, 1], opposite[a], opposite[b]], axis=1)

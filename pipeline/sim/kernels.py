@@ -75,6 +75,28 @@ def stretch_forces(X, edges, rest0, growth, stiffness, A, F):
     return energy
 
 
+@njit(cache=True, inline="always")
+def _hinge_vectors(X, i, j, k, l):
+    """Edge ``e = x_j - x_i`` and the face normals ``n1 = e x (x_k - x_i)``,
+    ``n2 = (x_l - x_j) x e`` of one hinge; also ``a = x_k - x_i`` and ``b = x_l - x_j``."""
+    ex = X[j, 0] - X[i, 0]
+    ey = X[j, 1] - X[i, 1]
+    ez = X[j, 2] - X[i, 2]
+    ax = X[k, 0] - X[i, 0]
+    ay = X[k, 1] - X[i, 1]
+    az = X[k, 2] - X[i, 2]
+    bx = X[l, 0] - X[j, 0]
+    by = X[l, 1] - X[j, 1]
+    bz = X[l, 2] - X[j, 2]
+    n1x = ey * az - ez * ay
+    n1y = ez * ax - ex * az
+    n1z = ex * ay - ey * ax
+    n2x = by * ez - bz * ey
+    n2y = bz * ex - bx * ez
+    n2z = bx * ey - by * ex
+    return ex, ey, ez, ax, ay, az, bx, by, bz, n1x, n1y, n1z, n2x, n2y, n2z
+
+
 @njit(cache=True)
 def bending_forces(X, hinges, cos0, sin0, stiffness, F):
     """Add the bending forces of every hinge to ``F``; return the bending energy (Eq. 3).
@@ -90,22 +112,8 @@ def bending_forces(X, hinges, cos0, sin0, stiffness, F):
         j = hinges[h, 1]
         k = hinges[h, 2]
         l = hinges[h, 3]
-        ex = X[j, 0] - X[i, 0]
-        ey = X[j, 1] - X[i, 1]
-        ez = X[j, 2] - X[i, 2]
-        ax = X[k, 0] - X[i, 0]
-        ay = X[k, 1] - X[i, 1]
-        az = X[k, 2] - X[i, 2]
-        bx = X[l, 0] - X[j, 0]
-        by = X[l, 1] - X[j, 1]
-        bz = X[l, 2] - X[j, 2]
-        # n1 = e x a (face i, j, k); n2 = b x e (face j, i, l)
-        n1x = ey * az - ez * ay
-        n1y = ez * ax - ex * az
-        n1z = ex * ay - ey * ax
-        n2x = by * ez - bz * ey
-        n2y = bz * ex - bx * ez
-        n2z = bx * ey - by * ex
+        (ex, ey, ez, ax, ay, az, bx, by, bz,
+         n1x, n1y, n1z, n2x, n2y, n2z) = _hinge_vectors(X, i, j, k, l)
         n1sq = n1x * n1x + n1y * n1y + n1z * n1z
         n2sq = n2x * n2x + n2y * n2y + n2z * n2z
         esq = ex * ex + ey * ey + ez * ez
@@ -216,25 +224,9 @@ def hinge_cos_sin(X, hinges, cos_out, sin_out):
     """cos and sin of every hinge's dihedral angle, with the same arithmetic as
     :func:`bending_forces`, so a mesh at its own rest angles feels exactly zero force."""
     for h in range(hinges.shape[0]):
-        i = hinges[h, 0]
-        j = hinges[h, 1]
-        k = hinges[h, 2]
-        l = hinges[h, 3]
-        ex = X[j, 0] - X[i, 0]
-        ey = X[j, 1] - X[i, 1]
-        ez = X[j, 2] - X[i, 2]
-        ax = X[k, 0] - X[i, 0]
-        ay = X[k, 1] - X[i, 1]
-        az = X[k, 2] - X[i, 2]
-        bx = X[l, 0] - X[j, 0]
-        by = X[l, 1] - X[j, 1]
-        bz = X[l, 2] - X[j, 2]
-        n1x = ey * az - ez * ay
-        n1y = ez * ax - ex * az
-        n1z = ex * ay - ey * ax
-        n2x = by * ez - bz * ey
-        n2y = bz * ex - bx * ez
-        n2z = bx * ey - by * ex
+        (ex, ey, ez, ax, ay, az, bx, by, bz,
+         n1x, n1y, n1z, n2x, n2y, n2z) = _hinge_vectors(X, hinges[h, 0], hinges[h, 1],
+                                                        hinges[h, 2], hinges[h, 3])
         n1sq = n1x * n1x + n1y * n1y + n1z * n1z
         n2sq = n2x * n2x + n2y * n2y + n2z * n2z
         esq = ex * ex + ey * ey + ez * ez
