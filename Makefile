@@ -17,7 +17,7 @@ PYTEST_ARGS ?=
 # A stage's artifacts depend on the library and on the stage's own module.
 LIB := $(wildcard pipeline/*.py pipeline/sim/*.py) stages/cli.py stages/common.py
 
-.PHONY: all test venv clean clean-venv help
+.PHONY: all test lint venv clean clean-venv help
 all: $(SCENES:%=$(OUT)/%/render/bloom.mp4)  ## build every scene: artifacts, frames, MP4
 
 help:  ## list the targets
@@ -34,12 +34,15 @@ $(INSTALLED): pyproject.toml constraints.txt
 test: $(INSTALLED)  ## run the test suite
 	$(VENV)/bin/python -m pytest $(PYTEST_ARGS)
 
+lint: $(INSTALLED)  ## ruff over the code
+	$(VENV)/bin/ruff check pipeline stages tests
+
 # The input mesh of a scene is named in its config (scene.mesh): record it as a dependency.
 $(OUT)/%/mesh.d: configs/%.toml | $(INSTALLED)
 	@mkdir -p $(@D)
 	@echo "$(OUT)/$*/remesh.h5: $$($(BLOOM) config $< --mesh-path)" > $@
 
-ifeq ($(filter test venv clean clean-venv help,$(MAKECMDGOALS)),)
+ifeq ($(filter test lint venv clean clean-venv help,$(MAKECMDGOALS)),)
 -include $(SCENES:%=$(OUT)/%/mesh.d)
 endif
 

@@ -60,7 +60,7 @@ def orient_consistently(faces: np.ndarray, vertex_count: int) -> tuple[np.ndarra
     fa, fb = face_of[a], face_of[b]
     same_dir = he[a, 0] == he[b, 0]  # both faces run the edge the same way: mismatch
     neighbours = [[] for _ in range(nf)]
-    for x, y, s in zip(fa.tolist(), fb.tolist(), same_dir.tolist()):
+    for x, y, s in zip(fa.tolist(), fb.tolist(), same_dir.tolist(), strict=True):
         neighbours[x].append((y, s))
         neighbours[y].append((x, s))
     flip = np.zeros(nf, dtype=bool)

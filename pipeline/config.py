@@ -12,9 +12,10 @@ import copy
 import json
 import math
 import tomllib
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 from .errors import BloomError
 from .expr import check_curve
@@ -247,7 +248,7 @@ class Config:
     def to_json(self) -> str:
         return json.dumps(self.nested(), sort_keys=True)
 
-    def with_values(self, **dotted_values: Any) -> "Config":
+    def with_values(self, **dotted_values: Any) -> Config:
         """A copy with some values replaced (checked like an override)."""
         values = copy.copy(self._values)
         for dotted, value in dotted_values.items():

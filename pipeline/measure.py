@@ -22,7 +22,7 @@ class PetalFrames:
     outward_dirs: np.ndarray  #: (P, 3) unit outward direction, perpendicular to the chord
 
     @classmethod
-    def from_mesh(cls, vertices, petal, base, on_axis, tips, plane) -> "PetalFrames":
+    def from_mesh(cls, vertices, petal, base, on_axis, tips, plane) -> PetalFrames:
         v = np.asarray(vertices, dtype=np.float64)
         count = int(petal.max()) + 1 if len(petal) else 0
         centers, chords, outs = [], [], []

@@ -12,6 +12,9 @@ from pathlib import Path
 import numpy as np
 
 os.environ.setdefault("PYVISTA_OFF_SCREEN", "true")
+if not os.environ.get("DISPLAY"):
+    # No X server: go straight to EGL instead of trying X first (and warning about it).
+    os.environ.setdefault("VTK_DEFAULT_OPENGL_WINDOW", "vtkEGLRenderWindow")
 
 
 def _pv():

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import importlib
 import logging
+import signal
 import sys
 
 import click
@@ -46,7 +47,7 @@ class LazyGroup(click.Group):
         if name not in COMMANDS:
             return None
         module = importlib.import_module(COMMANDS[name][0])
-        return getattr(module, "command")
+        return module.command
 
     def format_commands(self, ctx, formatter):
         # list commands without importing them
@@ -75,10 +76,17 @@ def cli(verbose: int, quiet: bool) -> None:
     """
     level = logging.ERROR if quiet else (logging.DEBUG if verbose > 1 else logging.INFO)
     logging.basicConfig(level=level, format="%(message)s", stream=sys.stderr, force=True)
+    logging.getLogger("trimesh").setLevel(max(level, logging.WARNING))
+
+
+def _terminate(signum, frame):
+    raise KeyboardInterrupt  # unwinds like Ctrl-C: temporary outputs are removed
 
 
 def main(argv: list[str] | None = None) -> None:
-    """Console entry point: Click's own errors also become one line."""
+    """Console entry point: Click's own errors also become one line; SIGTERM (a farm's
+    kill) cleans up like Ctrl-C, leaving any previous artifact as it was."""
+    signal.signal(signal.SIGTERM, _terminate)
     try:
         code = cli.main(args=argv, prog_name="bloom", standalone_mode=False)
     except StageError as exc:

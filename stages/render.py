@@ -71,7 +71,7 @@ def command(artifact_h5: str, config_path, overrides, out, overwrite) -> None:
                 labels = [f"t = {t:,.0f}" for t in times]
                 if "diagnostics/opening_angle" in src:
                     angle = src["diagnostics/opening_angle"]
-                    labels = [f"{lab}   opening {a:+.1f} deg" for lab, a in zip(labels, angle)]
+                    labels = [f"{lab}   opening {a:+.1f} deg" for lab, a in zip(labels, angle, strict=True)]
                 render.render_frames(pos, src["mesh/faces"], tmp, width=rc["width"],
                                      height=rc["height"], fps=rc["fps"], color=rc["color"],
                                      contact_frames=rc["contact_frames"], times=times, up=up,

@@ -100,8 +100,8 @@ def test_signed_angle_is_continuous_across_pi():
 
 
 def test_rest_state_feels_exactly_zero_force(small_petal):
-    from tests.conftest import build_model
     from pipeline.sim.model import Control, State
+    from tests.conftest import build_model
 
     v, f, petal, axes, growth = small_petal
     model = build_model(v, growth, axes)

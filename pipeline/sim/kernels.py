@@ -247,5 +247,6 @@ def dihedral_angles(X, hinges):
     """Signed dihedral angle of every hinge in (-pi, pi] (the measure of Eq. 3)."""
     cos_t = np.empty(len(hinges))
     sin_t = np.empty(len(hinges))
-    hinge_cos_sin(np.ascontiguousarray(X, dtype=np.float64), np.ascontiguousarray(hinges, dtype=np.int64), cos_t, sin_t)
+    hinge_cos_sin(np.ascontiguousarray(X, dtype=np.float64),
+                  np.ascontiguousarray(hinges, dtype=np.int64), cos_t, sin_t)
     return np.arctan2(sin_t, cos_t)

@@ -43,7 +43,7 @@ class Model:
 
     @classmethod
     def build(cls, vertices, edges, edge_growth, edge_stiffness, hinges, hinge_stiffness,
-              pinned, mass: float = 1.0) -> "Model":
+              pinned, mass: float = 1.0) -> Model:
         """Rest lengths and rest angles are measured on ``vertices`` (the initial mesh)."""
         X = _c(vertices, np.float64)
         edges = _c(edges, np.int64).reshape(-1, 2)
@@ -86,7 +86,7 @@ class State:
     scratch: np.ndarray = field(default=None, repr=False)  #: (V, 3) the integrator's f(X[n+1])
 
     @classmethod
-    def at_rest(cls, model: Model, positions, control: "Control") -> "State":
+    def at_rest(cls, model: Model, positions, control: Control) -> State:
         X = _c(positions, np.float64).copy()
         state = cls(X, np.zeros_like(X), np.zeros_like(X), 0, 0.0, np.zeros_like(X))
         state.potential_energy = kernels.internal_forces(
