@@ -49,6 +49,16 @@ def schedule_value(kind, t, ramp_time):
     return u * u * u * (u * (6.0 * u - 15.0) + 10.0)
 
 
+@njit(cache=True, inline="always")
+def _edge_vector(X, i, j):
+    """``x_j - x_i`` and its length: one place, so that rest lengths measured by
+    :func:`edge_lengths` and lengths in :func:`stretch_forces` agree to the bit."""
+    dx = X[j, 0] - X[i, 0]
+    dy = X[j, 1] - X[i, 1]
+    dz = X[j, 2] - X[i, 2]
+    return dx, dy, dz, math.sqrt(dx * dx + dy * dy + dz * dz)
+
+
 @njit(cache=True)
 def stretch_forces(X, edges, rest0, growth, stiffness, A, F):
     """Add the stretch forces of every edge to ``F``; return the stretch energy (Eq. 2)."""
@@ -56,10 +66,7 @@ def stretch_forces(X, edges, rest0, growth, stiffness, A, F):
     for e in range(edges.shape[0]):
         i = edges[e, 0]
         j = edges[e, 1]
-        dx = X[j, 0] - X[i, 0]
-        dy = X[j, 1] - X[i, 1]
-        dz = X[j, 2] - X[i, 2]
-        length = math.sqrt(dx * dx + dy * dy + dz * dz)
+        dx, dy, dz, length = _edge_vector(X, i, j)
         rest = rest0[e] * (1.0 + A * growth[e])
         stretch = length - rest
         tension = stiffness[e] * stretch
@@ -211,12 +218,7 @@ def edge_lengths(X, edges, out):
     """Length of every edge into ``out (E,)``, with the same arithmetic as
     :func:`stretch_forces`, so a mesh at its own rest lengths feels exactly zero force."""
     for e in range(edges.shape[0]):
-        i = edges[e, 0]
-        j = edges[e, 1]
-        dx = X[j, 0] - X[i, 0]
-        dy = X[j, 1] - X[i, 1]
-        dz = X[j, 2] - X[i, 2]
-        out[e] = math.sqrt(dx * dx + dy * dy + dz * dz)
+        out[e] = _edge_vector(X, edges[e, 0], edges[e, 1])[3]
 
 
 @njit(cache=True)
