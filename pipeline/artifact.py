@@ -128,7 +128,6 @@ class Artifact:
         if stage not in STAGES:
             self.file.close()
             raise BloomError("not a Bloom artifact (no 'stage' attribute)", where=where)
-        wanted = STAGES.index(needs)
         for name in STAGE_DATASETS[needs]:
             if name not in self.file:
                 self.file.close()
@@ -136,7 +135,6 @@ class Artifact:
                 raise BloomError(f"`bloom {reader}` needs the output of `bloom {needs}` "
                                  f"({name} missing; this file was {got})", where=where)
         self.stage = stage
-        self.order = wanted
 
     def __enter__(self) -> Artifact:
         return self

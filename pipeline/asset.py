@@ -187,11 +187,6 @@ def bud(petals: int = 6, vertices: int = 1800, seed: int = 0, shape: BudShape = 
     return np.concatenate(verts), np.concatenate(faces), np.concatenate(labels)
 
 
-def petal(vertices: int = 320, seed: int = 0, shape: BudShape = BudShape()):
-    """A lone cupped petal standing as it would in a bud (base at the origin's side)."""
-    return bud(1, vertices, seed, shape)
-
-
 def write_obj(path, vertices: np.ndarray, faces: np.ndarray, petal_ids: np.ndarray, header: str) -> None:
     """Write an OBJ with one ``o`` group per petal (plain text, fixed precision)."""
     lines = [f"# {line}" for line in header.splitlines()]

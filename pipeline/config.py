@@ -8,7 +8,6 @@ wrong type or a value out of range is a :class:`BloomError` naming the file and 
 
 from __future__ import annotations
 
-import copy
 import json
 import math
 import tomllib
@@ -247,13 +246,6 @@ class Config:
 
     def to_json(self) -> str:
         return json.dumps(self.nested(), sort_keys=True)
-
-    def with_values(self, **dotted_values: Any) -> Config:
-        """A copy with some values replaced (checked like an override)."""
-        values = copy.copy(self._values)
-        for dotted, value in dotted_values.items():
-            values[dotted] = _coerce(dotted, KEYS[dotted], value, "override")
-        return Config(values, self.path)
 
 
 def parse_override(text: str) -> tuple[str, Any]:

@@ -55,7 +55,7 @@ def new_plotter(width: int, height: int):
 
 def render_frames(positions: np.ndarray, faces: np.ndarray, out_dir: Path, *, width: int,
                   height: int, fps: int, color: str, contact_frames: int,
-                  times: np.ndarray | None = None, up: np.ndarray | None = None,
+                  up: np.ndarray | None = None,
                   labels: list[str] | None = None) -> list[Path]:
     """Render every frame of ``positions (T, V, 3)`` to ``out_dir/frames/NNNN.png``, then
     ``out_dir/bloom.mp4`` and ``out_dir/contact_sheet.png``. Returns the frame paths."""

@@ -74,7 +74,7 @@ def command(artifact_h5: str, config_path, overrides, out, overwrite) -> None:
                     labels = [f"{lab}   opening {a:+.1f} deg" for lab, a in zip(labels, angle, strict=True)]
                 render.render_frames(pos, src["mesh/faces"], tmp, width=rc["width"],
                                      height=rc["height"], fps=rc["fps"], color=rc["color"],
-                                     contact_frames=rc["contact_frames"], times=times, up=up,
+                                     contact_frames=rc["contact_frames"], up=up,
                                      labels=labels)
                 written = {"frames": len(pos), "mp4": "bloom.mp4",
                            "contact_sheet": "contact_sheet.png"}
