@@ -8,8 +8,10 @@ Per petal (a connected component):
   petal's base is the end nearer that axis. A lone petal's base is its narrow end.
   The fixed base vertices are the boundary vertices within ``base_fraction`` of the
   petal's length from that end;
-- tip: the vertex farthest from the base along the mesh;
-- s: distance from the base along the mesh, over the tip's (0 at the base, 1 at the tip);
+- tip: the far end of the axis: of the axis vertices, the one farthest from the base
+  along the mesh;
+- s: distance from the base along the mesh, over the tip's (0 at the base, 1 at the
+  tip and beyond: a petal's corners may reach a little farther than its tip);
 - x: cross-section coordinate: distance along the mesh from the axis vertices, signed
   by the side of the center plane and divided by the boundary's distance at the same s
   on the same side (0 on the axis, +-1 on the two boundary curves).
@@ -77,8 +79,13 @@ def _end_width(points: np.ndarray, proj: np.ndarray, plane: np.ndarray, low_end:
 
 
 def find_axes(vertices: np.ndarray, faces: np.ndarray, petal: np.ndarray, *,
-              base_mode: str = "auto", base_fraction: float = 0.04) -> PetalAxes:
-    """Axes of every petal of a cleaned mesh (see the module docstring)."""
+              base_mode: str = "auto", base_fraction: float = 0.04,
+              planes: np.ndarray | None = None) -> PetalAxes:
+    """Axes of every petal of a cleaned mesh (see the module docstring).
+
+    ``base_mode``: auto, narrow, wide, or a direction (+x ... -z) the base end lies
+    towards. ``planes``: the petals' center planes if known (remesh records them).
+    """
     v = np.asarray(vertices, dtype=np.float64)
     nv = len(v)
     count = int(petal.max()) + 1
@@ -86,7 +93,9 @@ def find_axes(vertices: np.ndarray, faces: np.ndarray, petal: np.ndarray, *,
     boundary = topology.boundary_vertices(faces, nv)
     graph = topology.edge_graph(v, edges)
 
-    planes = np.array([symmetry.mirror_plane(v[petal == p])[0] for p in range(count)])
+    if planes is None:
+        planes = np.array([symmetry.mirror_plane(v[petal == p])[0] for p in range(count)])
+    planes = np.array(planes, dtype=np.float64)
     axis_line = flower_axis(planes) if base_mode == "auto" else None
 
     base = np.zeros(nv, dtype=bool)
@@ -102,9 +111,14 @@ def find_axes(vertices: np.ndarray, faces: np.ndarray, petal: np.ndarray, *,
             lo = _distance_to_line(pts[[np.argmin(proj)]], axis_line)[0]
             hi = _distance_to_line(pts[[np.argmax(proj)]], axis_line)[0]
             base_low = lo <= hi
+        elif base_mode in ("auto", "narrow", "wide"):
+            narrow_low = (_end_width(pts, proj, planes[p], True)
+                          <= _end_width(pts, proj, planes[p], False))
+            base_low = narrow_low if base_mode != "wide" else not narrow_low
         else:
-            base_low = (_end_width(pts, proj, planes[p], True)
-                        <= _end_width(pts, proj, planes[p], False))
+            toward = np.zeros(3)
+            toward["xyz".index(base_mode[1])] = 1.0 if base_mode[0] == "+" else -1.0
+            base_low = pts[np.argmin(proj)] @ toward >= pts[np.argmax(proj)] @ toward
         if not base_low:
             proj = -proj
             direction = -direction
@@ -118,12 +132,8 @@ def find_axes(vertices: np.ndarray, faces: np.ndarray, petal: np.ndarray, *,
 
         sub = graph[idx][:, idx]
         dist_base = dijkstra(sub, indices=np.flatnonzero(mine_base), min_only=True)
-        tip_local = int(np.argmax(dist_base))
-        tips[p] = idx[tip_local]
-        s[idx] = dist_base / dist_base[tip_local]
 
-        # orient the plane normal: (normal, base->tip chord, outward) right-handed
-        chord = pts[tip_local] - pts[mine_base].mean(axis=0)
+        # the axis: vertices on the center plane and the ends of edges crossing it
         side = pts @ planes[p][:3] - planes[p][3]
         mine_axis = np.abs(side) <= 1e-6 * span
         side[mine_axis] = 0.0  # on the plane up to rounding: not a crossing
@@ -132,6 +142,13 @@ def find_axes(vertices: np.ndarray, faces: np.ndarray, petal: np.ndarray, *,
         mine_axis[local_edges[crossing].ravel()] = True
         if not mine_axis.any():
             mine_axis[np.argmin(np.abs(side))] = True
+        # the tip: the axis's far end
+        tip_local = int(np.flatnonzero(mine_axis)[np.argmax(dist_base[mine_axis])])
+        tips[p] = idx[tip_local]
+        s[idx] = np.minimum(dist_base / dist_base[tip_local], 1.0)
+
+        # orient the plane normal: (normal, base->tip chord, outward) right-handed
+        chord = pts[tip_local] - pts[mine_base].mean(axis=0)
         outward = pts[mine_axis].mean(axis=0) - pts.mean(axis=0)
         if np.cross(chord, outward) @ planes[p][:3] < 0:
             planes[p] = -planes[p]

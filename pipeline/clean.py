@@ -115,3 +115,38 @@ def clean_mesh(vertices: np.ndarray, faces: np.ndarray, weld_tolerance: float = 
 def mean_edge_length(vertices: np.ndarray, faces: np.ndarray) -> float:
     edges, _, _ = topology.unique_edges(faces)
     return float(np.linalg.norm(vertices[edges[:, 0]] - vertices[edges[:, 1]], axis=1).mean())
+
+
+def layered_fraction(vertices: np.ndarray, faces: np.ndarray) -> tuple[float, float]:
+    """How much of a sheet is two layers: ``(area fraction, median gap)``.
+
+    A face counts as layered when another face of the same sheet, not touching it,
+    faces the opposite way right behind it (along its normal, within a few edge lengths
+    or a tenth of the sheet's size). A slab cut open along a slit is layered almost
+    everywhere; a cupped or folded petal only along a fold.
+    """
+    from scipy.spatial import cKDTree
+
+    v = np.asarray(vertices, dtype=np.float64)
+    f = np.asarray(faces, dtype=np.int64)
+    fn = topology.face_normals(v, f)
+    area = np.linalg.norm(fn, axis=1)
+    n = fn / np.maximum(area, 1e-300)[:, None]
+    c = v[f].mean(axis=1)
+    edge = mean_edge_length(v, f)
+    diag = float(np.linalg.norm(v.max(axis=0) - v.min(axis=0)))
+    pairs = cKDTree(c).query_pairs(min(0.1 * diag, 10.0 * edge), output_type="ndarray")
+    if len(pairs) == 0:
+        return 0.0, 0.0
+    i, j = pairs[:, 0], pairs[:, 1]
+    d = c[j] - c[i]
+    along = np.abs(np.einsum("ij,ij->i", d, n[i]))
+    lateral = np.linalg.norm(d - along[:, None] * n[i] * np.sign(np.einsum("ij,ij->i", d, n[i]))[:, None],
+                             axis=1)
+    touching = (f[i][:, :, None] == f[j][:, None, :]).any(axis=(1, 2))
+    behind = (np.einsum("ij,ij->i", n[i], n[j]) < -0.5) & (lateral < 0.5 * along + edge) & ~touching
+    layered = np.zeros(len(f), dtype=bool)
+    layered[i[behind]] = True
+    layered[j[behind]] = True
+    gap = float(np.median(along[behind])) if behind.any() else 0.0
+    return float(area[layered].sum() / area.sum()), gap

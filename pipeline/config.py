@@ -55,11 +55,19 @@ SCHEMA: dict[str, Any] = {
         "target_edge": Key(float, 0.0, "target edge length in the input's units; 0 keeps the "
                            "input's triangles (the mesh is scaled to mean edge 1 either way)",
                            low=0.0),
+        "petal_vertices": Key(int, 0, "remesh each petal to about this many vertices (the edge "
+                              "length follows from the petal's area); 0: use target_edge",
+                              low=0),
         "symmetrize": Key(bool, True, "make each petal mirror-symmetric about its center plane"),
+        "closed_parts": Key(str, "refuse", "closed surfaces in the input (a thick petal, a "
+                            "receptacle, a stem): refuse the mesh, or drop them and say so",
+                            choices=("refuse", "drop")),
     },
     "axis": {
         "base": Key(str, "auto", "which end of a petal is its base: auto (nearest the flower's "
-                    "axis, or the narrow end of a lone petal) or narrow", choices=("auto", "narrow")),
+                    "axis, or the narrow end of a lone petal), narrow, wide, or the end lying "
+                    "towards a direction of the input (+x, -x, +y, -y, +z, -z)",
+                    choices=("auto", "narrow", "wide", "+x", "-x", "+y", "-y", "+z", "-z")),
         "base_fraction": Key(float, 0.04, "boundary vertices this close to the base end, as a "
                              "fraction of the petal's length, are fixed", low=0.0, high=0.5,
                              low_open=True),
@@ -304,6 +312,9 @@ def _check_together(cfg: Config, where: str) -> None:
         raise BloomError(f"simulate.frames: {cfg['simulate.frames']} frames need at least "
                          f"{cfg['simulate.frames'] - 1} steps (simulate.steps = "
                          f"{cfg['simulate.steps']})", where=where)
+    if cfg["remesh.target_edge"] > 0 and cfg["remesh.petal_vertices"] > 0:
+        raise BloomError("remesh.target_edge, remesh.petal_vertices: set one of them, not both",
+                         where=where)
     if cfg["render.width"] % 2 or cfg["render.height"] % 2:
         raise BloomError("render.width, render.height: must be even (H.264)", where=where)
 

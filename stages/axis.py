@@ -24,7 +24,8 @@ def command(remesh_h5: str, config_path, overrides, out, overwrite) -> None:
     with artifact.Artifact(remesh_h5, needs="remesh", reader="axis") as src:
         v, f, petal = src["mesh/vertices"], src["mesh/faces"], src["mesh/petal"]
         axes = find_axes(v, f, petal, base_mode=cfg["axis.base"],
-                         base_fraction=cfg["axis.base_fraction"])
+                         base_fraction=cfg["axis.base_fraction"],
+                         planes=src["mesh/plane"] if "mesh/plane" in src else None)
         for p in range(len(axes.tip)):
             mine = petal == p
             log.info("petal %d: %d base vertices, %d on the axis, tip %d, x in [%.3f, %.3f]",

@@ -1,0 +1,141 @@
+"""From a user's mesh to clean, isotropic, symmetric petal sheets at mean edge 1.
+
+The remesh stage's work, as a library function the tests call directly:
+
+1. clean (weld, drop degenerate and duplicate faces, orient) and refuse what cannot
+   be simulated: non-manifold edges, closed surfaces (thick petals, a receptacle:
+   refused, or dropped when the scene says so), two-layer slabs;
+2. split petals: one connected component is one petal;
+3. scale so the mean edge is 1;
+4. per petal: find the center plane; remesh to the target edge (boundary included);
+   make the petal mirror-symmetric about its plane;
+5. scale again so the result's mean edge is exactly 1.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from . import clean, remesh, symmetry, topology
+from .errors import BloomError
+
+LAYERED = 0.5  #: a sheet this much of whose area has a second layer behind it is a slab
+
+
+@dataclass
+class Petals:
+    vertices: np.ndarray  #: (V, 3) mean edge 1
+    faces: np.ndarray  #: (F, 3)
+    petal: np.ndarray  #: (V,) petal id
+    plane: np.ndarray  #: (P, 4) center plane of each petal (unit normal, offset)
+    scale: float  #: mesh units per input unit
+    asymmetry_before: np.ndarray  #: (P,) RMS mirror distance before, in output units
+    asymmetry_after: np.ndarray  #: (P,)
+    report: clean.CleanReport
+    edge_target: np.ndarray  #: (P,) remesh target edge in input units (0: not remeshed)
+    dropped: list = field(default_factory=list)  #: descriptions of parts left out
+    notes: list = field(default_factory=list)  #: one line per thing worth telling
+
+
+def _submesh(faces: np.ndarray, idx: np.ndarray) -> np.ndarray:
+    keep = np.isin(faces[:, 0], idx)
+    return np.searchsorted(idx, faces[keep])
+
+
+def prepare(vertices: np.ndarray, faces: np.ndarray, *, where: str, target_edge: float = 0.0,
+            petal_vertices: int = 0, symmetrize: bool = True,
+            closed_parts: str = "refuse") -> Petals:
+    """Clean, split, remesh and symmetrize (see the module notes).
+
+    Raises :class:`BloomError` (naming ``where``, the input file) for meshes that are
+    not petal sheets, saying how to fix the input.
+    """
+    v, f, report = clean.clean_mesh(vertices, faces)
+    if len(f) == 0:
+        raise BloomError("no triangles left after removing degenerate faces", where=where)
+    _, _, count = topology.unique_edges(f)
+    if np.any(count > 2):
+        raise BloomError(f"{int(np.sum(count > 2))} non-manifold edges (an edge shared by 3+ "
+                         "faces); repair the mesh (e.g. merge by distance, delete loose "
+                         "duplicate faces) and export again", where=where)
+    v, f, dropped = _open_parts(v, f, closed_parts, where)
+    petal = topology.components(f, len(v))
+    for p in range(int(petal.max()) + 1):
+        idx = np.flatnonzero(petal == p)
+        fraction, gap = clean.layered_fraction(v[idx], _submesh(f, idx))
+        if fraction > LAYERED:
+            raise BloomError(f"petal {p} is two layers ({fraction:.0%} of it has a second, "
+                             f"opposite-facing layer {gap:.3g} units behind it): a thick "
+                             "petal cut open is not a sheet; delete one side (or the "
+                             "Solidify/Extrude) and export the single surface", where=where)
+
+    scale = 1.0 / clean.mean_edge_length(v, f)
+    v = v * scale
+    out_v, out_f, out_petal, planes, before, after, targets = [], [], [], [], [], [], []
+    offset = 0
+    notes = []
+    for p in range(int(petal.max()) + 1):
+        idx = np.flatnonzero(petal == p)
+        pts, lf = v[idx], _submesh(f, idx)
+        plane, err = symmetry.mirror_plane(pts)
+        before.append(err)
+        h = (target_edge * scale if target_edge > 0 else
+             remesh.target_for_vertices(pts, lf, petal_vertices) if petal_vertices > 0 else 0.0)
+        if symmetrize:
+            partner = symmetry.mirror_pairs(pts, plane, lf) if h == 0.0 else None
+            if partner is not None:
+                pts = symmetry.symmetrize(pts, plane, partner)
+            else:
+                redo = (lambda a, b, fixed, h=h: remesh.isotropic(a, b, h, fixed=fixed)) if h else None
+                try:
+                    snap = 0.2 * clean.mean_edge_length(pts, lf)
+                    pts, lf, _ = symmetry.mirrored_mesh(pts, lf, plane, snap=snap, remesh=redo)
+                except ValueError as exc:
+                    raise BloomError(f"petal {p}: cannot symmetrize ({exc}); set "
+                                     "remesh.symmetrize = false", where=where) from None
+                notes.append(f"petal {p}: cut along its center plane and mirrored"
+                             + (f", remeshed at edge {h / scale:.4g}" if h else ""))
+            err = symmetry.asymmetry(pts, plane)
+        elif h:
+            pts, lf, _ = remesh.isotropic(pts, lf, h)
+            err = symmetry.asymmetry(pts, plane)
+        after.append(err)
+        targets.append(h)
+        planes.append(plane)
+        out_v.append(pts)
+        out_f.append(lf + offset)
+        out_petal.append(np.full(len(pts), p, dtype=np.int64))
+        offset += len(pts)
+    v, f = np.vstack(out_v), np.vstack(out_f)
+    again = 1.0 / clean.mean_edge_length(v, f)
+    planes = np.array(planes)
+    planes[:, 3] *= again
+    return Petals(v * again, f, np.concatenate(out_petal), planes, scale * again,
+                  np.asarray(before) * again, np.asarray(after) * again, report,
+                  np.asarray(targets) / scale, dropped=dropped, notes=notes)
+
+
+def _open_parts(v: np.ndarray, f: np.ndarray, closed_parts: str, where: str):
+    """Drop or refuse closed components. Returns ``(vertices, faces, dropped)``."""
+    part = topology.components(f, len(v))
+    boundary = topology.boundary_vertices(f, len(v))
+    closed = [p for p in range(int(part.max()) + 1) if not boundary[part == p].any()]
+    if not closed:
+        return v, f, []
+    count = int(part.max()) + 1
+    sizes = ", ".join(f"part {p} ({int((part == p).sum())} vertices)" for p in closed[:4])
+    more = "" if len(closed) <= 4 else f" and {len(closed) - 4} more"
+    if closed_parts == "refuse" or len(closed) == count:
+        hint = ("; or set remesh.closed_parts = \"drop\" to leave them out"
+                if len(closed) < count else "")
+        what = ("the mesh is a closed surface (a thick or solidified petal), not a sheet"
+                if count == 1 else f"{len(closed)} of {count} parts are closed surfaces "
+                f"(thick petals, a receptacle or a stem?): {sizes}{more}")
+        raise BloomError(f"{what}; export each petal as a single open surface (e.g. without "
+                         f"Solidify, or one side of it){hint}", where=where)
+    keep = ~np.isin(part, closed)
+    faces_kept = f[keep[f[:, 0]]]
+    remap = np.cumsum(keep) - 1
+    return v[keep], remap[faces_kept], [f"closed {sizes}{more}"]
