@@ -2,6 +2,7 @@
 artifact, a second `make` has nothing to do, touching one scene's config reruns that
 scene's stages only, and `make -j2` builds scenes side by side."""
 
+import os
 import shutil
 import subprocess
 
@@ -25,8 +26,11 @@ height = 96
 def tree(tmp_path):
     if not (ROOT / ".venv" / ".installed").exists():
         pytest.skip("needs the project's .venv (run through `make test`)")
+    stamp = (ROOT / ".venv" / ".installed").stat().st_mtime
     for name in ("Makefile", "pyproject.toml", "constraints.txt"):
         shutil.copy2(ROOT / name, tmp_path / name)
+        # older than the stamp, so make never reinstalls into the project's own .venv
+        os.utime(tmp_path / name, (stamp - 1, stamp - 1))
     for name in ("pipeline", "stages", ".venv"):
         (tmp_path / name).symlink_to(ROOT / name)
     (tmp_path / "configs").mkdir()
@@ -34,7 +38,6 @@ def tree(tmp_path):
     shutil.copy2(ROOT / "assets" / "petal.obj", tmp_path / "assets" / "petal.obj")
     for scene, mesh in (("one", "petal.obj"), ("two", "petal.obj")):
         (tmp_path / "configs" / f"{scene}.toml").write_text(TINY.format(mesh=mesh))
-    # the stamp must stay newer than the copied pyproject.toml and constraints.txt
     return tmp_path
 
 
