@@ -109,12 +109,22 @@ SCHEMA: dict[str, Any] = {
         },
         "collisions": {
             "enabled": Key(bool, False, "vertex-triangle collisions between petals"),
-            "offset": Key(float, 0.01, "push-back offset in mesh units", low=0.0, low_open=True),
+            "offset": Key(float, 0.001, "a vertex that went through a petal is put back this far "
+                          "on its side (mesh units; keep it below a step's motion, or the "
+                          "push-back pumps energy in)", low=0.0, low_open=True),
         },
         "connections": {
             "enabled": Key(bool, False, "springs between petals that break past a stretch"),
             "critical_stretch": Key(float, 1.5, "a connection breaks when its length exceeds "
-                                    "this factor times its rest length", low=1.0, low_open=True),
+                                    "this factor times its rest length (at least one mean "
+                                    "edge)", low=1.0, low_open=True),
+            "stiffness": Key(float, 0.1, "spring constant of a connection", low=0.0,
+                             low_open=True),
+            "max_distance": Key(float, 2.0, "a petal's rim vertex is connected to the nearest "
+                                "vertex of an inner petal within this distance (mesh units)",
+                                low=0.0, low_open=True),
+            "min_s": Key(float, 0.3, "only rim vertices farther than this (s, 0 at the base, 1 "
+                         "at the tip) are connected", low=0.0, high=1.0),
         },
         "center_plane": {
             "enabled": Key(bool, False, "axis vertices keep their distance to the center plane"),

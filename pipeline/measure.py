@@ -6,6 +6,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from . import topology
+
 
 @dataclass
 class PetalFrames:
@@ -51,3 +53,81 @@ class PetalFrames:
         along = np.einsum("ij,ij->i", chord, self.chord_dirs)
         out = np.einsum("ij,ij->i", chord, self.outward_dirs)
         return np.degrees(np.arctan2(out, along))
+
+
+def crossings(X, faces, petal) -> int:
+    """Edges of one petal that pass through a face of another: 0 when no petal has gone
+    through another. Needs no history, so any frame can be checked alone."""
+    from .sim import kernels
+
+    X = np.ascontiguousarray(X, dtype=np.float64)
+    faces = np.ascontiguousarray(faces, dtype=np.int64)
+    petal = np.asarray(petal, dtype=np.int64)
+    edges, _, _ = topology.unique_edges(faces)
+    length = np.linalg.norm(X[edges[:, 0]] - X[edges[:, 1]], axis=1)
+    cell = float(max(length.max(), 1e-9))
+    size = 4 * len(faces) + 1
+    start, count = np.zeros(size + 1, dtype=np.int64), np.zeros(size, dtype=np.int64)
+    items = np.zeros(27 * len(faces), dtype=np.int64)
+    kernels.build_face_grid(X, faces, 0.0, cell, start, count, items)
+    return int(kernels.edges_through_faces(X, edges, petal[edges[:, 0]], faces, petal[faces[:, 0]],
+                                           cell, start, count, items))
+
+
+def section_weights(hinges, hinge_edge_ends_s, hinge_edge_ends_x) -> np.ndarray:
+    """Weight of each hinge in the cross-section curvature: how much its edge runs along
+    the petal (along s rather than across x), so that its fold bends the cross-section."""
+    ds = hinge_edge_ends_s[:, 1] - hinge_edge_ends_s[:, 0]
+    dx = hinge_edge_ends_x[:, 1] - hinge_edge_ends_x[:, 0]
+    return ds ** 2 / np.maximum(ds ** 2 + dx ** 2, 1e-300)
+
+
+def cross_section_curvature(X, hinges, weights, petal_of_hinge, petals: int) -> np.ndarray:
+    """``(P,)`` mean |dihedral angle| (radians per mean edge) over each petal's hinges
+    that run along the petal, weighted by :func:`section_weights`."""
+    from .sim.kernels import dihedral_angles
+
+    theta = np.abs(dihedral_angles(np.asarray(X, dtype=np.float64), hinges))
+    out = np.zeros(petals)
+    for p in range(petals):
+        mine = petal_of_hinge == p
+        w = weights[mine]
+        out[p] = float((w * theta[mine]).sum() / max(w.sum(), 1e-300))
+    return out
+
+
+def wrinkle_count(X, loops, vertex_normals) -> int:
+    """Sign changes, along each boundary loop, of the rim's normal displacement from its
+    neighbours' mean two vertices away: ``(x_i - (x_{i-2} + x_{i+2}) / 2) . n_i``; values
+    under 0.01 mean edges are ignored. A smoothly curved rim has none or two; each
+    wrinkle adds two."""
+    total = 0
+    for loop in loops:
+        if len(loop) < 5:
+            continue
+        x = X[loop]
+        d = np.einsum("ij,ij->i", x - 0.5 * (np.roll(x, 2, axis=0) + np.roll(x, -2, axis=0)),
+                      vertex_normals[loop])
+        sign = np.sign(np.where(np.abs(d) < 0.01, 0.0, d))
+        sign = sign[sign != 0]
+        if len(sign) > 1:
+            total += int(np.sum(sign != np.roll(sign, 1)))
+    return total
+
+
+def gaussian_curvature_sign(X, faces, petal, interior) -> np.ndarray:
+    """``(P,)`` sign of each petal's total Gaussian curvature over its interior vertices
+    (angle defect 2 pi - sum of angles): +1 cup-like, -1 saddle-like."""
+    X = np.asarray(X, dtype=np.float64)
+    p = X[faces]
+    angles = np.zeros((len(faces), 3))
+    for k in range(3):
+        a = p[:, (k + 1) % 3] - p[:, k]
+        b = p[:, (k + 2) % 3] - p[:, k]
+        cos = np.einsum("ij,ij->i", a, b) / (np.linalg.norm(a, axis=1) * np.linalg.norm(b, axis=1))
+        angles[:, k] = np.arccos(np.clip(cos, -1.0, 1.0))
+    total = np.zeros(len(X))
+    np.add.at(total, faces.ravel(), angles.ravel())
+    defect = np.where(interior, 2.0 * np.pi - total, 0.0)
+    count = int(petal.max()) + 1
+    return np.array([np.sign(defect[petal == q].sum()) for q in range(count)], dtype=np.int64)

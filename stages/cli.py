@@ -22,6 +22,7 @@ COMMANDS = {
     "axis": ("stages.axis", "Find base, tip, center plane and cross-section x -> axis.h5."),
     "growth": ("stages.growth", "Assign growth ratios, hinges and rest angles -> growth.h5."),
     "simulate": ("stages.simulate", "Simulate the bloom -> sim.h5."),
+    "report": ("stages.report", "Measure a bloom and its effects -> report.json + report.png."),
     "render": ("stages.render", "Render an artifact off-screen: PNG frames, MP4, contact sheet."),
     "inspect": ("stages.inspect", "Show what an artifact holds and how it was made."),
     "config": ("stages.config", "Show a scene's configuration with defaults, or all keys."),

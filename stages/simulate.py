@@ -11,8 +11,6 @@ from pipeline.errors import BloomError
 
 from .common import config_options, input_hashes, load, log, output_options
 
-#: effects the simulator composes; wrinkles act through growth.h5's alpha and stiffness
-AVAILABLE_EFFECTS = ("wrinkles",)
 
 
 @click.command("simulate")
@@ -23,18 +21,15 @@ AVAILABLE_EFFECTS = ("wrinkles",)
               help="Progress bar [default: on when stderr is a terminal].")
 def command(growth_h5: str, config_path, overrides, out, overwrite, progress) -> None:
     """Simulate the bloom of the petals in GROWTH_H5 and write the frames to sim.h5."""
-    from pipeline import artifact
+    from pipeline import artifact, clean
     from pipeline.measure import PetalFrames
+    from pipeline.sim import effects as fx
     from pipeline.sim.integrators import make_integrator
     from pipeline.sim.model import Control, Model, State
     from pipeline.sim.run import run
 
     cfg = load(config_path, overrides)
     where = str(cfg.path) if cfg.path else "defaults"
-    for name in cfg.effects_enabled():
-        if name not in AVAILABLE_EFFECTS:
-            raise BloomError(f"effects.{name}.enabled: the {name} effect is not available in "
-                             "this version; set it to false", where=where)
     out = artifact.check_output(out, "simulate", overwrite)
     sim = cfg.section("simulate")
     steps, frames, h = sim["steps"], sim["frames"], sim["h"]
@@ -52,15 +47,28 @@ def command(growth_h5: str, config_path, overrides, out, overwrite, progress) ->
                                        src["axis/plane"])
         control = Control(cfg["growth.schedule"], cfg["growth.ramp"] * steps * h)
         integrator = make_integrator(sim["integrator"], sim["eta"], sim["damping"])
+        grown = model.edge_rest_length * (1.0 + np.maximum(model.edge_growth, 0.0))
+        effects = fx.build(
+            cfg.effects_enabled(), vertices=v, faces=src["mesh/faces"], petal=petal,
+            pinned=base, on_axis=src["axis/on_axis"], plane=src["axis/plane"], s=src["axis/s"],
+            rest_angle=src["growth/rest_angle"], flower_axis=src.attrs["flower_axis"],
+            max_edge=float(grown.max()) if len(grown) else clean.mean_edge_length(v, src["mesh/faces"]),
+            params=cfg.nested().get("effects", {}))
         state = State.at_rest(model, v, control)
-        log.info("%d vertices (%d fixed), %d springs, %d hinges; %d steps of h = %g, %d frames",
-                 model.vertex_count, int(model.pinned.sum()), model.edge_count,
-                 model.hinge_count, steps, h, frames)
+        effects.constrain(state.forces)
+        log.info("%d vertices (%d fixed), %d springs, %d hinges; %d steps of h = %g, %d frames; "
+                 "effects: %s", model.vertex_count, int(model.pinned.sum()), model.edge_count,
+                 model.hinge_count, steps, h, frames, ", ".join(effects.names) or "none")
+        if effects.connections is not None:
+            log.info("%d connection springs between petals", len(effects.connections.pairs))
         show = sys.stderr.isatty() if progress is None else progress
         with click.progressbar(length=steps, label="simulate", file=sys.stderr,
                                show_eta=True, show_percent=True) if show else _Null() as bar:
-            rec, wall = run(model, state, control, integrator, steps=steps, frames=frames, h=h,
-                            petals=petals, progress=bar.update)
+            try:
+                rec, wall = run(model, state, control, integrator, steps=steps, frames=frames,
+                                h=h, petals=petals, effects=effects, progress=bar.update)
+            except RuntimeError as exc:
+                raise BloomError(f"effects.collisions: {exc}", where=where) from None
         diag = rec.arrays()
         positions = np.asarray(rec.positions)
         if not np.all(np.isfinite(positions)):
@@ -75,15 +83,22 @@ def command(growth_h5: str, config_path, overrides, out, overwrite, progress) ->
         attrs = {"scale": src.attrs["scale"], "flower_axis": src.attrs["flower_axis"],
                  "steps": steps, "h": h,
                  "wall_seconds": wall, "ms_per_step": 1e3 * wall / steps,
-                 "effects": ",".join(cfg.effects_enabled()),
+                 "effects": ",".join(effects.names),
                  "integrator": sim["integrator"]}
         with artifact.writing(out, stage="simulate", config_json=cfg.to_json(),
                               inputs=input_hashes(cfg, growth_h5), attrs=attrs) as h5:
-            src.copy_to(h5, ("mesh/faces", "mesh/petal", "axis/base", "axis/x", "axis/tip"))
+            src.copy_to(h5, ("mesh/faces", "mesh/petal", "axis/base", "axis/on_axis", "axis/x",
+                             "axis/s", "axis/tip", "axis/plane", "growth/hinges"))
             artifact.put(h5, "frames/time", np.asarray(rec.time), "(T,) time of each frame")
             artifact.put(h5, "frames/positions", positions, "(T, V, 3) vertex positions")
             for name, values in diag.items():
                 artifact.put(h5, f"diagnostics/{name}", values)
+            if effects.connections is not None:
+                c = effects.connections
+                artifact.put(h5, "effects/connections/pairs", c.pairs,
+                             "(C, 2) connected vertices, the first on the outer petal's rim")
+                artifact.put(h5, "effects/connections/broken_step", c.broken_step,
+                             "(C,) step at which each spring broke, -1 if intact")
     log.info("wrote %s", out)
 
 

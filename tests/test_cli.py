@@ -197,12 +197,23 @@ def test_broken_mesh_is_refused(tmp_path):
         assert not out.exists()
 
 
-def test_unavailable_effect_is_refused(chain, tmp_path):
+def test_effects_run_only_when_enabled_and_are_recorded(chain, tmp_path):
     out = tmp_path / "sim.h5"
-    r = CliRunner().invoke(cli, ["simulate", str(chain["growth"]), "--out", str(out),
-                                 "--set", "effects.collisions.enabled=true"])
-    assert r.exit_code == 1 and "effects.collisions.enabled" in r.output
-    assert not out.exists()
+    on = ["curl", "collisions", "connections", "center_plane"]
+    args = [a for name in on for a in ("--set", f"effects.{name}.enabled=true")]
+    r = CliRunner().invoke(cli, ["simulate", str(chain["growth"]), "--out", str(out), *args,
+                                 "--set", "effects.connections.max_distance=4"])
+    assert r.exit_code == 0, r.output
+    with h5py.File(out) as f:
+        assert f.attrs["effects"] == "curl,collisions,connections,center_plane"
+        frames = len(f["frames/time"])
+        assert f["diagnostics/contacts"].shape == (frames,)
+        intact = f["diagnostics/connections_intact"][()]
+        assert intact[0] == len(f["effects/connections/pairs"]) > 0
+        assert np.all(np.diff(intact) <= 0)  # springs only ever break
+    with h5py.File(chain["sim"]) as f:
+        assert f.attrs["effects"] == ""
+        assert "diagnostics/contacts" not in f and "effects" not in f
 
 
 def test_config_command_lists_keys_and_values(chain):

@@ -1,11 +1,14 @@
-"""Time integrators. Each has one verb: ``advance(model, state, control, n_steps, h)``."""
+"""Time integrators. Each has one verb: ``advance(model, state, control, n_steps, h, effects)``."""
 
 from __future__ import annotations
 
 from dataclasses import dataclass
 
 from . import kernels
+from .effects import Effects
 from .model import Control, Model, State
+
+NO_EFFECTS = Effects()
 
 
 @dataclass
@@ -16,7 +19,8 @@ class SemiImplicit:
     eta: float
     d: float = 1.0
 
-    def advance(self, model: Model, state: State, control: Control, n_steps: int, h: float) -> None:
+    def advance(self, model: Model, state: State, control: Control, n_steps: int, h: float,
+                effects: Effects = NO_EFFECTS) -> None:
         if n_steps <= 0:
             return
         state.potential_energy = kernels.advance(
@@ -24,7 +28,8 @@ class SemiImplicit:
             model.vertex_inv_mass, model.edge_indices, model.edge_rest_length,
             model.edge_growth, model.edge_stiffness, model.hinge_indices,
             model.hinge_rest_cos, model.hinge_rest_sin, model.hinge_stiffness,
-            control.schedule_code, control.ramp_time, state.step, n_steps, h, self.eta, self.d)
+            control.schedule_code, control.ramp_time, state.step, n_steps, h, self.eta, self.d,
+            effects.bundle())
         state.step += n_steps
 
 

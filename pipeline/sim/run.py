@@ -9,6 +9,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..measure import PetalFrames
+from .effects import Effects
+from .integrators import NO_EFFECTS
 from .model import Control, Model, State
 
 
@@ -33,7 +35,7 @@ class Recording:
 
 
 def record(rec: Recording, model: Model, state: State, control: Control, h: float,
-           petals: PetalFrames | None) -> None:
+           petals: PetalFrames | None, effects: Effects = NO_EFFECTS) -> None:
     t = state.step * h
     rec.time.append(t)
     rec.positions.append(state.positions.copy())
@@ -47,25 +49,27 @@ def record(rec: Recording, model: Model, state: State, control: Control, h: floa
         angles = petals.opening_angles(state.positions)
         rec.add("opening_angle", float(angles.mean()))
         rec.add("opening_angle_per_petal", angles)
+    for name, value in effects.frame_diagnostics().items():
+        rec.add(name, value)
 
 
 def run(model: Model, state: State, control: Control, integrator, *, steps: int, frames: int,
-        h: float, petals: PetalFrames | None = None,
+        h: float, petals: PetalFrames | None = None, effects: Effects = NO_EFFECTS,
         progress: Callable[[int], None] | None = None) -> tuple[Recording, float]:
     """Advance ``state`` by ``steps`` steps, recording ``frames`` frames.
 
     Returns the recording and the wall-clock seconds spent stepping.
     """
     rec = Recording()
-    record(rec, model, state, control, h, petals)
+    record(rec, model, state, control, h, petals, effects)
     wall = 0.0
     targets = frame_steps(steps, frames)
     for target in targets[1:]:
         n = int(target - state.step)
         t0 = time.perf_counter()
-        integrator.advance(model, state, control, n, h)
+        integrator.advance(model, state, control, n, h, effects)
         wall += time.perf_counter() - t0
-        record(rec, model, state, control, h, petals)
+        record(rec, model, state, control, h, petals, effects)
         if progress is not None:
             progress(n)
     return rec, wall

@@ -1,0 +1,267 @@
+"""The effects a scene may call for (METHOD.md, "Constraints and effects").
+
+Each effect is a small unit built from the scene only when the scene enables it; its
+per-step work is a compiled kernel in :mod:`kernels` that :func:`kernels.advance`
+runs behind one branch. An effect that is off is never built (no grid, no pairs, no
+arrays) and its loop never runs.
+
+- ``curl``: rest dihedral angles decay, theta0(t) = (1 - B(t) beta) theta0(0) (Eq. 11),
+  B = A;
+- ``wrinkles``: boundary edges grow by alpha_add more and are softer (Eq. 12); it acts
+  through the growth map (``bloom growth``) and needs nothing here;
+- ``collisions``: vertex-triangle contacts between petals through a hashed uniform grid,
+  rebuilt only when a vertex has moved more than a slack since the last build;
+- ``connections``: springs from an outer petal's rim to the nearest inner petal that
+  break for good past a critical stretch (the lily's lock);
+- ``center_plane``: axis vertices keep their distance to their petal's center plane.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .. import topology
+
+ORDER = ("curl", "wrinkles", "collisions", "connections", "center_plane")
+
+
+@dataclass
+class Curl:
+    theta0: np.ndarray  #: (H,) rest dihedral angle at t = 0
+    beta: float
+    cos_t: np.ndarray  #: (H,) work arrays: cos and sin of the rest angle at the current step
+    sin_t: np.ndarray
+
+    @classmethod
+    def build(cls, rest_angle: np.ndarray, beta: float) -> Curl:
+        theta0 = np.ascontiguousarray(rest_angle, dtype=np.float64)
+        return cls(theta0, float(beta), np.cos(theta0), np.sin(theta0))
+
+
+@dataclass
+class CenterPlane:
+    vertices: np.ndarray  #: (C,) constrained vertices (axis vertices that are not pinned)
+    normals: np.ndarray  #: (C, 3) unit normal of each one's center plane
+
+    @classmethod
+    def build(cls, on_axis, pinned, petal, plane) -> CenterPlane:
+        idx = np.flatnonzero(np.asarray(on_axis, bool) & ~np.asarray(pinned, bool))
+        normals = np.asarray(plane, dtype=np.float64)[np.asarray(petal)[idx], :3]
+        normals = normals / np.linalg.norm(normals, axis=1, keepdims=True)
+        return cls(idx.astype(np.int64), np.ascontiguousarray(normals))
+
+
+@dataclass
+class Connections:
+    pairs: np.ndarray  #: (C, 2) vertex pairs, the first on the outer petal's rim
+    rest: np.ndarray  #: (C,) rest length (the initial distance)
+    limit: np.ndarray  #: (C,) breaking length
+    stiffness: float
+    alive: np.ndarray  #: (C,) bool, updated by the kernel
+    broken_step: np.ndarray  #: (C,) step at which each broke (-1: intact)
+
+    @classmethod
+    def build(cls, vertices, faces, petal, pinned, s, layer, *, stiffness: float,
+              critical_stretch: float, max_distance: float, min_s: float) -> Connections:
+        """Pairs chosen from the bud's geometry: every rim vertex of a petal (past
+        ``min_s`` from its base) with the nearest vertex of an inner petal within
+        ``max_distance``. A pair breaks when longer than ``critical_stretch`` times its
+        rest length (at least one mean edge, so that touching pairs do not snap at once).
+        """
+        from scipy.spatial import cKDTree
+
+        v = np.asarray(vertices, dtype=np.float64)
+        rim = topology.boundary_vertices(faces, len(v)) & ~np.asarray(pinned, bool) & (s > min_s)
+        pairs = []
+        for p in range(int(petal.max()) + 1):
+            inner = np.flatnonzero((layer[petal] < layer[p]) & ~np.asarray(pinned, bool))
+            mine = np.flatnonzero(rim & (petal == p))
+            if len(inner) == 0 or len(mine) == 0:
+                continue
+            dist, j = cKDTree(v[inner]).query(v[mine], distance_upper_bound=max_distance)
+            ok = np.isfinite(dist)
+            pairs += list(zip(mine[ok].tolist(), inner[j[ok]].tolist(), strict=True))
+        pairs = np.asarray(pairs, dtype=np.int64).reshape(-1, 2)
+        rest = np.linalg.norm(v[pairs[:, 0]] - v[pairs[:, 1]], axis=1)
+        limit = critical_stretch * np.maximum(rest, 1.0)
+        return cls(pairs, rest, limit, float(stiffness), np.ones(len(pairs), dtype=bool),
+                   np.full(len(pairs), -1, dtype=np.int64))
+
+
+@dataclass
+class Collisions:
+    faces: np.ndarray  #: (F, 3)
+    face_petal: np.ndarray  #: (F,)
+    vertex_petal: np.ndarray  #: (V,)
+    side: np.ndarray  #: (V, P) +-1: the side of petal Q (along its normals) vertex v belongs on
+    params: np.ndarray  #: (cell size, offset, margin, slack)
+    normals: np.ndarray  #: (F, 3) work array: unit face normals at the current step
+    start: np.ndarray  #: grid work arrays: hash table of cells, counting sort
+    count: np.ndarray
+    items: np.ndarray
+    reference: np.ndarray  #: (V, 3) positions when the grid was last built
+    pair_start: np.ndarray  #: (V+1,) near pairs (CSR): faces near each vertex
+    pair_faces: np.ndarray
+    best_face: np.ndarray  #: (P,) work arrays of the nearest face per petal
+    best_dist: np.ndarray
+    near: np.ndarray  #: (V, P) int8: vertex was over or under that petal at the last step
+
+    @classmethod
+    def build(cls, vertices, faces, petal, *, offset: float, max_edge: float,
+              margin: float = 0.2, slack: float = 0.1) -> Collisions:
+        """Which side of every other petal each vertex belongs on is read off the bud,
+        by the rule the kernel applies: the side of the nearest face whose prism holds
+        the vertex, or where there is none, of the petal's closest point. Inner petals
+        lie inside outer ones and an imbricate (overlapping) rim keeps its order; petals
+        that touch in the bud start with no contact."""
+        from ..symmetry import closest_points
+        from . import kernels
+
+        v = np.asarray(vertices, dtype=np.float64)
+        f = np.ascontiguousarray(faces, dtype=np.int64)
+        petal = np.ascontiguousarray(petal, dtype=np.int64)
+        count = int(petal.max()) + 1
+        face_n = topology.face_normals(v, f)
+        side = np.ones((len(v), count))
+        for q in range(count):
+            mine = np.flatnonzero(petal == q)
+            local = np.searchsorted(mine, f[petal[f[:, 0]] == q])
+            others = np.flatnonzero(petal != q)
+            point, face = closest_points(v[mine], local, v[others], return_face=True)
+            normal = face_n[petal[f[:, 0]] == q][face]
+            d = np.einsum("ij,ij->i", v[others] - point, normal)
+            side[others, q] = np.where(d < 0.0, -1.0, 1.0)
+        size = 4 * len(f) + 1
+        cell = max_edge + 2.0 * (margin + offset + slack)
+        made = cls(f, np.ascontiguousarray(petal[f[:, 0]]), petal, side,
+                   np.array([cell, offset, margin, slack]), np.zeros((len(f), 3)),
+                   np.zeros(size + 1, dtype=np.int64), np.zeros(size, dtype=np.int64),
+                   np.zeros(27 * len(f), dtype=np.int64), v.copy(),
+                   np.zeros(len(v) + 1, dtype=np.int64), np.zeros(64 * len(v), dtype=np.int64),
+                   np.zeros(count, dtype=np.int64), np.zeros(count),
+                   np.zeros((len(v), count), dtype=np.int8))
+        made.near_pairs(v, margin)
+        kernels.face_unit_normals(v, f, made.normals)
+        for i in range(len(v)):
+            kernels.nearest_faces(v, f, made.face_petal, made.normals, margin, made.pair_start,
+                                  made.pair_faces, i, made.best_face, made.best_dist)
+            hit = made.best_face >= 0
+            side[i, hit] = np.where(made.best_dist[hit] < 0.0, -1.0, 1.0)
+            made.near[i, hit] = 1
+        return made
+
+    def near_pairs(self, X, reach: float) -> int:
+        """List the near pairs at ``X`` (as the kernel does when it rebuilds)."""
+        from . import kernels
+
+        free = np.ones(len(X))
+        cell = self.params[0]
+        lost = kernels.build_face_grid(X, self.faces, reach, cell, self.start, self.count, self.items)
+        return lost + kernels.near_pairs(X, self.faces, self.face_petal, self.vertex_petal, free,
+                                         reach, cell, self.start, self.count, self.items,
+                                         self.pair_start, self.pair_faces)
+
+
+def petal_layers(vertices, petal, axis_point, axis_dir) -> np.ndarray:
+    """``(P,)`` mean distance of each petal's vertices from the flower's axis, with a
+    tiny tie-break by petal id: inner petals have lower values."""
+    r = np.asarray(vertices) - axis_point
+    radial = np.linalg.norm(r - np.outer(r @ axis_dir, axis_dir), axis=1)
+    count = int(petal.max()) + 1
+    return np.array([radial[petal == p].mean() + 1e-9 * p for p in range(count)])
+
+
+def flower_axis_or_guess(vertices, flower_axis) -> tuple[np.ndarray, np.ndarray]:
+    """The flower's axis as (point, unit direction); a lone petal has none: the vertical
+    line through its centroid stands in."""
+    fa = np.asarray(flower_axis, dtype=np.float64)
+    if fa.shape == (6,) and np.all(np.isfinite(fa)):
+        return fa[:3], fa[3:] / np.linalg.norm(fa[3:])
+    return np.asarray(vertices).mean(axis=0), np.array([0.0, 0.0, 1.0])
+
+
+_F8 = np.zeros(0)
+_I8 = np.zeros(0, dtype=np.int64)
+
+
+@dataclass
+class Effects:
+    """The effects a scene enabled, built, and the bundle the kernel takes."""
+
+    names: tuple = ()
+    curl: Curl | None = None
+    collisions: Collisions | None = None
+    connections: Connections | None = None
+    center_plane: CenterPlane | None = None
+    #: kernel counters: contacts since the last frame, grid builds, overflow, near pairs
+    counters: np.ndarray = field(default_factory=lambda: np.zeros(4, dtype=np.int64))
+    _bundle: tuple | None = None
+
+    def bundle(self) -> tuple:
+        if self._bundle is None:
+            c, p, k, g = self.curl, self.center_plane, self.connections, self.collisions
+            self._bundle = (
+                c is not None, c.theta0 if c else _F8, c.beta if c else 0.0,
+                c.cos_t if c else _F8, c.sin_t if c else _F8,
+                p is not None, p.vertices if p else _I8, p.normals if p else np.zeros((0, 3)),
+                k is not None, k.pairs if k else np.zeros((0, 2), dtype=np.int64),
+                k.rest if k else _F8, k.stiffness if k else 0.0, k.limit if k else _F8,
+                k.alive if k else np.zeros(0, dtype=bool), k.broken_step if k else _I8,
+                g is not None, g.faces if g else np.zeros((0, 3), dtype=np.int64),
+                g.face_petal if g else _I8, g.vertex_petal if g else _I8,
+                g.side if g else np.zeros((0, 0)), g.normals if g else np.zeros((0, 3)),
+                g.params if g else _F8, g.start if g else _I8, g.count if g else _I8,
+                g.items if g else _I8, g.reference if g else np.zeros((0, 3)), self.counters,
+                g.pair_start if g else _I8, g.pair_faces if g else _I8,
+                g.best_face if g else _I8, g.best_dist if g else _F8,
+                g.near if g else np.zeros((0, 0), dtype=np.int8))
+        return self._bundle
+
+    def constrain(self, forces: np.ndarray) -> None:
+        """Apply the constraints to forces computed outside :func:`kernels.advance`."""
+        if self.center_plane is not None:
+            from .kernels import project_out_normals
+
+            project_out_normals(forces, self.center_plane.vertices, self.center_plane.normals)
+
+    def frame_diagnostics(self) -> dict:
+        """Per-frame figures of the effects that ran; resets the per-frame counters."""
+        out = {}
+        if self.collisions is not None:
+            out["contacts"] = int(self.counters[0])
+            out["grid_builds"] = int(self.counters[1])
+            out["near_pairs"] = int(self.counters[3])
+            if self.counters[2]:
+                raise RuntimeError("collision grid overflow: triangles grew far beyond their "
+                                   "rest size or petals crowd together (diverging?)")
+        if self.connections is not None:
+            out["connections_intact"] = int(self.connections.alive.sum())
+        self.counters[0] = 0
+        return out
+
+
+def build(names, *, vertices, faces, petal, pinned, on_axis, plane, s, rest_angle,
+          flower_axis, max_edge: float, params: dict) -> Effects:
+    """Build the enabled effects (``names``) from the mesh and the ``effects`` config
+    section (``params[name][key]``)."""
+    names = tuple(n for n in ORDER if n in set(names))
+    petal = np.asarray(petal, dtype=np.int64)
+    point, direction = flower_axis_or_guess(vertices, flower_axis)
+    layer = petal_layers(vertices, petal, point, direction)
+    fx = Effects(names=names)
+    if "curl" in names:
+        fx.curl = Curl.build(rest_angle, params["curl"]["beta"])
+    if "collisions" in names:
+        fx.collisions = Collisions.build(vertices, faces, petal,
+                                         offset=params["collisions"]["offset"], max_edge=max_edge)
+    if "connections" in names:
+        c = params["connections"]
+        fx.connections = Connections.build(
+            vertices, faces, petal, pinned, s, layer, stiffness=c["stiffness"],
+            critical_stretch=c["critical_stretch"], max_distance=c["max_distance"],
+            min_s=c["min_s"])
+    if "center_plane" in names:
+        fx.center_plane = CenterPlane.build(on_axis, pinned, petal, plane)
+    return fx

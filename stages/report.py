@@ -1,0 +1,56 @@
+"""bloom report: what the bloom and its effects did, measured -> report.json + report.png."""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+
+import click
+
+from pipeline.errors import BloomError
+
+from .common import log
+
+
+@click.command("report")
+@click.argument("sim_h5", type=click.Path(dir_okay=False))
+@click.option("--out", required=True, type=click.Path(dir_okay=False),
+              help="report.json to write; the plot goes beside it (same name, .png).")
+@click.option("--overwrite", is_flag=True, help="Replace --out even if `bloom report` did not write it.")
+def command(sim_h5: str, out: str, overwrite: bool) -> None:
+    """Measure SIM_H5: opening per petal, cross-section curvature, boundary wrinkles,
+    crossings between petals, connection breaks, Gaussian curvature sign."""
+    from pipeline import artifact, report
+
+    out_path = Path(out)
+    png = out_path.with_suffix(".png")
+    for path in (out_path, png):
+        if path.is_dir():
+            raise BloomError("is a folder; --out needs a file path", where=str(path))
+    if out_path.exists() and not overwrite and not _is_report(out_path):
+        raise BloomError("exists and is not a Bloom report; not overwriting it (pass "
+                         "--overwrite to replace it)", where=str(out_path))
+    with artifact.Artifact(sim_h5, needs="simulate", reader="report") as sim:
+        data = {"stage": "report", "input": str(sim_h5), **report.compute(sim)}
+    out_path.parent.mkdir(parents=True, exist_ok=True)
+    tmp_json = out_path.with_name(f".{out_path.name}.tmp-{os.getpid()}")
+    tmp_png = png.with_name(f".{png.stem}.tmp-{os.getpid()}.png")
+    try:
+        tmp_json.write_text(json.dumps(data, indent=1) + "\n")
+        report.plot(data, tmp_png)
+        os.replace(tmp_png, png)
+        os.replace(tmp_json, out_path)
+    finally:
+        for tmp in (tmp_json, tmp_png):
+            tmp.unlink(missing_ok=True)
+    log.info("opening %.1f deg; wrinkles %d; crossings %d at the end",
+             data["opening_angle_final_mean"], data["boundary_wrinkles"][-1], data["crossings"][-1])
+    log.info("wrote %s and %s", out_path, png)
+
+
+def _is_report(path: Path) -> bool:
+    try:
+        return json.loads(path.read_text()).get("stage") == "report"
+    except Exception:
+        return False
