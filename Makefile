@@ -17,8 +17,8 @@ PYTEST_ARGS ?=
 # A stage's artifacts depend on the library and on the stage's own module.
 LIB := $(wildcard pipeline/*.py pipeline/sim/*.py) stages/cli.py stages/common.py
 
-.PHONY: all test lint venv clean clean-venv help
-all: $(SCENES:%=$(OUT)/%/render/bloom.mp4)  ## build every scene: artifacts, frames, MP4
+.PHONY: all test lint bench venv clean clean-venv help
+all: $(SCENES:%=$(OUT)/%/render/bloom.mp4) $(SCENES:%=$(OUT)/%/report.json)  ## build every scene: artifacts, frames, MP4, report
 
 help:  ## list the targets
 	@grep -E '^[a-z-]+:.*## ' $(MAKEFILE_LIST) | sed -E 's/:.*## /\t/'
@@ -34,6 +34,9 @@ $(INSTALLED): pyproject.toml constraints.txt
 test: $(INSTALLED)  ## run the test suite
 	$(VENV)/bin/python -m pytest $(PYTEST_ARGS)
 
+bench: $(INSTALLED)  ## print what each effect costs, as ratios to the bare simulation
+	$(BLOOM) bench
+
 lint: $(INSTALLED)  ## ruff over the code
 	$(VENV)/bin/ruff check pipeline stages tests
 
@@ -42,7 +45,7 @@ $(OUT)/%/mesh.d: configs/%.toml | $(INSTALLED)
 	@mkdir -p $(@D)
 	@echo "$(OUT)/$*/remesh.h5: $$($(BLOOM) config $< --mesh-path)" > $@
 
-ifeq ($(filter test lint venv clean clean-venv help,$(MAKECMDGOALS)),)
+ifeq ($(filter test lint bench venv clean clean-venv help,$(MAKECMDGOALS)),)
 -include $(SCENES:%=$(OUT)/%/mesh.d)
 endif
 
@@ -61,6 +64,9 @@ $(OUT)/%/sim.h5: $(OUT)/%/growth.h5 configs/%.toml stages/simulate.py $(LIB)
 
 $(OUT)/%/render/bloom.mp4: $(OUT)/%/sim.h5 configs/%.toml stages/render.py $(LIB)
 	$(BLOOM) render $< --config configs/$*.toml --out $(OUT)/$*/render
+
+$(OUT)/%/report.json: $(OUT)/%/sim.h5 stages/report.py $(LIB)
+	$(BLOOM) report $< --out $@
 
 # Keep intermediate artifacts: they are the point of the pipeline.
 .PRECIOUS: $(OUT)/%/remesh.h5 $(OUT)/%/axis.h5 $(OUT)/%/growth.h5 $(OUT)/%/sim.h5

@@ -104,7 +104,7 @@ class BudShape:
     bulge: float = 0.30  #: how far the petals bow out from the axis at their widest
     closure: float = 0.85  #: fraction of a half sine the profile runs (1 closes the top)
     min_cup_radius: float = 0.22  #: cross-sections are arcs of at least this radius
-    layer_gap: float = 0.035  #: radial distance between successive layers of petals
+    layer_gap: float = 0.06  #: radial distance between successive layers of petals
 
 
 def bud_profile(s: np.ndarray, shape: BudShape, length: float = 1.0):
@@ -148,13 +148,15 @@ def _spacing_for(outline: Outline, vertices: int, rng_seed: int) -> float:
 
 
 def petal_layers(count: int) -> np.ndarray:
-    """Radial layer of each petal: one whorl up to 3, two alternating whorls when even,
-    a spiral (each petal a little outside the one before) otherwise."""
+    """Radial layer of each petal: one whorl up to 3; from 4, petals alternate inner and
+    outer, and with an odd count the last sits between its two neighbours (so that no
+    two neighbours share a layer, and their overlapping rims do not cross)."""
     if count <= 3:
         return np.zeros(count)
-    if count % 2 == 0:
-        return (np.arange(count) % 2).astype(np.float64)
-    return np.arange(count) / (count - 1) * 1.5
+    layers = (np.arange(count) % 2).astype(np.float64)
+    if count % 2:
+        layers[-1] = 0.5
+    return layers
 
 
 def bud(petals: int = 6, vertices: int = 1800, seed: int = 0, shape: BudShape = BudShape()):

@@ -32,7 +32,7 @@ def compute(sim) -> dict:
     curvature = np.asarray(curvature)
     diag = {k: sim[f"diagnostics/{k}"] for k in ("opening_angle_per_petal", "kinetic_energy")}
     report = {
-        "scene": sim.config().get("scene", {}).get("name", ""),
+        "scene": sim.config().get("scene", {}).get("name", "") or sim.path.parent.name,
         "effects": [e for e in str(sim.attrs.get("effects", "")).split(",") if e],
         "time": t.tolist(),
         "opening_angle_per_petal": diag["opening_angle_per_petal"].tolist(),

@@ -24,6 +24,7 @@ COMMANDS = {
     "simulate": ("stages.simulate", "Simulate the bloom -> sim.h5."),
     "report": ("stages.report", "Measure a bloom and its effects -> report.json + report.png."),
     "render": ("stages.render", "Render an artifact off-screen: PNG frames, MP4, contact sheet."),
+    "bench": ("stages.bench", "Time the simulator: each effect's cost, collisions by size."),
     "inspect": ("stages.inspect", "Show what an artifact holds and how it was made."),
     "config": ("stages.config", "Show a scene's configuration with defaults, or all keys."),
 }

@@ -12,7 +12,6 @@ from pipeline.errors import BloomError
 from .common import config_options, input_hashes, load, log, output_options
 
 
-
 @click.command("simulate")
 @click.argument("growth_h5", type=click.Path(dir_okay=False))
 @config_options

@@ -1,0 +1,72 @@
+"""Benchmarks: what each effect costs, as ratios to the bare simulation in one run, and
+how the collision effect scales with the vertex count."""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from . import asset, clean
+from .axis import find_axes
+from .growth import assign_growth
+from .sim import effects as fx
+from .sim.integrators import SemiImplicit
+from .sim.model import Control, Model, State
+
+PARAMS = {"curl": {"beta": 0.5}, "collisions": {"offset": 0.001},
+          "connections": {"stiffness": 0.1, "critical_stretch": 1.5, "max_distance": 3.0,
+                          "min_s": 0.3}}
+VARIANTS = ((), ("curl",), ("wrinkles",), ("collisions",), ("connections",), ("center_plane",),
+            ("curl", "wrinkles", "collisions", "connections", "center_plane"))
+
+
+def _bud(petals: int, vertices: int):
+    v, f, petal = asset.bud(petals, vertices, 0)
+    v = v / clean.mean_edge_length(v, f)
+    return v, f, petal, find_axes(v, f, petal)
+
+
+def _ms_per_step(bud, names, steps: int, ramp: float) -> float:
+    v, f, petal, axes = bud
+    growth = assign_growth(v, f, axes.x, "0.2*x**2",
+                           alpha_add=0.1 if "wrinkles" in names else 0.0,
+                           boundary_stiffness=0.5 if "wrinkles" in names else 1.0)
+    model = Model.build(v, growth.edges, growth.alpha, 0.1 * growth.stiffness, growth.hinges,
+                        0.0005, axes.base)
+    effects = fx.build(names, vertices=v, faces=f, petal=petal, pinned=model.pinned,
+                       on_axis=axes.on_axis, plane=axes.plane, s=axes.s,
+                       rest_angle=growth.rest_angle, flower_axis=axes.flower_axis, max_edge=1.5,
+                       params=PARAMS)
+    control = Control("linear", ramp)
+    state = State.at_rest(model, v, control)
+    integrator = SemiImplicit(0.1)
+    integrator.advance(model, state, control, 2, 1.0, effects)  # compile, if not cached
+    t0 = time.perf_counter()
+    integrator.advance(model, state, control, steps, 1.0, effects)
+    return 1e3 * (time.perf_counter() - t0) / steps
+
+
+def effect_costs(vertices: int = 2000, steps: int = 3000, repeats: int = 3) -> list[dict]:
+    """ms per step of a 6-petal bud with no effect, each effect alone, and all of them;
+    the best of ``repeats`` runs, interleaved so machine noise hits every variant alike."""
+    bud = _bud(6, vertices)
+    best = {names: np.inf for names in VARIANTS}
+    for _ in range(repeats):
+        for names in VARIANTS:
+            best[names] = min(best[names], _ms_per_step(bud, names, steps, ramp=steps))
+    bare = best[()]
+    return [{"effects": "+".join(names) or "none", "ms_per_step": best[names],
+             "ratio": best[names] / bare} for names in VARIANTS]
+
+
+def collision_scaling(sizes=(2000, 8000, 32000), steps: int = 300) -> list[dict]:
+    """ms per step with and without collisions on buds of ``sizes`` vertices."""
+    rows = []
+    for n in sizes:
+        bud = _bud(6, n)
+        bare = _ms_per_step(bud, (), steps, ramp=steps)
+        coll = _ms_per_step(bud, ("collisions",), steps, ramp=steps)
+        rows.append({"vertices": len(bud[0]), "bare_ms": bare, "collisions_ms": coll,
+                     "collisions_ns_per_vertex": 1e6 * (coll - bare) / len(bud[0])})
+    return rows
