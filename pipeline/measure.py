@@ -131,3 +131,12 @@ def gaussian_curvature_sign(X, faces, petal, interior) -> np.ndarray:
     defect = np.where(interior, 2.0 * np.pi - total, 0.0)
     count = int(petal.max()) + 1
     return np.array([np.sign(defect[petal == q].sum()) for q in range(count)], dtype=np.int64)
+
+
+def rim_bending(X, hinges, rim) -> float:
+    """Mean |dihedral angle| (radians) over the hinges that touch the boundary (``rim``,
+    a per-hinge mask): how sharply the rim is folded. A buckled rim scores high."""
+    from .sim.kernels import dihedral_angles
+
+    theta = np.abs(dihedral_angles(np.asarray(X, dtype=np.float64), hinges))
+    return float(theta[rim].mean()) if rim.any() else 0.0

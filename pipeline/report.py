@@ -24,8 +24,10 @@ def compute(sim) -> dict:
     loops = boundary_loops(faces)
     weights = measure.section_weights(hinges, s[hinges[:, :2]], x[hinges[:, :2]])
     hinge_petal = petal[hinges[:, 0]]
-    curvature, wrinkles, crossing = [], [], []
+    rim = boundary[hinges].any(axis=1)
+    curvature, wrinkles, crossing, rim_fold = [], [], [], []
     for frame in X:
+        rim_fold.append(measure.rim_bending(frame, hinges, rim))
         curvature.append(measure.cross_section_curvature(frame, hinges, weights, hinge_petal, petals))
         wrinkles.append(measure.wrinkle_count(frame, loops, topology.vertex_normals(frame, faces)))
         crossing.append(measure.crossings(frame, faces, petal) if petals > 1 else 0)
@@ -40,6 +42,7 @@ def compute(sim) -> dict:
         "cross_section_curvature": curvature.mean(axis=1).tolist(),
         "cross_section_curvature_per_petal_final": curvature[-1].tolist(),
         "boundary_wrinkles": wrinkles,
+        "rim_bending": rim_fold,
         "crossings": crossing,
         "gaussian_curvature_sign": {
             "start": measure.gaussian_curvature_sign(X[0], faces, petal, ~boundary).tolist(),
@@ -74,8 +77,12 @@ def plot(report: dict, path) -> None:
     ax[0, 0].set(title="opening angle per petal", ylabel="degrees")
     ax[0, 1].plot(t, report["cross_section_curvature"], color="k")
     ax[0, 1].set(title="mean cross-section curvature", ylabel="rad per edge")
-    ax[1, 0].plot(t, report["boundary_wrinkles"], color="tab:purple")
-    ax[1, 0].set(title="boundary wrinkles (sign changes)", xlabel="time")
+    ax[1, 0].plot(t, report["boundary_wrinkles"], color="tab:purple", label="wrinkles (sign changes)")
+    twin = ax[1, 0].twinx()
+    twin.plot(t, report["rim_bending"], color="tab:orange", label="rim bending (rad)")
+    ax[1, 0].legend(loc="upper left", fontsize=8)
+    twin.legend(loc="lower right", fontsize=8)
+    ax[1, 0].set(title="the rim", xlabel="time")
     ax[1, 1].plot(t, report["crossings"], color="tab:red", label="edges through another petal")
     if "connections" in report:
         ax[1, 1].plot(t, report["connections"]["intact"], color="tab:green",

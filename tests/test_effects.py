@@ -75,12 +75,13 @@ def test_center_plane_keeps_the_axis_on_the_plane_and_the_tip_from_skewing(petal
     tip = axes.tip[0]
     skew = {}
     for names in ((), ("center_plane",)):
-        _, _, state, _ = simulate(mesh, names, steps=4000, frames=3, curve="0.2*x**2 + 0.05*x")
+        rec, _, state, _ = simulate(mesh, names, steps=4000, frames=3, curve="0.2*x**2 + 0.05*x")
         dist0 = v[free_axis] @ n - d
         dist = state.positions[free_axis] @ n - d
         skew[names] = abs(state.positions[tip] @ n - d)
         if names:
             np.testing.assert_allclose(dist, dist0, atol=1e-9)
+            assert max(rec.diagnostics["center_plane_drift"]) < 1e-9
     assert skew[()] > 0.1 and skew[("center_plane",)] < 1e-9, skew
 
 
@@ -109,13 +110,18 @@ def test_wrinkles_extra_boundary_growth_with_a_softer_rim_ripples_the_rim(petal)
     assert wrinkles(wavy, f) > wrinkles(plain, f), (wrinkles(wavy, f), wrinkles(plain, f))
 
 
-def test_buckling_fast_boundary_growth_opens_less_without_blowing_up(petal):
-    rec2, _, s2, _ = simulate(petal, (), steps=6000, frames=3, curve="0.2*x**2")
-    rec6, _, s6, _ = simulate(petal, (), steps=6000, frames=3, curve="0.2*x**6")
-    open2 = rec2.diagnostics["opening_angle"][-1]
-    open6 = rec6.diagnostics["opening_angle"][-1]
-    assert open6 < open2, (open6, open2)  # measured 14.5 against 15.1 degrees
-    assert np.isfinite(s6.positions).all() and rec6.diagnostics["max_speed"][-1] < 0.05
+def test_buckling_fast_boundary_growth_folds_the_rim_and_opens_less(petal):
+    v, f = petal[0], petal[1]
+    result = {}
+    for curve in ("0.2*x**2", "0.2*x**6"):
+        rec, _, state, growth = simulate(petal, (), steps=20000, frames=3, curve=curve)
+        rim = topology.boundary_vertices(f, len(v))[growth.hinges].any(axis=1)
+        result[curve] = (rec.diagnostics["opening_angle"][-1],
+                         measure.rim_bending(state.positions, growth.hinges, rim))
+        assert np.isfinite(state.positions).all() and rec.diagnostics["max_speed"][-1] < 0.05
+    (open2, rim2), (open6, rim6) = result["0.2*x**2"], result["0.2*x**6"]
+    # measured: opening 122.3 against 56.0 deg; rim folded 0.111 against 0.175 rad
+    assert open6 < 0.6 * open2 and rim6 > 1.3 * rim2, result
 
 
 def test_collisions_keep_vertices_out_of_other_petals(bud):

@@ -44,13 +44,22 @@ class Curl:
 class CenterPlane:
     vertices: np.ndarray  #: (C,) constrained vertices (axis vertices that are not pinned)
     normals: np.ndarray  #: (C, 3) unit normal of each one's center plane
+    height: np.ndarray  #: (C,) each one's distance along its normal at the start
 
     @classmethod
-    def build(cls, on_axis, pinned, petal, plane) -> CenterPlane:
+    def build(cls, positions, on_axis, pinned, petal, plane) -> CenterPlane:
         idx = np.flatnonzero(np.asarray(on_axis, bool) & ~np.asarray(pinned, bool))
         normals = np.asarray(plane, dtype=np.float64)[np.asarray(petal)[idx], :3]
         normals = normals / np.linalg.norm(normals, axis=1, keepdims=True)
-        return cls(idx.astype(np.int64), np.ascontiguousarray(normals))
+        height = np.einsum("ij,ij->i", np.asarray(positions)[idx], normals)
+        return cls(idx.astype(np.int64), np.ascontiguousarray(normals), height)
+
+    def drift(self, positions) -> float:
+        """Largest change of a constrained vertex's distance to its plane (should be ~0)."""
+        if len(self.vertices) == 0:
+            return 0.0
+        now = np.einsum("ij,ij->i", np.asarray(positions)[self.vertices], self.normals)
+        return float(np.abs(now - self.height).max())
 
 
 @dataclass
@@ -226,9 +235,13 @@ class Effects:
 
             project_out_normals(forces, self.center_plane.vertices, self.center_plane.normals)
 
-    def frame_diagnostics(self) -> dict:
+    def frame_diagnostics(self, positions=None, growth: float = 0.0) -> dict:
         """Per-frame figures of the effects that ran; resets the per-frame counters."""
         out = {}
+        if self.curl is not None:
+            out["curl_factor"] = growth * self.curl.beta
+        if self.center_plane is not None and positions is not None:
+            out["center_plane_drift"] = self.center_plane.drift(positions)
         if self.collisions is not None:
             out["contacts"] = int(self.counters[0])
             out["grid_builds"] = int(self.counters[1])
@@ -263,5 +276,5 @@ def build(names, *, vertices, faces, petal, pinned, on_axis, plane, s, rest_angl
             critical_stretch=c["critical_stretch"], max_distance=c["max_distance"],
             min_s=c["min_s"])
     if "center_plane" in names:
-        fx.center_plane = CenterPlane.build(on_axis, pinned, petal, plane)
+        fx.center_plane = CenterPlane.build(vertices, on_axis, pinned, petal, plane)
     return fx

@@ -49,7 +49,7 @@ def record(rec: Recording, model: Model, state: State, control: Control, h: floa
         angles = petals.opening_angles(state.positions)
         rec.add("opening_angle", float(angles.mean()))
         rec.add("opening_angle_per_petal", angles)
-    for name, value in effects.frame_diagnostics().items():
+    for name, value in effects.frame_diagnostics(state.positions, control.growth_at(t)).items():
         rec.add(name, value)
 
 
