@@ -23,7 +23,7 @@ def command(growth_h5: str, config_path, overrides, out, overwrite, progress) ->
     from pipeline import artifact, clean
     from pipeline.measure import PetalFrames
     from pipeline.sim import effects as fx
-    from pipeline.sim.integrators import make_integrator
+    from pipeline.sim.integrators import Diverged, make_integrator
     from pipeline.sim.model import Control, Model, State
     from pipeline.sim.run import run
 
@@ -45,7 +45,8 @@ def command(growth_h5: str, config_path, overrides, out, overwrite, progress) ->
         petals = PetalFrames.from_mesh(v, petal, base, src["axis/on_axis"], src["axis/tip"],
                                        src["axis/plane"])
         control = Control(cfg["growth.schedule"], cfg["growth.ramp"] * steps * h)
-        integrator = make_integrator(sim["integrator"], sim["eta"], sim["damping"])
+        integrator = make_integrator(sim["integrator"], sim["eta"], sim["damping"],
+                                     sim["speed_limit"])
         grown = model.edge_rest_length * (1.0 + np.maximum(model.edge_growth, 0.0))
         effects = fx.build(
             cfg.effects_enabled(), vertices=v, faces=src["mesh/faces"], petal=petal,
@@ -66,6 +67,12 @@ def command(growth_h5: str, config_path, overrides, out, overwrite, progress) ->
             try:
                 rec, wall = run(model, state, control, integrator, steps=steps, frames=frames,
                                 h=h, petals=petals, effects=effects, progress=bar.update)
+            except Diverged as exc:
+                raise BloomError(
+                    f"simulate.h: the simulation {exc} (of {steps}); likely cause: the time step "
+                    "is too large for the stiffness, or growth too fast for the steps; remedy: "
+                    "a smaller simulate.h, more simulate.steps, or a larger simulate.eta "
+                    "damping", where=where) from None
             except RuntimeError as exc:
                 raise BloomError(f"effects.collisions: {exc}", where=where) from None
         diag = rec.arrays()

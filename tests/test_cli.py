@@ -222,3 +222,17 @@ def test_config_command_lists_keys_and_values(chain):
     r = invoke("config", chain["scene"], "--get", "simulate.bending_stiffness")
     assert r.output.strip() == "0.0005"
     assert invoke("config", chain["scene"], "--mesh-path").output.strip().endswith("bud.obj")
+
+
+def test_divergence_is_caught_early_named_and_leaves_no_file(chain, tmp_path):
+    out = tmp_path / "sim.h5"
+    r = CliRunner().invoke(cli, ["simulate", str(chain["growth"]), "--out", str(out),
+                                 "--set", "simulate.h=4", "--set", "simulate.steps=2000",
+                                 "--set", "simulate.frames=3"])
+    assert r.exit_code == 1 and not out.exists()
+    errors = [line for line in r.output.splitlines() if "error:" in line]
+    assert len(errors) == 1 and "Traceback" not in r.output, r.output
+    assert "simulate.h: the simulation diverged at step" in errors[0]
+    step = int(errors[0].split("diverged at step ")[1].split(":")[0])
+    assert step < 200  # caught within a few steps of going wrong, not at the end
+    assert "smaller simulate.h" in errors[0]

@@ -4,11 +4,22 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import numpy as np
+
 from . import kernels
 from .effects import Effects
 from .model import Control, Model, State
 
 NO_EFFECTS = Effects()
+
+
+class Diverged(RuntimeError):
+    """The divergence guard stopped a run: non-finite energy or runaway speed."""
+
+    def __init__(self, step: int, energy: float, speed: float):
+        self.step, self.energy, self.speed = step, energy, speed
+        super().__init__(f"diverged at step {step}: potential energy {energy:.3g}, "
+                         f"max speed {speed:.3g}")
 
 
 @dataclass
@@ -18,25 +29,31 @@ class SemiImplicit:
 
     eta: float
     d: float = 1.0
+    speed_limit: float = 1.0  #: a vertex faster than this (mesh units per unit time) has diverged
 
     def advance(self, model: Model, state: State, control: Control, n_steps: int, h: float,
                 effects: Effects = NO_EFFECTS) -> None:
+        """Advance ``n_steps`` steps; raises :class:`Diverged` (with ``state`` at the step
+        that failed) when the divergence guard trips."""
         if n_steps <= 0:
             return
-        state.potential_energy = kernels.advance(
+        energy, taken = kernels.advance(
             state.positions, state.velocities, state.forces, state.scratch,
             model.vertex_inv_mass, model.edge_indices, model.edge_rest_length,
             model.edge_growth, model.edge_stiffness, model.hinge_indices,
             model.hinge_rest_cos, model.hinge_rest_sin, model.hinge_stiffness,
             control.schedule_code, control.ramp_time, state.step, n_steps, h, self.eta, self.d,
-            effects.bundle())
-        state.step += n_steps
+            effects.bundle(), self.speed_limit)
+        state.potential_energy = energy
+        state.step += taken
+        if taken < n_steps or not np.isfinite(energy):
+            raise Diverged(state.step, energy, state.max_speed())
 
 
-def make_integrator(name: str, eta: float, damping: float):
+def make_integrator(name: str, eta: float, damping: float, speed_limit: float = 1.0):
     """The integrator a scene asks for by ``simulate.integrator``."""
     if name == "semi-implicit":
-        return SemiImplicit(eta=eta)
+        return SemiImplicit(eta=eta, speed_limit=speed_limit)
     if name == "explicit-damping":
-        return SemiImplicit(eta=0.5, d=damping)
+        return SemiImplicit(eta=0.5, d=damping, speed_limit=speed_limit)
     raise ValueError(f"unknown integrator {name!r}")

@@ -177,7 +177,7 @@ def internal_forces(X, edges, rest0, growth, edge_k, hinges, cos0, sin0, hinge_k
 
 @njit(cache=True)
 def advance(X, V, F, F_next, inv_mass, edges, rest0, growth, edge_k, hinges, cos0, sin0,
-            hinge_k, schedule, ramp_time, step0, n_steps, h, eta, d, fx):
+            hinge_k, schedule, ramp_time, step0, n_steps, h, eta, d, fx, speed_limit):
     """Advance ``n_steps`` steps from step index ``step0`` (time ``step0 * h``).
 
     The semi-implicit scheme of the paper, with one force evaluation per step::
@@ -196,7 +196,10 @@ def advance(X, V, F, F_next, inv_mass, edges, rest0, growth, edge_k, hinges, cos
     (Eq. 7), collisions push vertices back, curl sets the rest angles of ``t[n+1]``,
     forces (springs, hinges, connection springs; the center-plane constraint removes
     the plane-normal component of its vertices' forces), velocities (Eq. 8).
-    Returns the potential energy at the last step.
+
+    Divergence guard: a step whose energy is not finite, or after which a vertex moves
+    faster than ``speed_limit`` (mesh units per unit time), ends the call at once.
+    Returns ``(potential energy at the last step taken, steps taken)``.
     """
     nv = X.shape[0]
     half_hh = 0.5 * h * h
@@ -231,12 +234,18 @@ def advance(X, V, F, F_next, inv_mass, edges, rest0, growth, edge_k, hinges, cos
                                         conn_alive, conn_broken, step0 + n + 1, F_next)
         if plane_on:
             project_out_normals(F_next, plane_idx, plane_n)
+        fastest = 0.0
         for v in range(nv):
             hw = h * inv_mass[v]
             for c in range(3):
                 V[v, c] = d * V[v, c] + hw * (eta * F[v, c] + (1.0 - eta) * F_next[v, c])
                 F[v, c] = F_next[v, c]
-    return energy
+            sq = V[v, 0] * V[v, 0] + V[v, 1] * V[v, 1] + V[v, 2] * V[v, 2]
+            if sq > fastest:
+                fastest = sq
+        if not (math.isfinite(energy) and fastest <= speed_limit * speed_limit):
+            return energy, n + 1
+    return energy, n_steps
 
 
 # --- effects ---------------------------------------------------------------------------
