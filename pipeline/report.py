@@ -12,6 +12,9 @@ import numpy as np
 from . import measure, topology
 from .remesh import boundary_loops
 
+#: what the report reads from sim.h5 beyond what every sim.h5 holds
+NEEDS = ("mesh/petal", "growth/hinges", "axis/s", "axis/x", "diagnostics/opening_angle_per_petal")
+
 
 def compute(sim) -> dict:
     """Measure an open sim.h5 (an :class:`artifact.Artifact`)."""

@@ -203,7 +203,18 @@ def mirrored_mesh(vertices: np.ndarray, faces: np.ndarray, plane: np.ndarray, *,
     """
     R, origin = plane_frame(plane)
     local = (np.asarray(vertices, dtype=np.float64) - origin) @ R.T
-    local[np.abs(local[:, 0]) < snap, 0] = 0.0
+    close = np.abs(local[:, 0]) < snap
+    # never snap both ends of an edge that crosses the plane: that would shorten it to
+    # its length along the plane (or merge its ends); keep the end nearer the plane
+    edges, _, _ = topology.unique_edges(faces)
+    u = local[:, 0]
+    for _ in range(len(edges)):
+        both = close[edges[:, 0]] & close[edges[:, 1]] & (u[edges[:, 0]] * u[edges[:, 1]] < 0)
+        if not both.any():
+            break
+        e = edges[np.flatnonzero(both)[0]]
+        close[e[np.argmax(np.abs(u[e]))]] = False
+    local[close, 0] = 0.0
     half_v, half_f, _ = clip(local, faces, local[:, 0])
     other_v, other_f, _ = clip(local * [-1.0, 1.0, 1.0], faces, -local[:, 0])
     if len(half_f) == 0 or len(other_f) == 0:

@@ -7,20 +7,32 @@ import json
 import click
 
 
+def _sizes(ctx, param, value: str) -> tuple[int, ...]:
+    try:
+        sizes = tuple(int(x) for x in value.split(","))
+    except ValueError:
+        raise click.BadParameter(f"{value!r} is not a comma-separated list of integers") from None
+    if any(n < 120 for n in sizes):
+        raise click.BadParameter("every size must be at least 120 vertices")
+    return sizes
+
+
 @click.command("bench")
-@click.option("--vertices", default=2000, show_default=True, help="Vertices of the bud.")
-@click.option("--steps", default=3000, show_default=True, help="Steps timed per variant.")
-@click.option("--sizes", default="2000,8000,32000", show_default=True,
-              help="Vertex counts for the collision scaling.")
+@click.option("--vertices", default=2000, show_default=True, type=click.IntRange(min=120),
+              help="Vertices of the bud.")
+@click.option("--steps", default=3000, show_default=True, type=click.IntRange(min=10),
+              help="Steps timed per variant.")
+@click.option("--sizes", default="2000,8000,32000", show_default=True, callback=_sizes,
+              help="Vertex counts for the collision scaling (comma-separated, each >= 120).")
 @click.option("--json", "as_json", is_flag=True, help="Print JSON instead of tables.")
-def command(vertices: int, steps: int, sizes: str, as_json: bool) -> None:
+def command(vertices: int, steps: int, sizes: tuple[int, ...], as_json: bool) -> None:
     """Time the simulator on a procedural 6-petal bud: no effect, each effect alone and
     all together (ratios to no effect, best of 3 interleaved runs); then collisions at
     several sizes (cost per vertex should stay flat: linear in the vertex count)."""
     from pipeline import bench
 
     costs = bench.effect_costs(vertices, steps)
-    scaling = bench.collision_scaling(tuple(int(s) for s in sizes.split(",")))
+    scaling = bench.collision_scaling(sizes)
     if as_json:
         click.echo(json.dumps({"effects": costs, "collision_scaling": scaling}, indent=1))
         return

@@ -24,6 +24,9 @@ def command(sim_h5: str, out: str, overwrite: bool) -> None:
     from pipeline import artifact, report
 
     out_path = Path(out)
+    if out_path.suffix.lower() != ".json":
+        raise BloomError("--out must name a .json file (the plot goes beside it as .png)",
+                         where=str(out_path))
     png = out_path.with_suffix(".png")
     for path in (out_path, png):
         if path.is_dir():
@@ -31,7 +34,14 @@ def command(sim_h5: str, out: str, overwrite: bool) -> None:
     if out_path.exists() and not overwrite and not _is_report(out_path):
         raise BloomError("exists and is not a Bloom report; not overwriting it (pass "
                          "--overwrite to replace it)", where=str(out_path))
+    if png.exists() and not overwrite and not _is_report(out_path):
+        raise BloomError("exists and was not written by `bloom report`; not overwriting it "
+                         "(pass --overwrite to replace it)", where=str(png))
     with artifact.Artifact(sim_h5, needs="simulate", reader="report") as sim:
+        missing = [name for name in report.NEEDS if name not in sim]
+        if missing:
+            raise BloomError(f"made by an older `bloom simulate` ({missing[0]} missing); "
+                             "rerun `bloom simulate` to report on it", where=str(sim_h5))
         data = {"stage": "report", "input": str(sim_h5), **report.compute(sim)}
     out_path.parent.mkdir(parents=True, exist_ok=True)
     tmp_json = out_path.with_name(f".{out_path.name}.tmp-{os.getpid()}")

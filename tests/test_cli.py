@@ -236,3 +236,23 @@ def test_divergence_is_caught_early_named_and_leaves_no_file(chain, tmp_path):
     step = int(errors[0].split("diverged at step ")[1].split(":")[0])
     assert step < 200  # caught within a few steps of going wrong, not at the end
     assert "smaller simulate.h" in errors[0]
+
+
+def test_report_refuses_a_png_out_and_an_old_sim(chain, tmp_path):
+    r = CliRunner().invoke(cli, ["report", str(chain["sim"]), "--out", str(tmp_path / "r.png")])
+    assert r.exit_code == 1 and "--out must name a .json file" in r.output
+    old = tmp_path / "old.h5"
+    import shutil
+
+    shutil.copy(chain["sim"], old)
+    with h5py.File(old, "a") as f:
+        del f["growth/hinges"]
+    r = CliRunner().invoke(cli, ["report", str(old), "--out", str(tmp_path / "r.json")])
+    assert r.exit_code == 1 and "older `bloom simulate` (growth/hinges missing)" in r.output
+    assert not (tmp_path / "r.json").exists() and not (tmp_path / "r.png").exists()
+
+
+def test_bench_refuses_bad_options_in_one_line():
+    for args in (["--sizes", "300,abc"], ["--steps", "0"], ["--vertices", "5"]):
+        r = CliRunner().invoke(cli, ["bench", *args])
+        assert r.exit_code == 2 and "Traceback" not in r.output, r.output

@@ -197,3 +197,16 @@ def test_plum_locked_stays_shut_until_its_springs_break_then_opens_faster(tmp_pa
     # rise over 8 frames (13 333 steps) is 49.6 deg against 18.6
     rate = {k: np.max(o[8:] - o[:-8]) for k, o in opening.items()}
     assert rate["plum_locked"] > 2.0 * rate["plum"], rate
+
+
+def test_collisions_with_the_center_plane_keep_axis_vertices_on_their_plane(bud):
+    rec, effects, state, _ = simulate(bud, ("collisions", "center_plane"), steps=6000, frames=3,
+                                      curve="0.3*x**2")
+    assert sum(rec.diagnostics["contacts"]) > 0
+    assert max(rec.diagnostics["center_plane_drift"]) < 1e-9
+    assert rec.diagnostics["max_speed"][-1] < 0.05
+
+
+def test_collisions_on_a_lone_petal_have_nothing_to_do(petal):
+    rec, effects, state, _ = simulate(petal, ("collisions",), steps=300, frames=3)
+    assert sum(rec.diagnostics["contacts"]) == 0 and np.isfinite(state.positions).all()

@@ -120,28 +120,19 @@ class Collisions:
     @classmethod
     def build(cls, vertices, faces, petal, *, offset: float, max_edge: float,
               margin: float = 0.2, slack: float = 0.1) -> Collisions:
-        """Which side of every other petal each vertex belongs on is read off the bud,
-        by the rule the kernel applies: the side of the nearest face whose prism holds
-        the vertex, or where there is none, of the petal's closest point. Inner petals
-        lie inside outer ones and an imbricate (overlapping) rim keeps its order; petals
-        that touch in the bud start with no contact."""
-        from ..symmetry import closest_points
+        """Which side of another petal a vertex belongs on is the side it is on when it
+        comes near that petal (within the margin, over or under one of its faces): for
+        vertices near another petal in the bud, the bud's side (inner petals inside outer
+        ones, an imbricate rim in its order); for the others, the side they arrive on,
+        round the petal's rim, as the bud opens. Petals that touch in the bud start with
+        no contact."""
         from . import kernels
 
         v = np.asarray(vertices, dtype=np.float64)
         f = np.ascontiguousarray(faces, dtype=np.int64)
         petal = np.ascontiguousarray(petal, dtype=np.int64)
         count = int(petal.max()) + 1
-        face_n = topology.face_normals(v, f)
         side = np.ones((len(v), count))
-        for q in range(count):
-            mine = np.flatnonzero(petal == q)
-            local = np.searchsorted(mine, f[petal[f[:, 0]] == q])
-            others = np.flatnonzero(petal != q)
-            point, face = closest_points(v[mine], local, v[others], return_face=True)
-            normal = face_n[petal[f[:, 0]] == q][face]
-            d = np.einsum("ij,ij->i", v[others] - point, normal)
-            side[others, q] = np.where(d < 0.0, -1.0, 1.0)
         size = 4 * len(f) + 1
         cell = max_edge + 2.0 * (margin + offset + slack)
         made = cls(f, np.ascontiguousarray(petal[f[:, 0]]), petal, side,
@@ -225,7 +216,7 @@ class Effects:
                 g.items if g else _I8, g.reference if g else np.zeros((0, 3)), self.counters,
                 g.pair_start if g else _I8, g.pair_faces if g else _I8,
                 g.best_face if g else _I8, g.best_dist if g else _F8,
-                g.near if g else np.zeros((0, 0), dtype=np.int8))
+                g.near if g else np.zeros((0, 0), dtype=np.int8), p.height if p else _F8)
         return self._bundle
 
     def constrain(self, forces: np.ndarray) -> None:

@@ -212,6 +212,7 @@ def advance(X, V, F, F_next, inv_mass, edges, rest0, growth, edge_k, hinges, cos
         fx[15], fx[16], fx[17], fx[18], fx[19], fx[20], fx[21])
     start, count, items, X_ref, counters = fx[22], fx[23], fx[24], fx[25], fx[26]
     pair_start, pair_faces, best_face, best_dist, near = fx[27], fx[28], fx[29], fx[30], fx[31]
+    plane_h = fx[32]
     c0, s0 = (cos_t, sin_t) if curl_on else (cos0, sin0)
     for n in range(n_steps):
         for v in range(nv):
@@ -223,6 +224,8 @@ def advance(X, V, F, F_next, inv_mass, edges, rest0, growth, edge_k, hinges, cos
             collide(X, V, inv_mass, faces, face_petal, vert_petal, side, near, normals, coll_par,
                     start, count, items, pair_start, pair_faces, best_face, best_dist, X_ref,
                     counters)
+            if plane_on:  # a push must not move an axis vertex off its plane
+                restore_plane(X, V, plane_idx, plane_n, plane_h)
         t = (step0 + n + 1) * h
         A = schedule_value(schedule, t, ramp_time)
         if curl_on:
@@ -274,6 +277,19 @@ def project_out_normals(F, idx, normals):
 
 
 @njit(cache=True)
+def restore_plane(X, V, idx, normals, height):
+    """Put each listed vertex back at its distance ``height`` along its normal and remove
+    the normal component of its velocity (after a collision push)."""
+    for k in range(idx.shape[0]):
+        v = idx[k]
+        off = X[v, 0] * normals[k, 0] + X[v, 1] * normals[k, 1] + X[v, 2] * normals[k, 2] - height[k]
+        vn = V[v, 0] * normals[k, 0] + V[v, 1] * normals[k, 1] + V[v, 2] * normals[k, 2]
+        for c in range(3):
+            X[v, c] -= off * normals[k, c]
+            V[v, c] -= vn * normals[k, c]
+
+
+@njit(cache=True)
 def connection_forces(X, pairs, rest, k, limit, alive, broken_step, step, F):
     """Springs between petals; one breaks for good when longer than ``limit`` (its own
     breaking length). Adds to ``F``; returns the energy of the intact springs."""
@@ -309,12 +325,24 @@ def _cell_hash(ix, iy, iz, size):
 def build_face_grid(X, faces, inflate, cell, start, count, items):
     """A uniform grid over space, stored as a hash table of cells: every face is listed
     in every cell its bounding box (grown by ``inflate``) overlaps. Counting sort into
-    ``start (S+1,)``, ``count (S,)`` and ``items``; faces beyond ``items``' capacity are
-    left out and counted in the return value (0 when the grid is complete)."""
+    ``start (S+1,)``, ``count (S,)`` and ``items``.
+
+    A face whose box spans more than 3 cells along an axis (it has grown far beyond its
+    rest size: the run is diverging) is left out, and so is everything when the
+    listings exceed ``items``' capacity (the grid is then empty). Returns how many
+    listings were left out: 0 when the grid is complete."""
     size = count.shape[0]
     count[:] = 0
+    lost = 0
     for pass_ in range(2):
         if pass_ == 1:
+            total = 0
+            for b in range(size):
+                total += count[b]
+            if total > items.shape[0]:
+                count[:] = 0
+                start[:] = 0
+                return lost + total - items.shape[0]
             start[0] = 0
             for b in range(size):
                 start[b + 1] = start[b] + count[b]
@@ -327,6 +355,11 @@ def build_face_grid(X, faces, inflate, cell, start, count, items):
             hi0 = max(X[a, 0], max(X[b_, 0], X[c, 0])) + inflate
             hi1 = max(X[a, 1], max(X[b_, 1], X[c, 1])) + inflate
             hi2 = max(X[a, 2], max(X[b_, 2], X[c, 2])) + inflate
+            if not (hi0 - lo0 <= 3.0 * cell and hi1 - lo1 <= 3.0 * cell
+                    and hi2 - lo2 <= 3.0 * cell):
+                if pass_ == 0:
+                    lost += 1
+                continue
             for ix in range(int(math.floor(lo0 / cell)), int(math.floor(hi0 / cell)) + 1):
                 for iy in range(int(math.floor(lo1 / cell)), int(math.floor(hi1 / cell)) + 1):
                     for iz in range(int(math.floor(lo2 / cell)), int(math.floor(hi2 / cell)) + 1):
@@ -336,9 +369,7 @@ def build_face_grid(X, faces, inflate, cell, start, count, items):
                         else:
                             items[start[key] + count[key]] = f
                             count[key] += 1
-        if pass_ == 0 and count.sum() > items.shape[0]:
-            return count.sum() - items.shape[0]
-    return 0
+    return lost
 
 
 @njit(cache=True)
