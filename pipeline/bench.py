@@ -9,14 +9,15 @@ import numpy as np
 
 from . import asset, clean
 from .axis import find_axes
+from .config import load_config
 from .growth import assign_growth
 from .sim import effects as fx
 from .sim.integrators import SemiImplicit
 from .sim.model import Control, Model, State
 
-PARAMS = {"curl": {"beta": 0.5}, "collisions": {"offset": 0.001},
-          "connections": {"stiffness": 0.1, "critical_stretch": 1.5, "max_distance": 3.0,
-                          "min_s": 0.3}}
+#: the ``effects`` section of a scene at its defaults, connecting rims up to 3 edges away
+PARAMS = load_config().nested()["effects"]
+PARAMS["connections"]["max_distance"] = 3.0
 VARIANTS = ((), ("curl",), ("wrinkles",), ("collisions",), ("connections",), ("center_plane",),
             ("curl", "wrinkles", "collisions", "connections", "center_plane"))
 

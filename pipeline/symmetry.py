@@ -167,10 +167,9 @@ def clip(vertices: np.ndarray, faces: np.ndarray, u: np.ndarray):
 
 
 def closest_points(vertices: np.ndarray, faces: np.ndarray, points: np.ndarray,
-                   candidates: int = 8, return_face: bool = False):
+                   candidates: int = 8) -> np.ndarray:
     """For each point, the closest point on the triangles incident to its
-    ``candidates`` nearest mesh vertices (exact for points near a fine mesh); with
-    ``return_face``, also the index of the face it lies on."""
+    ``candidates`` nearest mesh vertices (exact for points near a fine mesh)."""
     from trimesh.triangles import closest_point
 
     k = min(candidates, len(vertices))
@@ -187,7 +186,7 @@ def closest_points(vertices: np.ndarray, faces: np.ndarray, points: np.ndarray,
     dist = np.linalg.norm(q - points[pi], axis=1)
     order = np.lexsort((dist, pi))
     first = order[np.r_[True, pi[order][1:] != pi[order][:-1]]]
-    return (q[first], fi[first]) if return_face else q[first]
+    return q[first]
 
 
 def mirrored_mesh(vertices: np.ndarray, faces: np.ndarray, plane: np.ndarray, *,

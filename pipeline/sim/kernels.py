@@ -68,18 +68,25 @@ def stretch_forces(X, edges, rest0, growth, stiffness, A, F):
         j = edges[e, 1]
         dx, dy, dz, length = _edge_vector(X, i, j)
         rest = rest0[e] * (1.0 + A * growth[e])
-        stretch = length - rest
-        tension = stiffness[e] * stretch
-        energy += 0.5 * tension * stretch
-        if length > 0.0:
-            c = tension / length
-            F[i, 0] += c * dx
-            F[i, 1] += c * dy
-            F[i, 2] += c * dz
-            F[j, 0] -= c * dx
-            F[j, 1] -= c * dy
-            F[j, 2] -= c * dz
+        energy += _spring(F, i, j, dx, dy, dz, length, rest, stiffness[e])
     return energy
+
+
+@njit(cache=True, inline="always")
+def _spring(F, i, j, dx, dy, dz, length, rest, k):
+    """Add the forces of a spring ``k (length - rest)`` between i and j (``d = x_j - x_i``)
+    to ``F``; return its energy. One place for stretch and connection springs."""
+    stretch = length - rest
+    tension = k * stretch
+    if length > 0.0:
+        c = tension / length
+        F[i, 0] += c * dx
+        F[i, 1] += c * dy
+        F[i, 2] += c * dz
+        F[j, 0] -= c * dx
+        F[j, 1] -= c * dy
+        F[j, 2] -= c * dz
+    return 0.5 * tension * stretch
 
 
 @njit(cache=True, inline="always")
@@ -303,16 +310,7 @@ def connection_forces(X, pairs, rest, k, limit, alive, broken_step, step, F):
             alive[c] = False
             broken_step[c] = step
             continue
-        ext = length - rest[c]
-        energy += 0.5 * k * ext * ext
-        if length > 0.0:
-            s = k * ext / length
-            F[i, 0] += s * dx
-            F[i, 1] += s * dy
-            F[i, 2] += s * dz
-            F[j, 0] -= s * dx
-            F[j, 1] -= s * dy
-            F[j, 2] -= s * dz
+        energy += _spring(F, i, j, dx, dy, dz, length, rest[c], k)
     return energy
 
 
