@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from pipeline import measure, topology
+from pipeline.bench import PARAMS
 from pipeline.growth import assign_growth
 from pipeline.remesh import boundary_loops
 from pipeline.sim import effects as fx
@@ -14,10 +15,6 @@ from pipeline.sim.integrators import SemiImplicit
 from pipeline.sim.model import Control, State
 from pipeline.sim.run import run
 from tests.conftest import build_model, prepared
-
-PARAMS = {"curl": {"beta": 0.5}, "collisions": {"offset": 0.001},
-          "connections": {"stiffness": 0.1, "critical_stretch": 1.5, "max_distance": 3.0,
-                          "min_s": 0.3}}
 
 
 def simulate(mesh, names=(), steps=6000, frames=13, curve=None, beta=0.5, alpha_add=0.0,
@@ -151,14 +148,19 @@ def test_collisions_keep_vertices_out_of_other_petals(bud):
 
 
 def test_connection_springs_break_for_good(bud):
+    # soft springs (of the order of the bending forces) that the opening stretches past
+    # their limit: measured 127 intact at the start, 12 after 6000 steps
+    soft = {"connections": {**PARAMS["connections"], "stiffness": 1e-5}}
     rec, effects, _, _ = simulate(bud, ("connections",), steps=6000, frames=13,
-                                  curve="0.3*x**2")
+                                  curve="0.3*x**2", params=soft)
     c = effects.connections
     intact = rec.diagnostics["connections_intact"]
     assert intact[0] == len(c.pairs) > 0
-    assert np.all(np.diff(intact) <= 0)
+    assert intact[-1] < intact[0] / 2  # most of them broke
+    assert np.all(np.diff(intact) <= 0)  # and none came back
     broken = c.broken_step[~c.alive]
     assert len(broken) == len(c.pairs) - intact[-1] and np.all(broken > 0)
+    assert np.all(c.broken_step[c.alive] == -1)
 
 
 @pytest.mark.slow
