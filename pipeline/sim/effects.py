@@ -121,36 +121,24 @@ class Collisions:
     def build(cls, vertices, faces, petal, *, offset: float, max_edge: float,
               margin: float = 0.2, slack: float = 0.1) -> Collisions:
         """Which side of another petal a vertex belongs on is the side it is on when it
-        comes near that petal (within the margin, over or under one of its faces): for
-        vertices near another petal in the bud, the bud's side (inner petals inside outer
-        ones, an imbricate rim in its order); for the others, the side they arrive on,
-        round the petal's rim, as the bud opens. Petals that touch in the bud start with
-        no contact."""
-        from . import kernels
-
+        comes near that petal (within the margin, over or under one of its faces): the
+        kernel records it then. For vertices near another petal in the bud that is the
+        bud's side (inner petals inside outer ones, an imbricate rim in its order), taken
+        at the first step; for the others, the side they arrive on, round the petal's
+        rim, as the bud opens. Petals that touch in the bud start with no contact."""
         v = np.asarray(vertices, dtype=np.float64)
         f = np.ascontiguousarray(faces, dtype=np.int64)
         petal = np.ascontiguousarray(petal, dtype=np.int64)
         count = int(petal.max()) + 1
-        side = np.ones((len(v), count))
         size = 4 * len(f) + 1
         cell = max_edge + 2.0 * (margin + offset + slack)
-        made = cls(f, np.ascontiguousarray(petal[f[:, 0]]), petal, side,
+        return cls(f, np.ascontiguousarray(petal[f[:, 0]]), petal, np.ones((len(v), count)),
                    np.array([cell, offset, margin, slack]), np.zeros((len(f), 3)),
                    np.zeros(size + 1, dtype=np.int64), np.zeros(size, dtype=np.int64),
                    np.zeros(27 * len(f), dtype=np.int64), v.copy(),
                    np.zeros(len(v) + 1, dtype=np.int64), np.zeros(64 * len(v), dtype=np.int64),
                    np.zeros(count, dtype=np.int64), np.zeros(count),
                    np.zeros((len(v), count), dtype=np.int8))
-        made.near_pairs(v, margin)
-        kernels.face_unit_normals(v, f, made.normals)
-        for i in range(len(v)):
-            kernels.nearest_faces(v, f, made.face_petal, made.normals, margin, made.pair_start,
-                                  made.pair_faces, i, made.best_face, made.best_dist)
-            hit = made.best_face >= 0
-            side[i, hit] = np.where(made.best_dist[hit] < 0.0, -1.0, 1.0)
-            made.near[i, hit] = 1
-        return made
 
     def near_pairs(self, X, reach: float) -> int:
         """List the near pairs at ``X`` (as the kernel does when it rebuilds)."""
