@@ -185,6 +185,52 @@ def resample_boundary(vertices: np.ndarray, faces: np.ndarray, h: float,
     return v, f, fixed
 
 
+def _angle_at(v: np.ndarray, apex: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    x, y = v[a] - v[apex], v[b] - v[apex]
+    cos = np.einsum("ij,ij->i", x, y) / np.maximum(
+        np.linalg.norm(x, axis=1) * np.linalg.norm(y, axis=1), 1e-300)
+    return np.arccos(np.clip(cos, -1.0, 1.0))
+
+
+def delaunay_flips(vertices: np.ndarray, faces: np.ndarray, passes: int = 20) -> np.ndarray:
+    """Flip interior edges whose two opposite angles add up to more than pi (the mesh's
+    own Delaunay criterion), unless the flip would fold the surface or duplicate an edge.
+
+    The remesher keeps boundary vertices where they are and flips only for valence, so
+    triangles along a straight rim or cut (an "ear" of three rim vertices, a fan left by
+    a boundary split) can stay needle-thin; these flips fix them."""
+    f = np.asarray(faces, dtype=np.int64).copy()
+    for _ in range(passes):
+        he, opposite, he_edge, count, a, b = topology.interior_pairs(f)
+        nf = len(f)
+        i, j = he[a, 0], he[a, 1]
+        o, o2 = opposite[a], opposite[b]
+        total = _angle_at(vertices, o, i, j) + _angle_at(vertices, o2, i, j)
+        todo = np.flatnonzero((total > np.pi + 1e-9) & (o != o2))
+        todo = todo[np.argsort(-total[todo], kind="stable")]
+        existing = {tuple(e) for e in np.sort(he, axis=1).tolist()}
+        used, flipped = set(), 0
+        for k in todo.tolist():
+            t1, t2 = int(a[k] % nf), int(b[k] % nf)
+            if t1 in used or t2 in used:
+                continue
+            vi, vj, vo, vo2 = int(i[k]), int(j[k]), int(o[k]), int(o2[k])
+            if (min(vo, vo2), max(vo, vo2)) in existing:
+                continue
+            new = np.array([(vi, vo2, vo), (vj, vo, vo2)])
+            before = topology.face_normals(vertices, f[[t1, t2]]).sum(axis=0)
+            after = topology.face_normals(vertices, new)
+            if np.any(after @ before <= 0.0):
+                continue
+            f[t1], f[t2] = new
+            used.update((t1, t2))
+            existing.add((min(vo, vo2), max(vo, vo2)))
+            flipped += 1
+        if flipped == 0:
+            break
+    return f
+
+
 def isotropic(vertices: np.ndarray, faces: np.ndarray, h: float, *,
               fixed: np.ndarray | None = None, iterations: int = 10):
     """Remesh a sheet to edge length about ``h``, boundary included.
@@ -209,4 +255,4 @@ def isotropic(vertices: np.ndarray, faces: np.ndarray, h: float, *,
         v, f, fixed, split = _split_long(v, f, fixed, h, boundary_only=False)
         if split == 0:
             break
-    return np.ascontiguousarray(v), f, fixed
+    return np.ascontiguousarray(v), delaunay_flips(v, f), fixed

@@ -193,9 +193,10 @@ def mirrored_mesh(vertices: np.ndarray, faces: np.ndarray, plane: np.ndarray, *,
                   snap: float, remesh: Callable | None = None):
     """A mirror-symmetric petal made from both halves of a petal about ``plane``.
 
-    Vertices closer than ``snap`` to the plane are moved onto it (so the cut makes no
-    slivers). The half on the normal's side is cut off, each of its vertices is moved
-    halfway to the mirror image of the other half, ``remesh(v, f, fixed)`` (if given)
+    Vertices closer than ``snap`` to the plane are moved onto it, so the cut makes no
+    slivers (before a remesh, which resamples the cut, a small snap distorts least).
+    The half on the normal's side is cut off, each of its vertices is moved halfway
+    to the mirror image of the other half, ``remesh(v, f, fixed)`` (if given)
     remeshes it with the ends of the cut fixed, and it is stitched to its mirror image
     along the cut. Returns ``(vertices, faces, partner)``: ``partner`` maps every vertex
     to its mirror image (itself on the plane).
@@ -214,7 +215,8 @@ def mirrored_mesh(vertices: np.ndarray, faces: np.ndarray, plane: np.ndarray, *,
         e = edges[np.flatnonzero(both)[0]]
         close[e[np.argmax(np.abs(u[e]))]] = False
     local[close, 0] = 0.0
-    half_v, half_f, _ = clip(local, faces, local[:, 0])
+    half_v, half_f, half_u = clip(local, faces, local[:, 0])
+    half_v[:, 0] = half_u  # cut vertices exactly on the plane
     other_v, other_f, _ = clip(local * [-1.0, 1.0, 1.0], faces, -local[:, 0])
     if len(half_f) == 0 or len(other_f) == 0:
         raise ValueError("the petal lies on one side of its center plane")
