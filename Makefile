@@ -17,7 +17,7 @@ PYTEST_ARGS ?=
 # A stage's artifacts depend on the library and on the stage's own module.
 LIB := $(wildcard pipeline/*.py pipeline/sim/*.py) stages/cli.py stages/common.py
 
-.PHONY: all test lint bench venv clean clean-venv help
+.PHONY: all test lint bench accuracy venv clean clean-venv help
 all: $(SCENES:%=$(OUT)/%/render/bloom.mp4) $(SCENES:%=$(OUT)/%/report.json)  ## build every scene: artifacts, frames, MP4, report
 
 help:  ## list the targets
@@ -37,6 +37,9 @@ test: $(INSTALLED)  ## run the test suite
 bench: $(INSTALLED)  ## print what each effect costs, as ratios to the bare simulation
 	$(BLOOM) bench
 
+accuracy: $(INSTALLED)  ## what accuracy costs in time: outputs/accuracy/accuracy.csv, .png (~6 min)
+	$(BLOOM) study accuracy --out $(OUT)/accuracy
+
 lint: $(INSTALLED)  ## ruff over the code
 	$(VENV)/bin/ruff check pipeline stages tests
 
@@ -45,7 +48,7 @@ $(OUT)/%/mesh.d: configs/%.toml | $(INSTALLED)
 	@mkdir -p $(@D)
 	@echo "$(OUT)/$*/remesh.h5: $$($(BLOOM) config $< --mesh-path)" > $@
 
-ifeq ($(filter test lint bench venv clean clean-venv help,$(MAKECMDGOALS)),)
+ifeq ($(filter test lint bench accuracy venv clean clean-venv help,$(MAKECMDGOALS)),)
 -include $(SCENES:%=$(OUT)/%/mesh.d)
 endif
 

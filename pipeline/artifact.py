@@ -99,6 +99,20 @@ def writing(path: str | Path, *, stage: str, config_json: str, inputs: dict[str,
             tmp.unlink()
 
 
+@contextmanager
+def atomic_path(path: str | Path) -> Iterator[Path]:
+    """A temporary path next to ``path`` to write any file to; renamed into place if the
+    block succeeds, removed if it fails (the previous file is left as it was)."""
+    path = Path(path)
+    tmp = path.with_name(f".{path.stem}.tmp-{os.getpid()}{path.suffix}")
+    try:
+        yield tmp
+        os.replace(tmp, path)
+    finally:
+        if tmp.exists():
+            tmp.unlink()
+
+
 def put(f: h5py.File, name: str, data: Any, doc: str | None = None) -> None:
     """Write one dataset (compressed when large), with an optional one-line description."""
     arr = np.asarray(data)

@@ -7,7 +7,7 @@ import time
 
 import numpy as np
 
-from . import asset, clean
+from . import asset, clean, topology
 from .axis import find_axes
 from .config import load_config
 from .growth import assign_growth
@@ -68,6 +68,8 @@ def collision_scaling(sizes=(2000, 8000, 32000), steps: int = 300) -> list[dict]
         bud = _bud(6, n)
         bare = _ms_per_step(bud, (), steps, ramp=steps)
         coll = _ms_per_step(bud, ("collisions",), steps, ramp=steps)
-        rows.append({"vertices": len(bud[0]), "bare_ms": bare, "collisions_ms": coll,
+        edges = len(topology.unique_edges(bud[1])[0])
+        rows.append({"vertices": len(bud[0]), "edges": edges, "bare_ms": bare,
+                     "bare_ns_per_edge": 1e6 * bare / edges, "collisions_ms": coll,
                      "collisions_ns_per_vertex": 1e6 * (coll - bare) / len(bud[0])})
     return rows

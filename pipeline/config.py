@@ -43,7 +43,7 @@ def _check_color(value: str) -> None:
 
 
 SCHEDULES = ("linear", "smoothstep", "smootherstep")
-INTEGRATORS = ("semi-implicit", "explicit-damping")
+INTEGRATORS = ("semi-implicit", "explicit-damping", "quasi-static")
 
 SCHEMA: dict[str, Any] = {
     "scene": {
@@ -87,8 +87,13 @@ SCHEMA: dict[str, Any] = {
         "h": Key(float, 1.0, "time step (paper: 1.0)", low=0.0, low_open=True),
         "eta": Key(float, 0.1, "damping factor of the semi-implicit scheme (Eq. 8): 1/2 is "
                    "Verlet, smaller damps", low=0.0, high=0.5),
-        "integrator": Key(str, "semi-implicit", "semi-implicit (Eq. 7-8) or explicit-damping "
-                          "(Eq. 9, for comparison)", choices=INTEGRATORS),
+        "integrator": Key(str, "semi-implicit", "semi-implicit (Eq. 7-8), explicit-damping "
+                          "(Eq. 9, for comparison) or quasi-static (the path of equilibria "
+                          "along the growth, by Newton's method)", choices=INTEGRATORS),
+        "stages": Key(int, 20, "quasi-static: growth increments over the ramp (at least; "
+                      "each is halved where Newton fails)", low=1),
+        "tolerance": Key(float, 1e-6, "quasi-static: converged when a Newton step moves no "
+                         "vertex further than this (mesh units)", low=0.0, low_open=True),
         "damping": Key(float, 0.9999, "velocity factor d of the explicit-damping integrator "
                        "(Eq. 9)", low=0.0, high=1.0),
         "stretch_stiffness": Key(float, 0.1, "K_s, per edge (paper: 0.1)", low=0.0, low_open=True),
@@ -328,6 +333,12 @@ def _check_together(cfg: Config, where: str) -> None:
     if cfg["remesh.target_edge"] > 0 and cfg["remesh.petal_vertices"] > 0:
         raise BloomError("remesh.target_edge, remesh.petal_vertices: set one of them, not both",
                          where=where)
+    if cfg["simulate.integrator"] == "quasi-static":
+        dynamic = [n for n in ("collisions", "connections") if cfg[f"effects.{n}.enabled"]]
+        if dynamic:
+            raise BloomError(f"simulate.integrator: quasi-static cannot run effects."
+                             f"{dynamic[0]} (a dynamic effect); use semi-implicit, or set "
+                             f"effects.{dynamic[0]}.enabled = false", where=where)
     if cfg["render.width"] % 2 or cfg["render.height"] % 2:
         raise BloomError("render.width, render.height: must be even (H.264)", where=where)
 

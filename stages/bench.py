@@ -24,24 +24,49 @@ def _sizes(ctx, param, value: str) -> tuple[int, ...]:
               help="Steps timed per variant.")
 @click.option("--sizes", default="2000,8000,32000", show_default=True, callback=_sizes,
               help="Vertex counts for the collision scaling (comma-separated, each >= 120).")
+@click.option("--converge/--no-converge", default=True, show_default=True,
+              help="Also time a converged bloom of the Fig. 12-size bud with each integrator.")
 @click.option("--json", "as_json", is_flag=True, help="Print JSON instead of tables.")
-def command(vertices: int, steps: int, sizes: tuple[int, ...], as_json: bool) -> None:
+def command(vertices: int, steps: int, sizes: tuple[int, ...], converge: bool,
+            as_json: bool) -> None:
     """Time the simulator on a procedural 6-petal bud: no effect, each effect alone and
-    all together (ratios to no effect, best of 3 interleaved runs); then collisions at
-    several sizes (cost per vertex should stay flat: linear in the vertex count)."""
-    from pipeline import bench
+    all together (ratios to no effect, best of 3 interleaved runs); then the step cost
+    and collisions at several sizes (cost per edge and per vertex should stay flat:
+    linear in the vertex count); then, with --converge, the wall time each integrator
+    needs for a bloom within 1% of the petal length of a converged reference, on a
+    6-petal bud of 2133 vertices (the paper's Fig. 12 lily: 44 s)."""
+    from pipeline import bench, study
 
     costs = bench.effect_costs(vertices, steps)
     scaling = bench.collision_scaling(sizes)
+    converged = None
+    if converge:
+        scene = study.Scene.bud(6, 2133)
+        ref, change = study.reference(scene)
+        converged = {"vertices": scene.model.vertex_count, "reference_seconds": ref.wall,
+                     "reference_refinement_change": change,
+                     "runs": study.time_to_converge(
+                         scene, ref.positions, echo=None if as_json else click.echo)}
     if as_json:
-        click.echo(json.dumps({"effects": costs, "collision_scaling": scaling}, indent=1))
+        click.echo(json.dumps({"effects": costs, "collision_scaling": scaling,
+                               "converged_bloom": converged}, indent=1))
         return
     click.echo(f"effects on a 6-petal bud of about {vertices} vertices, {steps} steps")
     click.echo(f"{'effects':58s} {'ms/step':>8s} {'ratio':>6s}")
     for row in costs:
         click.echo(f"{row['effects']:58s} {row['ms_per_step']:8.4f} {row['ratio']:6.2f}")
-    click.echo("\ncollisions by size")
-    click.echo(f"{'vertices':>8s} {'bare ms':>8s} {'coll ms':>8s} {'ns/vertex':>10s}")
+    click.echo("\nstep cost and collisions by size")
+    click.echo(f"{'vertices':>8s} {'edges':>7s} {'bare ms':>8s} {'ns/edge':>8s} {'coll ms':>8s} "
+               f"{'coll ns/vertex':>14s}")
     for row in scaling:
-        click.echo(f"{row['vertices']:8d} {row['bare_ms']:8.4f} {row['collisions_ms']:8.4f} "
-                   f"{row['collisions_ns_per_vertex']:10.1f}")
+        click.echo(f"{row['vertices']:8d} {row['edges']:7d} {row['bare_ms']:8.4f} "
+                   f"{row['bare_ns_per_edge']:8.1f} {row['collisions_ms']:8.4f} "
+                   f"{row['collisions_ns_per_vertex']:14.1f}")
+    if converged:
+        click.echo(f"\nconverged bloom (within 1% of the petal length), 6-petal bud of "
+                   f"{converged['vertices']} vertices; the paper: "
+                   f"{study.PAPER_LILY_SECONDS:.0f} s for its 2133-vertex lily")
+        for row in converged["runs"]:
+            mark = "" if row["converged"] else "  (not within 1% even so)"
+            click.echo(f"{row['integrator']:26s} {row['wall_seconds']:8.2f} s  "
+                       f"{row['params']}{mark}")

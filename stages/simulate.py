@@ -24,6 +24,7 @@ def command(growth_h5: str, config_path, overrides, out, overwrite, progress) ->
     from pipeline.measure import PetalFrames
     from pipeline.sim import effects as fx
     from pipeline.sim.integrators import Diverged, make_integrator
+    from pipeline.sim.quasistatic import NotConverged
     from pipeline.sim.model import Control, Model, State
     from pipeline.sim.run import run
 
@@ -46,7 +47,7 @@ def command(growth_h5: str, config_path, overrides, out, overwrite, progress) ->
                                        src["axis/plane"])
         control = Control(cfg["growth.schedule"], cfg["growth.ramp"] * steps * h)
         integrator = make_integrator(sim["integrator"], sim["eta"], sim["damping"],
-                                     sim["speed_limit"])
+                                     sim["speed_limit"], sim["stages"], sim["tolerance"])
         grown = model.edge_rest_length * (1.0 + np.maximum(model.edge_growth, 0.0))
         effects = fx.build(
             cfg.effects_enabled(), vertices=v, faces=src["mesh/faces"], petal=petal,
@@ -73,6 +74,12 @@ def command(growth_h5: str, config_path, overrides, out, overwrite, progress) ->
                     "is too large for the stiffness, or growth too fast for the steps; remedy: "
                     "a smaller simulate.h, more simulate.steps, or a larger simulate.eta "
                     "damping", where=where) from None
+            except NotConverged as exc:
+                raise BloomError(
+                    f"simulate.stages: the quasi-static solver found {exc}; likely cause: a "
+                    "growth curve too strong for the bending stiffness; remedy: more "
+                    "simulate.stages, a larger simulate.tolerance, or a dynamic integrator",
+                    where=where) from None
             except RuntimeError as exc:
                 raise BloomError(f"effects.collisions: {exc}", where=where) from None
         diag = rec.arrays()

@@ -256,3 +256,59 @@ def test_bench_refuses_bad_options_in_one_line():
     for args in (["--sizes", "300,abc"], ["--steps", "0"], ["--vertices", "5"]):
         r = CliRunner().invoke(cli, ["bench", *args])
         assert r.exit_code == 2 and "Traceback" not in r.output, r.output
+
+
+def test_quasi_static_simulate_writes_equilibria(chain, tmp_path):
+    """Frames are equilibria: no velocity, a residual force far below the forces'
+    scale; growth increments and Newton iterations are recorded; reruns are identical."""
+    outs = [tmp_path / "qs1.h5", tmp_path / "qs2.h5"]
+    for out in outs:
+        r = invoke("simulate", chain["growth"], "--config", chain["scene"], "--out", out, *SHORT,
+                   "--set", "simulate.integrator=quasi-static", "--set", "simulate.stages=8")
+        assert r.exit_code == 0, r.output
+    with h5py.File(outs[0]) as f, h5py.File(outs[1]) as g:
+        pos = f["frames/positions"][()]
+        assert np.array_equal(pos, g["frames/positions"][()])
+        assert f.attrs["integrator"] == "quasi-static"
+        assert np.all(f["diagnostics/kinetic_energy"][()] == 0.0)
+        increments = f["diagnostics/growth_increments"][()]
+        iterations = f["diagnostics/newton_iterations"][()]
+        opening = f["diagnostics/opening_angle"][()]
+    assert increments[-1] >= 8 and np.all(np.diff(iterations) >= 0) and iterations[-1] > 8
+    assert opening[-1] > opening[0] + 10.0  # it opened
+
+
+def test_quasi_static_refuses_dynamic_effects(chain, tmp_path):
+    out = tmp_path / "sim.h5"
+    r = CliRunner().invoke(cli, ["simulate", str(chain["growth"]), "--out", str(out),
+                                 "--set", "simulate.integrator=quasi-static",
+                                 "--set", "effects.collisions.enabled=true"])
+    assert r.exit_code != 0 and not out.exists()
+    lines = r.output.strip().splitlines()
+    assert len(lines) == 1 and "simulate.integrator" in lines[0] and "collisions" in lines[0]
+    assert "Traceback" not in r.output
+
+
+def test_study_accuracy_writes_csv_and_plot(tmp_path):
+    """A small, quick study: every dynamic integrator's error falls as it spends more
+    time; the quasi-static one is on the reference (within 0.1%) at every cost."""
+    import csv
+
+    out = tmp_path / "study"
+    r = invoke("study", "accuracy", "--out", out, "--petals", 1, "--vertices", 200, "--quick")
+    assert r.exit_code == 0, r.output
+    rows = list(csv.DictReader(open(out / "accuracy.csv")))
+    assert {"integrator", "params", "steps", "wall_seconds", "error"} <= set(rows[0])
+    png = (out / "accuracy.png").read_bytes()
+    assert png[:8] == b"\x89PNG\r\n\x1a\n" and len(png) > 10_000
+    by = {}
+    for row in rows:
+        by.setdefault(row["integrator"], []).append((float(row["wall_seconds"]),
+                                                     float(row["error"])))
+    assert {"quasi-static", "semi-implicit eta=0.1", "Verlet (eta=0.5)",
+            "explicit-damping"} <= set(by)
+    for name, pts in by.items():
+        if name != "quasi-static":
+            steps = sorted(pts)
+            assert steps[-1][1] < 0.1 * steps[0][1], (name, pts)  # costliest: most accurate
+    assert max(e for _, e in by["quasi-static"]) < 1e-3

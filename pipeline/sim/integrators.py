@@ -31,6 +31,9 @@ class SemiImplicit:
     d: float = 1.0
     speed_limit: float = 1.0  #: a vertex faster than this (mesh units per unit time) has diverged
 
+    def diagnostics(self) -> dict:
+        return {}
+
     def advance(self, model: Model, state: State, control: Control, n_steps: int, h: float,
                 effects: Effects = NO_EFFECTS) -> None:
         """Advance ``n_steps`` steps; raises :class:`Diverged` (with ``state`` at the step
@@ -50,8 +53,13 @@ class SemiImplicit:
             raise Diverged(state.step, energy, state.max_speed())
 
 
-def make_integrator(name: str, eta: float, damping: float, speed_limit: float = 1.0):
+def make_integrator(name: str, eta: float, damping: float, speed_limit: float = 1.0,
+                    stages: int = 20, tolerance: float = 1e-6):
     """The integrator a scene asks for by ``simulate.integrator``."""
+    if name == "quasi-static":
+        from .quasistatic import QuasiStatic
+
+        return QuasiStatic(stages=stages, tolerance=tolerance)
     if name == "semi-implicit":
         return SemiImplicit(eta=eta, speed_limit=speed_limit)
     if name == "explicit-damping":

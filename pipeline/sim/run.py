@@ -35,7 +35,7 @@ class Recording:
 
 
 def record(rec: Recording, model: Model, state: State, control: Control, h: float,
-           petals: PetalFrames | None, effects: Effects = NO_EFFECTS) -> None:
+           petals: PetalFrames | None, effects: Effects = NO_EFFECTS, integrator=None) -> None:
     t = state.step * h
     rec.time.append(t)
     rec.positions.append(state.positions.copy())
@@ -51,6 +51,8 @@ def record(rec: Recording, model: Model, state: State, control: Control, h: floa
         rec.add("opening_angle_per_petal", angles)
     for name, value in effects.frame_diagnostics(state.positions, control.growth_at(t)).items():
         rec.add(name, value)
+    for name, value in (integrator.diagnostics() if integrator is not None else {}).items():
+        rec.add(name, value)
 
 
 def run(model: Model, state: State, control: Control, integrator, *, steps: int, frames: int,
@@ -61,7 +63,7 @@ def run(model: Model, state: State, control: Control, integrator, *, steps: int,
     Returns the recording and the wall-clock seconds spent stepping.
     """
     rec = Recording()
-    record(rec, model, state, control, h, petals, effects)
+    record(rec, model, state, control, h, petals, effects, integrator)
     wall = 0.0
     targets = frame_steps(steps, frames)
     for target in targets[1:]:
@@ -69,7 +71,7 @@ def run(model: Model, state: State, control: Control, integrator, *, steps: int,
         t0 = time.perf_counter()
         integrator.advance(model, state, control, n, h, effects)
         wall += time.perf_counter() - t0
-        record(rec, model, state, control, h, petals, effects)
+        record(rec, model, state, control, h, petals, effects, integrator)
         if progress is not None:
             progress(n)
     return rec, wall

@@ -1,0 +1,303 @@
+"""Gradient and Hessian of the potential energy, assembled into a block-sparse matrix
+for the quasi-static solver (numba, cached to disk).
+
+The energy is the one of :mod:`kernels` (Eq. 2-3): ``1/2 K_s (l - L)^2`` per edge and
+``psi(theta) = K_b (1 - cos(theta - theta0))`` per hinge, with the same hinge convention.
+
+Hessians, per element
+---------------------
+- Spring, with ``u = d / l``: ``d^2E / dx_j^2 = K_s [u u^T + (1 - L / l)(I - u u^T)]``,
+  and the ``i`` blocks by symmetry. Its eigenvalues are ``K_s`` (along u) and
+  ``K_s (1 - L/l)`` (twice, across): the positive-definite projection clamps the latter
+  at 0 (a compressed spring has no stiffness across).
+- Hinge: ``H = psi'' g g^T + psi' d^2theta``, ``g = grad theta``. ``d^2theta`` is the
+  exact derivative of the discrete-shells gradient of :func:`kernels.bending_forces`
+  (``g_k = -|e| n1 / |n1|^2``, ``g_l = -|e| n2 / |n2|^2``, ``g_i`` and ``g_j`` from the
+  projections of ``k`` and ``l`` onto the edge), differentiated term by term. The
+  projection keeps ``max(psi'', 0) g g^T`` (Gauss-Newton), which is positive
+  semi-definite.
+
+The matrix is stored as 3x3 blocks (scipy's BSR layout); ``slots`` map each element's
+vertex pairs to their block, so assembly is one pass that allocates nothing.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+from .kernels import _hinge_vectors
+
+
+@njit(cache=True, inline="always")
+def _add_outer(M, r, c, s, u, v):
+    """``M[r, c] += s u v^T`` for 3-vectors u, v given as arrays."""
+    for a in range(3):
+        for b in range(3):
+            M[r, c, a, b] += s * u[a] * v[b]
+
+
+@njit(cache=True)
+def stretch_terms(X, edges, rest0, growth, stiffness, A, project, G, data, slots):
+    """Add each spring's gradient to ``G`` and Hessian blocks to ``data``; return the
+    energy. ``slots[e]`` holds the block index of (i,i), (i,j), (j,i), (j,j)."""
+    energy = 0.0
+    for e in range(edges.shape[0]):
+        i = edges[e, 0]
+        j = edges[e, 1]
+        dx = X[j, 0] - X[i, 0]
+        dy = X[j, 1] - X[i, 1]
+        dz = X[j, 2] - X[i, 2]
+        length = math.sqrt(dx * dx + dy * dy + dz * dz)
+        rest = rest0[e] * (1.0 + A * growth[e])
+        k = stiffness[e]
+        stretch = length - rest
+        energy += 0.5 * k * stretch * stretch
+        if length <= 0.0:
+            continue
+        u0 = dx / length
+        u1 = dy / length
+        u2 = dz / length
+        t = k * stretch
+        G[i, 0] -= t * u0
+        G[i, 1] -= t * u1
+        G[i, 2] -= t * u2
+        G[j, 0] += t * u0
+        G[j, 1] += t * u1
+        G[j, 2] += t * u2
+        across = k * (1.0 - rest / length)
+        if project and across < 0.0:
+            across = 0.0
+        along = k - across
+        for a in range(3):
+            ua = u0 if a == 0 else (u1 if a == 1 else u2)
+            for b in range(3):
+                ub = u0 if b == 0 else (u1 if b == 1 else u2)
+                kab = along * ua * ub
+                if a == b:
+                    kab += across
+                data[slots[e, 0], a, b] += kab
+                data[slots[e, 1], a, b] -= kab
+                data[slots[e, 2], a, b] -= kab
+                data[slots[e, 3], a, b] += kab
+    return energy
+
+
+@njit(cache=True, inline="always")
+def _cross_matrix(M, r, c, s, v0, v1, v2):
+    """``M[r, c] = s [v]x`` (so that ``M[r, c] w = s v x w``)."""
+    M[r, c, 0, 0] = 0.0
+    M[r, c, 0, 1] = -s * v2
+    M[r, c, 0, 2] = s * v1
+    M[r, c, 1, 0] = s * v2
+    M[r, c, 1, 1] = 0.0
+    M[r, c, 1, 2] = -s * v0
+    M[r, c, 2, 0] = -s * v1
+    M[r, c, 2, 1] = s * v0
+    M[r, c, 2, 2] = 0.0
+
+
+@njit(cache=True)
+def hinge_theta_derivatives(X, i, j, k, l, g, H, work):
+    """Signed dihedral angle of one hinge as (cos, sin), its gradient ``g (4, 3)`` and
+    Hessian ``H (4, 4, 3, 3)`` (blocks in the order i, j, k, l). ``work (7, 4, 3, 3)``
+    is scratch. Returns (cos theta, sin theta, ok); ``ok`` is False for a degenerate
+    hinge (then g and H are zero)."""
+    (ex, ey, ez, ax, ay, az, bx, by, bz,
+     n1x, n1y, n1z, n2x, n2y, n2z) = _hinge_vectors(X, i, j, k, l)
+    g[:, :] = 0.0
+    H[:, :, :, :] = 0.0
+    n1sq = n1x * n1x + n1y * n1y + n1z * n1z
+    n2sq = n2x * n2x + n2y * n2y + n2z * n2z
+    esq = ex * ex + ey * ey + ez * ez
+    if n1sq <= 0.0 or n2sq <= 0.0 or esq <= 0.0:
+        return 1.0, 0.0, False
+    elen = math.sqrt(esq)
+    inv = 1.0 / math.sqrt(n1sq * n2sq)
+    cos_t = (n1x * n2x + n1y * n2y + n1z * n2z) * inv
+    cx = n1y * n2z - n1z * n2y
+    cy = n1z * n2x - n1x * n2z
+    cz = n1x * n2y - n1y * n2x
+    sin_t = (cx * ex + cy * ey + cz * ez) * inv / elen
+    e = (ex, ey, ez)
+    a = (ax, ay, az)
+    n1 = (n1x, n1y, n1z)
+    n2 = (n2x, n2y, n2z)
+    eh = (ex / elen, ey / elen, ez / elen)
+    lk = (ax * ex + ay * ey + az * ez) / esq
+    cvec = (bx + ex, by + ey, bz + ez)  # x_l - x_i
+    ll = (cvec[0] * ex + cvec[1] * ey + cvec[2] * ez) / esq
+    gk = (-elen * n1x / n1sq, -elen * n1y / n1sq, -elen * n1z / n1sq)
+    gl = (-elen * n2x / n2sq, -elen * n2y / n2sq, -elen * n2z / n2sq)
+    for c in range(3):
+        g[0, c] = -(1.0 - lk) * gk[c] - (1.0 - ll) * gl[c]
+        g[1, c] = -lk * gk[c] - ll * gl[c]
+        g[2, c] = gk[c]
+        g[3, c] = gl[c]
+    # work[0, y] = dn1/dx_y and work[1, y] = dn2/dx_y, as cross-product matrices
+    work[:, :, :, :] = 0.0
+    _cross_matrix(work, 0, 0, 1.0, ax - ex, ay - ey, az - ez)
+    _cross_matrix(work, 0, 1, -1.0, ax, ay, az)
+    _cross_matrix(work, 0, 2, 1.0, ex, ey, ez)
+    _cross_matrix(work, 1, 0, -1.0, bx, by, bz)
+    _cross_matrix(work, 1, 1, 1.0, ex + bx, ey + by, ez + bz)
+    _cross_matrix(work, 1, 3, -1.0, ex, ey, ez)
+    # rows (in [m, y, 0, :]): work[2] = d|e|/dx_y, work[3] = dlambda_k/dx_y,
+    # work[4] = dlambda_l/dx_y
+    for c in range(3):
+        work[2, 0, 0, c] = -eh[c]
+        work[2, 1, 0, c] = eh[c]
+        work[3, 0, 0, c] = (-(e[c] + a[c]) + 2.0 * lk * e[c]) / esq
+        work[3, 1, 0, c] = (a[c] - 2.0 * lk * e[c]) / esq
+        work[3, 2, 0, c] = e[c] / esq
+        work[4, 0, 0, c] = (-(e[c] + cvec[c]) + 2.0 * ll * e[c]) / esq
+        work[4, 1, 0, c] = (cvec[c] - 2.0 * ll * e[c]) / esq
+        work[4, 3, 0, c] = e[c] / esq
+    # work[5, y] = d g_k / dx_y, work[6, y] = d g_l / dx_y, from
+    # d(n / |n|^2) = (I - 2 n n^T / |n|^2) dn / |n|^2
+    s1 = elen / n1sq
+    s2 = elen / n2sq
+    for y in range(4):
+        for r in range(3):
+            for c in range(3):
+                p1 = 0.0
+                p2 = 0.0
+                for m in range(3):
+                    delta = 1.0 if r == m else 0.0
+                    p1 += (delta - 2.0 * n1[r] * n1[m] / n1sq) * work[0, y, m, c]
+                    p2 += (delta - 2.0 * n2[r] * n2[m] / n2sq) * work[1, y, m, c]
+                work[5, y, r, c] = -n1[r] * work[2, y, 0, c] / n1sq - s1 * p1
+                work[6, y, r, c] = -n2[r] * work[2, y, 0, c] / n2sq - s2 * p2
+    for y in range(4):
+        for r in range(3):
+            for c in range(3):
+                hk = work[5, y, r, c]
+                hl = work[6, y, r, c]
+                H[2, y, r, c] = hk
+                H[3, y, r, c] = hl
+                H[0, y, r, c] = (-(1.0 - lk) * hk + gk[r] * work[3, y, 0, c]
+                                 - (1.0 - ll) * hl + gl[r] * work[4, y, 0, c])
+                H[1, y, r, c] = (-lk * hk - gk[r] * work[3, y, 0, c]
+                                 - ll * hl - gl[r] * work[4, y, 0, c])
+    return cos_t, sin_t, True
+
+
+@njit(cache=True)
+def bending_terms(X, hinges, cos0, sin0, stiffness, project, G, data, slots, work):
+    """Add each hinge's gradient to ``G`` and Hessian blocks to ``data``; return the
+    energy. ``slots[h, 4 r + c]`` is the block of vertex pair (r, c), r, c in i, j, k, l."""
+    g = np.empty((4, 3))
+    Ht = np.empty((4, 4, 3, 3))
+    energy = 0.0
+    for h in range(hinges.shape[0]):
+        v = hinges[h]
+        cos_t, sin_t, ok = hinge_theta_derivatives(X, v[0], v[1], v[2], v[3], g, Ht, work)
+        if not ok:
+            continue
+        kb = stiffness[h]
+        energy += kb * (1.0 - (cos_t * cos0[h] + sin_t * sin0[h]))
+        d1 = kb * (sin_t * cos0[h] - cos_t * sin0[h])  # psi'
+        d2 = kb * (cos_t * cos0[h] + sin_t * sin0[h])  # psi''
+        if project:
+            if d2 < 0.0:
+                d2 = 0.0
+            d1h = 0.0
+        else:
+            d1h = d1
+        for r in range(4):
+            vr = v[r]
+            for c in range(3):
+                G[vr, c] += d1 * g[r, c]
+            for q in range(4):
+                block = slots[h, 4 * r + q]
+                for a in range(3):
+                    for b in range(3):
+                        data[block, a, b] += d2 * g[r, a] * g[q, b] + d1h * Ht[r, q, a, b]
+    return energy
+
+
+@njit(cache=True)
+def constrain(indptr, indices, data, G, pinned, plane_row, normals):
+    """Restrict the system to the free directions: a pinned vertex's rows and columns
+    become the identity with zero gradient; a center-plane vertex (``plane_row[v] >= 0``,
+    unit normal ``normals[plane_row[v]]``) is projected onto its plane,
+    ``P H P + n n^T`` with ``P = I - n n^T``, so that a Newton step never moves it
+    along its normal."""
+    nv = G.shape[0]
+    tmp = np.empty((3, 3))
+    for r in range(nv):
+        for c in range(3):
+            if pinned[r]:
+                G[r, c] = 0.0
+        if plane_row[r] >= 0:
+            n = normals[plane_row[r]]
+            dot = G[r, 0] * n[0] + G[r, 1] * n[1] + G[r, 2] * n[2]
+            for c in range(3):
+                G[r, c] -= dot * n[c]
+        for p in range(indptr[r], indptr[r + 1]):
+            col = indices[p]
+            B = data[p]
+            if pinned[r] or pinned[col]:
+                B[:, :] = 0.0
+                if r == col:
+                    for a in range(3):
+                        B[a, a] = 1.0
+                continue
+            if plane_row[r] >= 0:  # B <- P_r B
+                n = normals[plane_row[r]]
+                for b in range(3):
+                    dot = n[0] * B[0, b] + n[1] * B[1, b] + n[2] * B[2, b]
+                    for a in range(3):
+                        B[a, b] -= n[a] * dot
+            if plane_row[col] >= 0:  # B <- B P_c
+                n = normals[plane_row[col]]
+                for a in range(3):
+                    dot = B[a, 0] * n[0] + B[a, 1] * n[1] + B[a, 2] * n[2]
+                    for b in range(3):
+                        B[a, b] -= dot * n[b]
+            if r == col and plane_row[r] >= 0:
+                n = normals[plane_row[r]]
+                for a in range(3):
+                    for b in range(3):
+                        tmp[a, b] = n[a] * n[b]
+                for a in range(3):
+                    for b in range(3):
+                        B[a, b] += tmp[a, b]
+
+
+@njit(cache=True)
+def energy_gradient_hessian(X, edges, rest0, growth, edge_k, hinges, cos0, sin0, hinge_k, A,
+                            project, G, data, edge_slots, hinge_slots, work):
+    """Zero ``G`` and ``data``, then add stretch and bending; return the energy."""
+    G[:, :] = 0.0
+    data[:, :, :] = 0.0
+    energy = 0.0
+    if edges.shape[0]:
+        energy += stretch_terms(X, edges, rest0, growth, edge_k, A, project, G, data, edge_slots)
+    if hinges.shape[0]:
+        energy += bending_terms(X, hinges, cos0, sin0, hinge_k, project, G, data, hinge_slots,
+                                work)
+    return energy
+
+
+def block_pattern(vertex_count: int, edges: np.ndarray, hinges: np.ndarray):
+    """The BSR pattern (``indptr``, ``indices``) of the Hessian and each element's slots:
+    ``edge_slots (E, 4)`` and ``hinge_slots (H, 16)``, block indices into ``data``."""
+    edges = np.asarray(edges, dtype=np.int64).reshape(-1, 2)
+    hinges = np.asarray(hinges, dtype=np.int64).reshape(-1, 4)
+    n = vertex_count
+    er = np.repeat(edges, 2, axis=1)[:, [0, 1, 2, 3]]  # (i, i, j, j)
+    ec = np.tile(edges, (1, 2))  # (i, j, i, j)
+    hr = np.repeat(hinges, 4, axis=1)
+    hc = np.tile(hinges, (1, 4))
+    diag = np.arange(n, dtype=np.int64)
+    rows = np.concatenate([er.ravel(), hr.ravel(), diag])
+    cols = np.concatenate([ec.ravel(), hc.ravel(), diag])
+    key = np.unique(rows * n + cols)
+    indices = (key % n).astype(np.int64)
+    indptr = np.searchsorted(key // n, np.arange(n + 1)).astype(np.int64)
+    edge_slots = np.searchsorted(key, er * n + ec).astype(np.int64)
+    hinge_slots = np.searchsorted(key, hr * n + hc).astype(np.int64)
+    return indptr, indices, np.ascontiguousarray(edge_slots), np.ascontiguousarray(hinge_slots)

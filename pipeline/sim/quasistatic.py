@@ -1,0 +1,333 @@
+"""The quasi-static integrator: the bloom as a path of equilibria along the growth A(t).
+
+A petal's bending modes are slow (a period of ~5e4 steps at h = 1), so an explicit
+scheme needs ~1e5 steps or more to settle where growth puts it. This integrator does
+not follow the dynamics: for each growth increment it finds the equilibrium
+(grad U = 0) by Newton's method, starting from a secant prediction along the path.
+
+- Hessian: the analytic one of :mod:`hessian`. Each Newton step first factors it as is
+  (a sparse LDL^T through SuperLU with symmetric, diagonal pivoting, whose pivot signs
+  give its inertia); where it is not positive definite (the path passes a bifurcation,
+  or the prediction is far off), the step is taken with the per-element projected
+  Hessian instead, which is positive semi-definite, so the step goes downhill.
+  Near a stable equilibrium the full Hessian is used and convergence is quadratic.
+- Line search: backtracking on the energy (Armijo); a step within rounding of the
+  energy is accepted.
+- Increments: ``ceil(dA * stages)`` per call, so ``stages`` bounds the growth per
+  increment; an increment that does not converge is halved (up to 6 times).
+- Symmetry breaking: at the first increment every free vertex is moved by a tiny,
+  seeded random amount (``perturbation`` mesh units), so that a perfectly symmetric
+  petal can leave an unstable symmetric branch; Newton removes it where the branch is
+  stable.
+- Effects: curl (rest angles follow B = A), wrinkles (growth map), the fixed base and
+  the center-plane constraint (a constrained vertex's Newton step has no component
+  along its plane normal). Collisions and connection springs are dynamic effects and
+  are refused: use a dynamic integrator for those scenes.
+
+``advance`` has the signature of the dynamic integrators, so :func:`run.run` records
+one equilibrium per frame; velocities stay zero.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+import qdldl
+import scipy.sparse as sp
+from scipy.sparse.linalg import spsolve_triangular
+
+from . import hessian, kernels
+from .effects import Effects
+from .model import Control, Model, State
+
+NO_EFFECTS = Effects()
+DYNAMIC_ONLY = ("collisions", "connections")
+
+
+class NotConverged(RuntimeError):
+    """Newton did not reach an equilibrium, even with halved growth increments."""
+
+    def __init__(self, step: int, growth: float, residual: float):
+        self.step, self.growth, self.residual = step, growth, residual
+        super().__init__(f"no equilibrium found at step {step} (growth A = {growth:.4g}, "
+                         f"residual force {residual:.3g})")
+
+
+@dataclass
+class _System:
+    """The block-sparse pattern and work arrays, built once per model."""
+
+    indptr: np.ndarray
+    indices: np.ndarray
+    edge_slots: np.ndarray
+    hinge_slots: np.ndarray
+    data: np.ndarray
+    gradient: np.ndarray
+    work: np.ndarray
+    pinned: np.ndarray
+    plane_row: np.ndarray
+    normals: np.ndarray
+    upper: sp.csc_matrix  #: the upper triangle in CSC, its pattern fixed
+    take: np.ndarray  #: upper.data = data.ravel()[take]
+    diagonal: np.ndarray  #: positions of the diagonal in upper.data
+    solver: object = None  #: qdldl's LDL^T, refactored in place (same pattern)
+
+    @classmethod
+    def build(cls, model: Model, effects: Effects) -> _System:
+        n = model.vertex_count
+        indptr, indices, eslots, hslots = hessian.block_pattern(
+            n, model.edge_indices, model.hinge_indices)
+        plane_row = np.full(n, -1, dtype=np.int64)
+        normals = np.zeros((0, 3))
+        if effects.center_plane is not None:
+            plane_row[effects.center_plane.vertices] = np.arange(len(effects.center_plane.vertices))
+            normals = np.ascontiguousarray(effects.center_plane.normals)
+        # the scalar pattern of the block matrix, each entry numbered by its place in data
+        numbered = np.arange(1, 9 * len(indices) + 1, dtype=np.float64).reshape(-1, 3, 3)
+        upper = sp.triu(sp.bsr_matrix((numbered, indices, indptr), shape=(3 * n, 3 * n)),
+                        format="csc")
+        upper.sort_indices()
+        take = upper.data.astype(np.int64) - 1
+        rows = np.repeat(np.arange(3 * n), np.diff(upper.indptr))  # column of each entry
+        diagonal = np.flatnonzero(upper.indices == rows)
+        return cls(indptr, indices, eslots, hslots, np.zeros((len(indices), 3, 3)),
+                   np.zeros((n, 3)), np.zeros((7, 4, 3, 3)), model.pinned.copy(),
+                   plane_row, normals, upper, take, diagonal)
+
+    def factor(self, mu: float = 0.0):
+        """LDL^T of ``H + mu I`` (H as last assembled). Returns ``(positive, down)``:
+        whether it is positive definite and, if not, a direction of negative
+        curvature ``d^T H d < 0`` (None if none was found).
+
+        ``P (H + mu I) P^T = L D L^T``: the signs of D are those of the eigenvalues
+        (Sylvester's law of inertia); for ``D_k < 0``, ``z = L^-T e_k`` has
+        ``z^T L D L^T z = D_k``.
+        """
+        M = self.upper
+        M.data = self.data.ravel()[self.take]
+        M.data[self.diagonal] += mu
+        try:
+            if self.solver is None:
+                self.solver = qdldl.Solver(M)
+            else:
+                self.solver.update(M)
+        except (ValueError, RuntimeError):  # a zero pivot: singular
+            self.solver = None
+            return False, None
+        L, D, perm = self.solver.factors()
+        if np.all(D > 0.0):
+            return True, None
+        k = int(np.argmin(D))
+        e = np.zeros(len(D))
+        e[k] = 1.0
+        n = len(D)
+        z = spsolve_triangular((L + sp.identity(n, format="csc")).T.tocsr(), e, lower=False,
+                               unit_diagonal=True)
+        d = np.empty(n)
+        d[perm] = z
+        full = M + sp.triu(M, k=1).T
+        return False, (d if d @ (full @ d) < mu * (d @ d) else None)
+
+    def solve(self, rhs: np.ndarray) -> np.ndarray:
+        return self.solver.solve(rhs)
+
+
+@dataclass
+class QuasiStatic:
+    """Path-following Newton solver; see the module docstring."""
+
+    stages: int = 20  #: growth increments over the whole ramp (at least)
+    tolerance: float = 1e-6  #: converged when a Newton step moves no vertex further (mesh units)
+    max_iterations: int = 200  #: Newton iterations per increment before it is halved (a snap takes ~50)
+    perturbation: float = 1e-6  #: symmetry-breaking nudge at the start (mesh units)
+    seed: int = 0
+    iterations: int = 0  #: Newton iterations so far (all increments)
+    increments: int = 0  #: growth increments solved so far
+    shifted: int = 0  #: factorizations retried with a larger shift mu
+    residuals: list = field(default_factory=list, repr=False)  #: per iteration of the last solve
+    _system: _System | None = field(default=None, repr=False)
+    _tangent: bool = field(default=False, repr=False)  #: the factorization is H's at the last equilibrium
+    _started: bool = field(default=False, repr=False)
+
+    def diagnostics(self) -> dict:
+        return {"newton_iterations": self.iterations, "growth_increments": self.increments,
+                "shifted_factorizations": self.shifted}
+
+    # --- one call: growth from A(t0) to A(t0 + n h) -----------------------------------
+    def advance(self, model: Model, state: State, control: Control, n_steps: int, h: float,
+                effects: Effects = NO_EFFECTS) -> None:
+        for name in DYNAMIC_ONLY:
+            if getattr(effects, name) is not None:
+                raise ValueError(f"the quasi-static integrator cannot run effect {name!r}")
+        if self._system is None:
+            self._system = _System.build(model, effects)
+        if not self._started:  # nudge, then settle at the start so that a tangent exists
+            self._started = True
+            self._perturb(model, state, effects)
+            if self._newton(model, state, effects, control.growth_at(state.step * h)) is not None:
+                raise NotConverged(state.step, control.growth_at(state.step * h), np.inf)
+        a0 = control.growth_at(state.step * h)
+        a1 = control.growth_at((state.step + n_steps) * h)
+        pieces = max(1, math.ceil(abs(a1 - a0) * self.stages - 1e-9))
+        targets = a0 + (a1 - a0) * np.arange(1, pieces + 1) / pieces
+        done = a0
+        for target in targets:
+            done = self._reach(model, state, effects, done, float(target), state.step + n_steps)
+        state.step += n_steps
+        state.velocities[:] = 0.0
+        cos0, sin0 = self._rest_angles(model, effects, done)
+        state.potential_energy = self._energy(model, state.positions, done, cos0, sin0,
+                                              state.forces)
+        effects.constrain(state.forces)
+
+    def _perturb(self, model: Model, state: State, effects: Effects) -> None:
+        if self.perturbation <= 0.0:
+            return
+        rng = np.random.default_rng(self.seed)
+        nudge = rng.uniform(-self.perturbation, self.perturbation, state.positions.shape)
+        nudge[model.pinned] = 0.0
+        if effects.center_plane is not None:
+            effects.constrain(nudge)
+        state.positions += nudge
+
+    def _reach(self, model, state, effects, a_from: float, a_to: float, step: int) -> float:
+        """Equilibrium at growth ``a_to``; an increment where Newton fails is halved
+        (up to 6 times), then the path goes on to ``a_to``."""
+        a_now, size, halvings = a_from, a_to - a_from, 0
+        while a_now != a_to:
+            a_next = a_to if abs(a_to - a_now) <= abs(size) * (1 + 1e-9) else a_now + size
+            start = state.positions.copy()
+            self._predict(model, state, effects, a_next)
+            residual = self._newton(model, state, effects, a_next)
+            if residual is None:
+                self.increments += 1
+                a_now = a_next
+                continue
+            state.positions[:] = start
+            self._tangent = False
+            halvings += 1
+            if halvings > 6:
+                raise NotConverged(step, a_next, residual)
+            size *= 0.5
+        return a_to
+
+    def _predict(self, model, state, effects, a_next: float) -> None:
+        """Tangent (Euler) predictor: from the equilibrium just found, whose positive
+        definite factorization is at hand, the step ``H^-1 f(x, A_next)`` (Newton's first
+        step with the old Hessian), with a line search on the new energy."""
+        if not self._tangent:
+            return
+        X = state.positions
+        cos0, sin0 = self._rest_angles(model, effects, a_next)
+        energy = self._assemble(model, X, a_next, cos0, sin0)
+        g = self._system.gradient.ravel().copy()
+        step = self._system.solve(-g)
+        self.iterations += 1
+        self._line_search(model, X, a_next, cos0, sin0, np.empty_like(X), energy, g, step)
+
+    def _rest_angles(self, model: Model, effects: Effects, A: float):
+        if effects.curl is None:
+            return model.hinge_rest_cos, model.hinge_rest_sin
+        c = effects.curl
+        kernels.curl_rest_angles(c.theta0, A * c.beta, c.cos_t, c.sin_t)
+        return c.cos_t, c.sin_t
+
+    def _assemble(self, model, X, A, cos0, sin0, project: bool = False) -> float:
+        s = self._system
+        energy = hessian.energy_gradient_hessian(
+            X, model.edge_indices, model.edge_rest_length, model.edge_growth,
+            model.edge_stiffness, model.hinge_indices, cos0, sin0, model.hinge_stiffness, A,
+            project, s.gradient, s.data, s.edge_slots, s.hinge_slots, s.work)
+        hessian.constrain(s.indptr, s.indices, s.data, s.gradient, s.pinned, s.plane_row,
+                          s.normals)
+        return energy
+
+    def _energy(self, model, X, A, cos0, sin0, scratch) -> float:
+        return kernels.internal_forces(X, model.edge_indices, model.edge_rest_length,
+                                       model.edge_growth, model.edge_stiffness,
+                                       model.hinge_indices, cos0, sin0, model.hinge_stiffness,
+                                       A, scratch)
+
+    def _newton(self, model, state, effects, A: float) -> float | None:
+        """Newton iterations at growth A; None when converged, else the residual force.
+
+        Where H is positive definite the step is Newton's. Where it is not (the path
+        is at a bifurcation or a snap, or the prediction is far off), the energy is
+        first searched along a direction of negative curvature read from the
+        factorization (so a saddle is left in one step rather than by slow
+        amplification of the perturbation); then the step solves ``(H + mu I) p = -g``
+        with ``mu`` grown tenfold until the factorization is positive definite (an
+        implicit Euler step of the gradient flow, time step ``1/sqrt(mu)``).
+        """
+        X = state.positions
+        cos0, sin0 = self._rest_angles(model, effects, A)
+        scratch = np.empty_like(X)
+        residual = np.inf
+        floor = 1e-3 * float(model.hinge_stiffness.max(initial=0.0) or model.edge_stiffness.max())
+        system = self._system
+        self.residuals = []
+        for _ in range(self.max_iterations):
+            energy = self._assemble(model, X, A, cos0, sin0)
+            g = system.gradient.ravel().copy()
+            residual = float(np.abs(g).max())
+            self.residuals.append(residual)
+            # a mode as soft as floor moves less than tolerance (or the force is at rounding)
+            if residual <= max(self.tolerance * floor, 1e-14) and self._tangent:
+                return None
+            self.iterations += 1
+            mu = 0.0
+            positive, down = system.factor()
+            self._tangent = positive
+            if not positive:
+                if down is not None:
+                    energy = self._descend(model, X, A, cos0, sin0, scratch, energy, g, down)
+                    energy = self._assemble(model, X, A, cos0, sin0)
+                    g = system.gradient.ravel().copy()
+                mu = floor
+                while not system.factor(mu)[0]:
+                    self.shifted += 1
+                    mu *= 10.0
+            step = system.solve(-g)
+            length = self._line_search(model, X, A, cos0, sin0, scratch, energy, g, step)
+            if length == 0.0:
+                return residual
+            if mu == 0.0 and length * float(np.abs(step).max()) < self.tolerance:
+                return None  # (the factorization is that of the equilibrium, to rounding)
+        return residual
+
+    def _line_search(self, model, X, A, cos0, sin0, scratch, energy, g, step) -> float:
+        """Backtracking (Armijo) along ``step``; moves X and returns the step length
+        taken (0: none found). A change within rounding of the energy is accepted."""
+        slope = float(g @ step)
+        length = 1.0
+        base = X.copy()
+        while length >= 1e-6:
+            X[:] = base + length * step.reshape(-1, 3)
+            trial = self._energy(model, X, A, cos0, sin0, scratch)
+            if trial <= energy + 1e-4 * length * slope or abs(trial - energy) <= 1e-14 * abs(energy):
+                return length
+            length *= 0.5
+        X[:] = base
+        return 0.0
+
+    def _descend(self, model, X, A, cos0, sin0, scratch, energy, g, down) -> float:
+        """Move X along the negative-curvature direction ``down`` (downhill sign), by
+        the length (doubling from 1e-3, at most 2 mesh units) that lowers the energy
+        most; returns the energy there."""
+        d = down.reshape(-1, 3) / np.abs(down).max()
+        if float(g @ down) > 0.0:
+            d = -d
+        base = X.copy()
+        best, best_length, length = energy, 0.0, 1e-3
+        while length <= 2.0:
+            X[:] = base + length * d
+            trial = self._energy(model, X, A, cos0, sin0, scratch)
+            if trial >= best:
+                break
+            best, best_length = trial, length
+            length *= 2.0
+        X[:] = base + best_length * d
+        return best
+

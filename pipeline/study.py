@@ -1,0 +1,210 @@
+"""What accuracy costs in time: runs of one scene with each integrator, measured against
+a reference bloom (``bloom study accuracy``, ``make accuracy``).
+
+- Scene: a procedural bud (``asset.bud``) at growth ``0.2 x^2``, K_s 0.1, K_b 0.0005,
+  no collisions (the quasi-static solver does not model them), a smootherstep ramp
+  and, for the dynamic integrators, a hold of half the ramp after it.
+- Reference: the quasi-static path with many growth increments and a tight tolerance;
+  :func:`reference` also measures how much halving the increments and tightening the
+  tolerance again changes it (it must be < 0.1% of the petal length).
+- Error of a run: RMS distance of its final vertices to the reference's, over the mean
+  petal length (base to tip), and the difference of the mean opening angle.
+"""
+
+from __future__ import annotations
+
+import csv
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from . import asset, clean
+from .axis import find_axes
+from .growth import assign_growth
+from .measure import PetalFrames
+from .sim.integrators import make_integrator
+from .sim.model import Control, Model, State
+
+
+@dataclass
+class Scene:
+    vertices: np.ndarray
+    faces: np.ndarray
+    model: Model
+    petals: PetalFrames
+    length: float  #: mean petal length, base to tip, at rest
+
+    @classmethod
+    def bud(cls, petals: int = 6, vertices: int = 2133, curve: str = "0.2*x**2",
+            bending: float = 0.0005, stretch: float = 0.1, seed: int = 0) -> Scene:
+        v, f, petal = asset.bud(petals, vertices, seed)
+        v = v / clean.mean_edge_length(v, f)
+        axes = find_axes(v, f, petal)
+        growth = assign_growth(v, f, axes.x, curve)
+        model = Model.build(v, growth.edges, growth.alpha, stretch * growth.stiffness,
+                            growth.hinges, bending, axes.base)
+        frames = PetalFrames.from_mesh(v, petal, axes.base, axes.on_axis, axes.tip, axes.plane)
+        length = float(np.linalg.norm(v[frames.tips] - frames.base_centers, axis=1).mean())
+        return cls(v, f, model, frames, length)
+
+
+@dataclass
+class Run:
+    integrator: str
+    params: str
+    steps: int
+    wall: float
+    positions: np.ndarray
+    iterations: int = 0
+
+
+def simulate(scene: Scene, integrator: str, *, ramp: int, hold: int = 0, h: float = 1.0,
+             eta: float = 0.1, damping: float = 0.9999, stages: int = 20,
+             tolerance: float = 1e-6, schedule: str = "smootherstep") -> Run:
+    """One run: growth over ``ramp`` steps, then ``hold`` steps at full growth."""
+    model = scene.model
+    steps = ramp + hold
+    control = Control(schedule, ramp * h)
+    state = State.at_rest(model, scene.vertices, control)
+    stepper = make_integrator(integrator, eta, damping, speed_limit=10.0, stages=stages,
+                              tolerance=tolerance)
+    t0 = time.perf_counter()
+    stepper.advance(model, state, control, steps, h)
+    wall = time.perf_counter() - t0
+    if integrator == "quasi-static":
+        params = f"stages={stages} tol={tolerance:g}"
+    elif integrator == "explicit-damping":
+        params = f"d={damping:g} h={h:g} ramp={ramp}"
+    else:
+        params = f"eta={eta:g} h={h:g} ramp={ramp}"
+    return Run(integrator, params, steps, wall, state.positions.copy(),
+               stepper.diagnostics().get("newton_iterations", 0))
+
+
+def shape_error(scene: Scene, X, reference) -> tuple[float, float]:
+    """(RMS vertex distance / petal length, opening angle difference in degrees)."""
+    rms = float(np.sqrt(np.mean(np.sum((np.asarray(X) - reference) ** 2, axis=1))))
+    angle = float(scene.petals.opening_angles(X).mean()
+                  - scene.petals.opening_angles(reference).mean())
+    return rms / scene.length, angle
+
+
+def reference(scene: Scene, stages: int = 40, tolerance: float = 1e-8):
+    """The reference bloom and the change that refining it once more makes (fraction of
+    the petal length): ``2 stages`` and ``tolerance / 10``."""
+    ref = simulate(scene, "quasi-static", ramp=1, stages=stages, tolerance=tolerance)
+    finer = simulate(scene, "quasi-static", ramp=1, stages=2 * stages, tolerance=tolerance / 10)
+    change, _ = shape_error(scene, finer.positions, ref.positions)
+    return ref, change
+
+
+def plan(quick: bool = False) -> list[dict]:
+    """The runs of the study: each integrator over a range of cost. Dynamic runs hold
+    for half their ramp after it; ``h = 1.5`` runs cover the same growth time in fewer
+    steps."""
+    ramps = (2_000, 8_000, 32_000) if quick else (5_000, 20_000, 80_000, 160_000)
+    runs = [dict(integrator="quasi-static", stages=s, tolerance=t)
+            for s, t in ((1, 1e-2), (2, 1e-3), (5, 1e-4), (10, 1e-6), (20, 1e-8))]
+    for ramp in ramps:
+        for eta in (0.1, 0.3, 0.5):
+            runs.append(dict(integrator="semi-implicit", eta=eta, ramp=ramp, hold=ramp // 2))
+        runs.append(dict(integrator="explicit-damping", damping=0.999, ramp=ramp,
+                         hold=ramp // 2))
+        short = int(ramp / 1.5)
+        runs.append(dict(integrator="semi-implicit", eta=0.1, h=1.5, ramp=short,
+                         hold=short // 2))
+    return runs
+
+
+def label(run: Run) -> str:
+    if run.integrator == "semi-implicit":
+        eta, h = run.params.split()[:2]
+        name = "Verlet (eta=0.5)" if eta == "eta=0.5" else f"semi-implicit {eta}"
+        return name if h == "h=1" else f"{name} {h}"
+    return run.integrator
+
+
+def accuracy(out_dir, *, petals: int = 6, vertices: int = 2133, quick: bool = False,
+             echo=print) -> list[dict]:
+    """Run the study; write ``accuracy.csv`` and ``accuracy.png`` into ``out_dir``."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from .artifact import atomic_path
+
+    scene = Scene.bud(petals, vertices)
+    ref, change = reference(scene)
+    echo(f"reference: quasi-static, 40 increments, tolerance 1e-8: {ref.wall:.2f} s; "
+         f"refining it changes it by {100 * change:.4f}% of the petal length")
+    rows = []
+    for spec in plan(quick):
+        spec = dict(spec)
+        name = spec.pop("integrator")
+        if name == "quasi-static":
+            run = simulate(scene, name, ramp=1, **spec)
+        else:
+            run = simulate(scene, name, **spec)
+        err, dangle = shape_error(scene, run.positions, ref.positions)
+        rows.append({"integrator": label(run), "params": run.params, "steps": run.steps,
+                     "newton_iterations": run.iterations, "wall_seconds": run.wall,
+                     "error": err, "opening_difference_deg": dangle})
+        echo(f"{label(run):24s} {run.params:28s} {run.wall:8.2f} s  error {100 * err:8.3f}%  "
+             f"opening {dangle:+7.2f} deg")
+    with atomic_path(out_dir / "accuracy.csv") as tmp, open(tmp, "w", newline="") as fh:
+        writer = csv.DictWriter(fh, fieldnames=list(rows[0]))
+        writer.writeheader()
+        writer.writerows(rows)
+    fig, ax = plt.subplots(figsize=(7, 5), dpi=110)
+    for name in dict.fromkeys(r["integrator"] for r in rows):
+        pts = sorted((r["wall_seconds"], r["error"]) for r in rows if r["integrator"] == name)
+        ax.loglog(*zip(*pts, strict=True), "o-", label=name)
+    ax.axhline(0.01, color="grey", lw=0.8, ls="--")
+    ax.text(ax.get_xlim()[0], 0.0105, " 1% of petal length", color="grey", fontsize=8)
+    ax.set_xlabel("wall seconds (simulate)")
+    ax.set_ylabel("shape error (RMS distance / petal length)")
+    ax.set_title(f"What accuracy costs: {petals}-petal bud, {scene.model.vertex_count} vertices")
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    with atomic_path(out_dir / "accuracy.png") as tmp:
+        fig.savefig(tmp, format="png")
+    plt.close(fig)
+    return rows
+
+
+PAPER_LILY_SECONDS = 44.0  #: the paper's time for its Fig. 12 lily (2133 vertices)
+
+
+def time_to_converge(scene: Scene, reference_positions, target: float = 0.01,
+                     echo=None) -> list[dict]:
+    """Wall seconds each integrator needs for a bloom within ``target`` (fraction of the
+    petal length) of the reference: the dynamic ones with growth ramps doubling from
+    10k steps (plus a hold of half), the quasi-static one with increments doubling from 5.
+    """
+    tries = {
+        "quasi-static": [dict(ramp=1, stages=s, tolerance=1e-6) for s in (5, 10, 20, 40)],
+        "semi-implicit eta=0.1": [dict(ramp=r, hold=r // 2, eta=0.1)
+                                  for r in (10_000, 20_000, 40_000, 80_000, 160_000)],
+        "Verlet (eta=0.5)": [dict(ramp=r, hold=r // 2, eta=0.5)
+                             for r in (10_000, 20_000, 40_000, 80_000, 160_000)],
+        "explicit-damping d=0.999": [dict(ramp=r, hold=r // 2, damping=0.999)
+                                     for r in (10_000, 20_000, 40_000, 80_000, 160_000)],
+    }
+    rows = []
+    for name, specs in tries.items():
+        integrator = name.split()[0] if name != "Verlet (eta=0.5)" else "semi-implicit"
+        row = {"integrator": name, "converged": False}
+        for spec in specs:
+            run = simulate(scene, integrator, **spec)
+            err, dangle = shape_error(scene, run.positions, reference_positions)
+            row.update(params=run.params, steps=run.steps, wall_seconds=run.wall, error=err,
+                       opening_difference_deg=dangle, converged=err < target)
+            if echo:
+                echo(f"  {name:26s} {run.params:28s} {run.wall:7.2f} s  error {100 * err:.3f}%")
+            if err < target:
+                break
+        row["paper_seconds"] = PAPER_LILY_SECONDS
+        rows.append(row)
+    return rows

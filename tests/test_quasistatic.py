@@ -1,0 +1,131 @@
+"""The quasi-static integrator: its Hessian, Newton's convergence, and agreement with a
+slow explicit run."""
+
+import numpy as np
+import pytest
+
+from pipeline import study
+from pipeline.sim import effects as fx
+from pipeline.sim import hessian, kernels
+from pipeline.sim.model import Control, Model, State
+from pipeline.sim.quasistatic import QuasiStatic, _System
+
+
+@pytest.fixture(scope="module")
+def petal():
+    return study.Scene.bud(1, 200)
+
+
+def _grown_state(scene, A):
+    """An equilibrium of the petal at growth A (quasi-static path)."""
+    control = Control("linear", 100.0)
+    state = State.at_rest(scene.model, scene.vertices, control)
+    qs = QuasiStatic(stages=10)
+    qs.advance(scene.model, state, control, int(round(100 * A)), 1.0)
+    return state, qs
+
+
+def _energy_gradient(model, system, X, A):
+    e = hessian.energy_gradient_hessian(
+        X, model.edge_indices, model.edge_rest_length, model.edge_growth, model.edge_stiffness,
+        model.hinge_indices, model.hinge_rest_cos, model.hinge_rest_sin, model.hinge_stiffness,
+        A, False, system.gradient, system.data, system.edge_slots, system.hinge_slots,
+        system.work)
+    return e, system.gradient.copy()
+
+
+def test_hessian_matches_finite_differences_of_the_gradient(petal):
+    """Away from equilibrium (growth 0.5, positions jittered), so that every term of the
+    spring and hinge Hessians counts; also: the gradient is minus the kernels' force."""
+    m = petal.model
+    free = Model.build(petal.vertices, m.edge_indices, m.edge_growth, m.edge_stiffness,
+                       m.hinge_indices, m.hinge_stiffness, np.zeros(m.vertex_count, bool))
+    system = _System.build(free, fx.Effects())
+    rng = np.random.default_rng(3)
+    X = petal.vertices + rng.normal(scale=0.1, size=petal.vertices.shape)
+    A = 0.5
+    energy, g = _energy_gradient(free, system, X, A)
+    F = np.empty_like(X)
+    e2 = kernels.internal_forces(X, free.edge_indices, free.edge_rest_length, free.edge_growth,
+                                 free.edge_stiffness, free.hinge_indices, free.hinge_rest_cos,
+                                 free.hinge_rest_sin, free.hinge_stiffness, A, F)
+    assert energy == pytest.approx(e2, rel=1e-12)
+    assert np.abs(g + F).max() < 1e-12 * max(1.0, np.abs(F).max())
+    import scipy.sparse as sp
+    n = 3 * free.vertex_count
+    H = sp.bsr_matrix((system.data.copy(), system.indices, system.indptr), shape=(n, n)).toarray()
+    assert np.abs(H - H.T).max() < 1e-14
+    eps = 1e-6
+    cols = rng.choice(n, 60, replace=False)
+    for c in cols:
+        Xp = X.copy()
+        Xp.ravel()[c] += eps
+        Xm = X.copy()
+        Xm.ravel()[c] -= eps
+        fd = (_energy_gradient(free, system, Xp, A)[1] - _energy_gradient(free, system, Xm, A)[1])
+        fd = fd.ravel() / (2 * eps)
+        assert np.abs(H[:, c] - fd).max() < 1e-7 * max(1.0, np.abs(H[:, c]).max()), c
+
+
+def test_newton_converges_quadratically_near_a_solution(petal):
+    """From an equilibrium nudged by 1e-4 and by 1e-5, one Newton step leaves a residual
+    force that scales with the square of the first (10x closer: 100x smaller), and the
+    solve ends below 1e-12."""
+    after_one = []
+    for scale in (1e-4, 1e-5):
+        state, qs = _grown_state(petal, 0.4)
+        rng = np.random.default_rng(0)
+        nudge = rng.normal(scale=scale, size=state.positions.shape)
+        nudge[petal.model.pinned] = 0.0
+        state.positions += nudge
+        qs.tolerance = 1e-10
+        assert qs._newton(petal.model, state, fx.Effects(), 0.4) is None
+        r = qs.residuals
+        assert r[-1] < 1e-12 and len(r) <= 5, r
+        assert 1e-2 < r[1] / r[0] ** 2 < 1e2, r  # r1 = C r0^2
+        after_one.append((r[0], r[1]))
+    (a0, a1), (b0, b1) = after_one
+    assert 8 < a0 / b0 < 12  # the nudges differ 10x ...
+    assert a1 / b1 > 50  # ... and the residuals after one step ~100x: quadratic
+
+
+def test_quasi_static_path_agrees_with_a_very_slow_explicit_run(petal):
+    ref = study.simulate(petal, "quasi-static", ramp=1, stages=20, tolerance=1e-8)
+    slow = study.simulate(petal, "semi-implicit", ramp=80_000, hold=40_000, eta=0.1)
+    fast = study.simulate(petal, "semi-implicit", ramp=20_000, hold=10_000, eta=0.1)
+    err_slow, angle_slow = study.shape_error(petal, slow.positions, ref.positions)
+    err_fast, _ = study.shape_error(petal, fast.positions, ref.positions)
+    opening = petal.petals.opening_angles(ref.positions).mean()
+    assert opening > 30.0  # it did open
+    assert err_slow < 2e-3 and abs(angle_slow) < 0.2, (err_slow, angle_slow)
+    assert err_fast > 10 * err_slow  # the explicit scheme converges to it as growth slows
+
+
+def test_equilibria_are_independent_of_the_increments(petal):
+    """Stage counts 10 and 40 land on the same bloom (the path is followed, not jumped)."""
+    a = study.simulate(petal, "quasi-static", ramp=1, stages=10, tolerance=1e-8)
+    b = study.simulate(petal, "quasi-static", ramp=1, stages=40, tolerance=1e-8)
+    assert study.shape_error(petal, a.positions, b.positions)[0] < 1e-6
+
+
+def test_quasi_static_keeps_the_center_plane_and_curls(petal):
+    m = petal.model
+    from pipeline import asset, clean
+    from pipeline.axis import find_axes
+    from pipeline.growth import assign_growth
+
+    v, f, p = asset.bud(1, 200, 0)
+    v = v / clean.mean_edge_length(v, f)
+    axes = find_axes(v, f, p)
+    g = assign_growth(v, f, axes.x, "0.2*x**2")
+    effects = fx.build(("curl", "center_plane"), vertices=v, faces=f, petal=p, pinned=m.pinned,
+                       on_axis=axes.on_axis, plane=axes.plane, s=axes.s,
+                       rest_angle=g.rest_angle, flower_axis=axes.flower_axis, max_edge=1.5,
+                       params={"curl": {"beta": 1.0}})
+    control = Control("linear", 100.0)
+    state = State.at_rest(m, v, control)
+    QuasiStatic(stages=10).advance(m, state, control, 100, 1.0, effects)
+    assert effects.center_plane.drift(state.positions) < 1e-9
+    plain = study.simulate(petal, "quasi-static", ramp=1, stages=10)
+    # curl with beta = 1 flattens the cross-sections: a different bloom
+    assert study.shape_error(petal, state.positions, plain.positions)[0] > 1e-3
