@@ -13,6 +13,40 @@ def _c(a, dtype) -> np.ndarray:
     return np.ascontiguousarray(a, dtype=dtype)
 
 
+def hinge_order(edges: np.ndarray, hinges: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The edges in the order the force kernel reads fastest: edge h is hinge h's edge,
+    as ``(i, j)`` of the hinge, wherever hinge h's edge is among ``edges`` (and not
+    already taken by an earlier hinge); the other edges fill the remaining places in
+    their given order. Then :func:`kernels.internal_forces` does edge h and hinge h in
+    one pass. Hinges keep their order (effects index them).
+
+    Returns ``(order, reordered)``: ``edges[order]``, with the hinge's orientation where
+    it is a hinge's edge, is ``reordered``."""
+    ne, nh = len(edges), len(hinges)
+    order = np.arange(ne)
+    if ne == 0 or nh == 0:
+        return order, edges
+    n = int(max(edges.max(), hinges[:, :2].max())) + 1
+    ekey = np.minimum(edges[:, 0], edges[:, 1]) * n + np.maximum(edges[:, 0], edges[:, 1])
+    hkey = np.minimum(hinges[:, 0], hinges[:, 1]) * n + np.maximum(hinges[:, 0], hinges[:, 1])
+    by_key = np.argsort(ekey, kind="stable")
+    pos = np.minimum(np.searchsorted(ekey[by_key], hkey), ne - 1)
+    edge_of = np.where(ekey[by_key][pos] == hkey, by_key[pos], -1)  # (H,) first edge with the key
+    edge_of[ne:] = -1  # only the first E hinges have a place
+    first = np.zeros(nh, dtype=bool)  # the first hinge on each edge takes it
+    _, at = np.unique(edge_of, return_index=True)
+    first[at] = True
+    slot = np.flatnonzero(first & (edge_of >= 0))
+    order = np.full(ne, -1)
+    order[slot] = edge_of[slot]
+    used = np.zeros(ne, dtype=bool)
+    used[edge_of[slot]] = True
+    order[order < 0] = np.flatnonzero(~used)
+    reordered = edges[order]
+    reordered[slot] = hinges[slot, :2]
+    return order, reordered
+
+
 @dataclass
 class Model:
     """What does not change while simulating. Built once by :meth:`build`, which checks it."""
@@ -20,7 +54,9 @@ class Model:
     vertex_count: int
     vertex_mass: np.ndarray  #: (V,) mass of each vertex
     vertex_inv_mass: np.ndarray  #: (V,) 1/mass; 0 for pinned (base) vertices
-    edge_indices: np.ndarray  #: (E, 2) int64 vertex pairs; every edge carries a stretch spring
+    #: (E, 2) int64 vertex pairs; every edge carries a stretch spring. Not the order given
+    #: to :meth:`build`: edge h is hinge h's edge i-j where it can be (see :func:`hinge_order`)
+    edge_indices: np.ndarray
     edge_rest_length: np.ndarray  #: (E,) rest length at t = 0 (the input mesh's lengths)
     edge_growth: np.ndarray  #: (E,) growth ratio alpha (Eq. 6)
     edge_stiffness: np.ndarray  #: (E,) K_s of each spring
@@ -52,6 +88,7 @@ class Model:
         for name, idx in (("edges", edges), ("hinges", hinges)):
             if idx.size and (idx.min() < 0 or idx.max() >= n):
                 raise ValueError(f"{name} index a vertex outside 0..{n - 1}")
+        order, edges = hinge_order(edges, hinges)
         rest = np.empty(len(edges))
         kernels.edge_lengths(X, edges, rest)
         if np.any(rest <= 0.0):
@@ -62,13 +99,13 @@ class Model:
         vmass = np.full(n, float(mass))
         inv = 1.0 / vmass
         inv[_c(pinned, bool)] = 0.0
-        edge_growth = _c(np.broadcast_to(edge_growth, (len(edges),)), np.float64)
+        edge_growth = _c(np.broadcast_to(edge_growth, (len(edges),))[order], np.float64)
         if np.any(1.0 + edge_growth <= 0.0):
             raise ValueError("a growth ratio <= -1 would make a rest length zero or negative")
         return cls(
             vertex_count=n, vertex_mass=vmass, vertex_inv_mass=inv,
             edge_indices=edges, edge_rest_length=rest, edge_growth=edge_growth,
-            edge_stiffness=_c(np.broadcast_to(edge_stiffness, (len(edges),)), np.float64),
+            edge_stiffness=_c(np.broadcast_to(edge_stiffness, (len(edges),))[order], np.float64),
             hinge_indices=hinges, hinge_rest_cos=cos0, hinge_rest_sin=sin0,
             hinge_stiffness=_c(np.broadcast_to(hinge_stiffness, (len(hinges),)), np.float64),
         )
