@@ -8,7 +8,11 @@ a reference bloom (``bloom study accuracy``, ``make accuracy``).
   :func:`reference` also measures how much halving the increments and tightening the
   tolerance again changes it (it must be < 0.1% of the petal length).
 - Error of a run: RMS distance of its final vertices to the reference's, over the mean
-  petal length (base to tip), and the difference of the mean opening angle.
+  petal length (base to tip), and the difference of the mean opening angle. A petal
+  is symmetric and so is its growth: where it buckles to one side, its mirror image is
+  an equilibrium as good as the reference's, and runs pick either side. So each petal
+  is compared with the reference and with the reference's mirror image across the
+  petal's center plane, and the nearer counts.
 """
 
 from __future__ import annotations
@@ -23,6 +27,7 @@ from . import asset, clean
 from .axis import find_axes
 from .growth import assign_growth
 from .measure import PetalFrames
+from .symmetry import mirror_pairs, reflect
 from .sim.integrators import make_integrator
 from .sim.model import Control, Model, State
 
@@ -34,6 +39,9 @@ class Scene:
     model: Model
     petals: PetalFrames
     length: float  #: mean petal length, base to tip, at rest
+    petal: np.ndarray  #: (V,) petal of each vertex
+    planes: np.ndarray  #: (P, 4) each petal's center plane at rest
+    partner: np.ndarray | None  #: (V,) each vertex's mirror partner, if the petals pair up
 
     @classmethod
     def bud(cls, petals: int = 6, vertices: int = 2133, curve: str = "0.2*x**2",
@@ -46,7 +54,23 @@ class Scene:
                             growth.hinges, bending, axes.base)
         frames = PetalFrames.from_mesh(v, petal, axes.base, axes.on_axis, axes.tip, axes.plane)
         length = float(np.linalg.norm(v[frames.tips] - frames.base_centers, axis=1).mean())
-        return cls(v, f, model, frames, length)
+        partner = np.arange(len(v))
+        for p in range(petals):
+            idx = np.flatnonzero(petal == p)
+            pairs = mirror_pairs(v[idx], axes.plane[p])
+            if pairs is None:
+                partner = None
+                break
+            partner[idx] = idx[pairs]
+        return cls(v, f, model, frames, length, petal, np.asarray(axes.plane), partner)
+
+    def mirrored(self, X) -> np.ndarray:
+        """Each petal's shape reflected across its center plane (vertex by vertex)."""
+        out = np.empty_like(X)
+        for p, plane in enumerate(self.planes):
+            idx = np.flatnonzero(self.petal == p)
+            out[idx] = reflect(X[self.partner[idx]], plane)
+        return out
 
 
 @dataclass
@@ -83,8 +107,17 @@ def simulate(scene: Scene, integrator: str, *, ramp: int, hold: int = 0, h: floa
 
 
 def shape_error(scene: Scene, X, reference) -> tuple[float, float]:
-    """(RMS vertex distance / petal length, opening angle difference in degrees)."""
-    rms = float(np.sqrt(np.mean(np.sum((np.asarray(X) - reference) ** 2, axis=1))))
+    """(RMS vertex distance / petal length, opening angle difference in degrees); each
+    petal against the reference or its mirror image, whichever is nearer."""
+    X = np.asarray(X)
+    sq = np.sum((X - reference) ** 2, axis=1)
+    if scene.partner is not None:
+        sq_mirror = np.sum((X - scene.mirrored(reference)) ** 2, axis=1)
+        for p in range(len(scene.planes)):
+            idx = scene.petal == p
+            if sq_mirror[idx].sum() < sq[idx].sum():
+                sq[idx] = sq_mirror[idx]
+    rms = float(np.sqrt(np.mean(sq)))
     angle = float(scene.petals.opening_angles(X).mean()
                   - scene.petals.opening_angles(reference).mean())
     return rms / scene.length, angle
