@@ -24,8 +24,8 @@ def command(growth_h5: str, config_path, overrides, out, overwrite, progress) ->
     from pipeline.measure import PetalFrames
     from pipeline.sim import effects as fx
     from pipeline.sim.integrators import Diverged, make_integrator
-    from pipeline.sim.quasistatic import NotConverged
     from pipeline.sim.model import Control, Model, State
+    from pipeline.sim.quasistatic import NotConverged
     from pipeline.sim.run import run
 
     cfg = load(config_path, overrides)
