@@ -39,11 +39,69 @@ import scipy.sparse as sp
 from scipy.sparse.linalg import spsolve_triangular
 
 from . import hessian, kernels
-from .effects import Effects
+from .effects import CenterPlane, Curl, Effects
 from .model import Control, Model, State
 
 NO_EFFECTS = Effects()
 DYNAMIC_ONLY = ("collisions", "connections")
+
+
+@dataclass
+class _Part:
+    """One connected piece (a petal): its vertices in the whole, and its own problem."""
+
+    vertices: np.ndarray
+    model: Model
+    effects: Effects
+    state: State
+    solver: QuasiStatic | None = None
+
+
+def _split(model: Model, effects: Effects) -> list[_Part]:
+    """The mesh's connected pieces, each as a problem of its own; [] if it is one piece.
+    Without collisions or connection springs, petals do not interact: each is solved on
+    its own, so a petal that snaps costs iterations of its own factorization only, and
+    the line search of one does not hold back another. Pieces without springs are left
+    where they are."""
+    from scipy.sparse.csgraph import connected_components
+
+    n = model.vertex_count
+    e = model.edge_indices
+    graph = sp.coo_matrix((np.ones(len(e)), (e[:, 0], e[:, 1])), shape=(n, n))
+    count, label = connected_components(graph, directed=False)
+    if count <= 1:
+        return []
+    parts = []
+    for c in range(count):
+        idx = np.flatnonzero(label == c)
+        local = np.full(n, -1, dtype=np.int64)
+        local[idx] = np.arange(len(idx))
+        emask = label[e[:, 0]] == c
+        if not emask.any():
+            continue
+        hmask = label[model.hinge_indices[:, 0]] == c
+        sub = Model(
+            vertex_count=len(idx), vertex_mass=model.vertex_mass[idx],
+            vertex_inv_mass=model.vertex_inv_mass[idx], edge_indices=local[e[emask]],
+            edge_rest_length=model.edge_rest_length[emask], edge_growth=model.edge_growth[emask],
+            edge_stiffness=model.edge_stiffness[emask],
+            hinge_indices=local[model.hinge_indices[hmask]],
+            hinge_rest_cos=model.hinge_rest_cos[hmask], hinge_rest_sin=model.hinge_rest_sin[hmask],
+            hinge_stiffness=model.hinge_stiffness[hmask])
+        fx = Effects(names=effects.names)
+        if effects.curl is not None:
+            k = effects.curl
+            fx.curl = Curl(k.theta0[hmask].copy(), k.beta, k.cos_t[hmask].copy(),
+                           k.sin_t[hmask].copy())
+        if effects.center_plane is not None:
+            cp = effects.center_plane
+            mine = label[cp.vertices] == c
+            fx.center_plane = CenterPlane(local[cp.vertices[mine]], cp.normals[mine],
+                                          cp.height[mine])
+        zeros = np.zeros((len(idx), 3))
+        state = State(zeros.copy(), zeros.copy(), zeros.copy(), 0, 0.0, zeros.copy())
+        parts.append(_Part(idx, sub, fx, state))
+    return parts
 
 
 class NotConverged(RuntimeError):
@@ -150,6 +208,7 @@ class QuasiStatic:
     _system: _System | None = field(default=None, repr=False)
     _tangent: bool = field(default=False, repr=False)  #: the factorization is H's at the last equilibrium
     _started: bool = field(default=False, repr=False)
+    _parts: list | None = field(default=None, repr=False)  #: one solver per petal, or []
 
     def diagnostics(self) -> dict:
         return {"newton_iterations": self.iterations, "growth_increments": self.increments,
@@ -161,11 +220,36 @@ class QuasiStatic:
         for name in DYNAMIC_ONLY:
             if getattr(effects, name) is not None:
                 raise ValueError(f"the quasi-static integrator cannot run effect {name!r}")
+        if self._parts is None:
+            self._perturb(model, state, effects)
+            self._parts = _split(model, effects)
+            for part in self._parts:
+                part.solver = QuasiStatic(self.stages, self.tolerance, self.max_iterations,
+                                          perturbation=0.0)
+        if not self._parts:
+            self._advance(model, state, control, n_steps, h, effects)
+        for part in self._parts:  # independent petals: each follows its own path
+            part.state.positions[:] = state.positions[part.vertices]
+            part.solver._advance(part.model, part.state, control, n_steps, h, part.effects)
+            state.positions[part.vertices] = part.state.positions
+        if self._parts:
+            state.step += n_steps
+            self.iterations, self.increments, self.shifted = (
+                sum(getattr(p.solver, k) for p in self._parts)
+                for k in ("iterations", "increments", "shifted"))
+        state.velocities[:] = 0.0
+        cos0, sin0 = self._rest_angles(model, effects, control.growth_at(state.step * h))
+        state.potential_energy = self._energy(model, state.positions,
+                                              control.growth_at(state.step * h), cos0, sin0,
+                                              state.forces)
+        effects.constrain(state.forces)
+
+    def _advance(self, model, state, control, n_steps: int, h: float, effects) -> None:
+        """:meth:`advance` for one connected mesh."""
         if self._system is None:
             self._system = _System.build(model, effects)
-        if not self._started:  # nudge, then settle at the start so that a tangent exists
+        if not self._started:  # settle at the start so that a tangent exists
             self._started = True
-            self._perturb(model, state, effects)
             if self._newton(model, state, effects, control.growth_at(state.step * h)) is not None:
                 raise NotConverged(state.step, control.growth_at(state.step * h), np.inf)
         a0 = control.growth_at(state.step * h)
@@ -176,11 +260,6 @@ class QuasiStatic:
         for target in targets:
             done = self._reach(model, state, effects, done, float(target), state.step + n_steps)
         state.step += n_steps
-        state.velocities[:] = 0.0
-        cos0, sin0 = self._rest_angles(model, effects, done)
-        state.potential_energy = self._energy(model, state.positions, done, cos0, sin0,
-                                              state.forces)
-        effects.constrain(state.forces)
 
     def _perturb(self, model: Model, state: State, effects: Effects) -> None:
         if self.perturbation <= 0.0:
