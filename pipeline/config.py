@@ -318,7 +318,7 @@ def load_config(path: str | Path | None = None, overrides: tuple[str, ...] | lis
             values[dotted] = _coerce(dotted, KEYS[dotted], value, where)
     for text in overrides:
         dotted, value = parse_override(text)
-        values[dotted] = _coerce(dotted, KEYS[dotted], value, f"--set {dotted}")
+        values[dotted] = _coerce(dotted, KEYS[dotted], value, "--set")
     cfg = Config(values, cfg_path)
     _check_together(cfg, str(cfg_path) if cfg_path else "defaults")
     return cfg

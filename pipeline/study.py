@@ -123,6 +123,31 @@ def shape_error(scene: Scene, X, reference) -> tuple[float, float]:
     return rms / scene.length, angle
 
 
+def surface_error(scene: Scene, X, ref_scene: Scene, reference) -> tuple[float, float]:
+    """:func:`shape_error` for a run on another mesh of the same bud: RMS distance of its
+    vertices to the reference's surface (each petal to the same petal, or to its mirror
+    image, whichever is nearer), over the reference's petal length. Meshes are scaled
+    to a mean edge of 1, so the run is first scaled to the reference's petal length."""
+    from .symmetry import closest_points
+
+    X = np.asarray(X) * (ref_scene.length / scene.length)
+    faces = ref_scene.faces
+    shapes = [reference] + ([ref_scene.mirrored(reference)] if ref_scene.partner is not None
+                            else [])
+    total = 0.0
+    for p in range(len(ref_scene.planes)):
+        pts = X[scene.petal == p]
+        idx = np.flatnonzero(ref_scene.petal == p)
+        local = np.full(len(ref_scene.petal), -1)
+        local[idx] = np.arange(len(idx))
+        mine = local[faces[ref_scene.petal[faces[:, 0]] == p]]
+        total += min(float(np.sum((closest_points(R[idx], mine, pts) - pts) ** 2))
+                     for R in shapes)
+    angle = float(scene.petals.opening_angles(X).mean()
+                  - ref_scene.petals.opening_angles(reference).mean())
+    return float(np.sqrt(total / len(X))) / ref_scene.length, angle
+
+
 def reference(scene: Scene, stages: int = 40, tolerance: float = 1e-8):
     """The reference bloom and the change that refining it once more makes (fraction of
     the petal length): ``2 stages`` and ``tolerance / 10``."""
@@ -135,10 +160,12 @@ def reference(scene: Scene, stages: int = 40, tolerance: float = 1e-8):
 def plan(quick: bool = False) -> list[dict]:
     """The runs of the study: each integrator over a range of cost. Dynamic runs hold
     for half their ramp after it; ``h = 1.5`` runs cover the same growth time in fewer
-    steps."""
+    steps; ``vertices`` runs are the same bud meshed coarser or finer."""
     ramps = (2_000, 8_000, 32_000) if quick else (5_000, 20_000, 80_000, 160_000)
     runs = [dict(integrator="quasi-static", stages=s, tolerance=t)
             for s, t in ((1, 1e-2), (2, 1e-3), (5, 1e-4), (10, 1e-6), (20, 1e-8))]
+    runs += [dict(integrator="quasi-static", stages=10, tolerance=1e-6, vertices=v)
+             for v in ((300, 700) if quick else (700, 1200, 4000))]
     for ramp in ramps:
         for eta in (0.1, 0.3, 0.5):
             runs.append(dict(integrator="semi-implicit", eta=eta, ramp=ramp, hold=ramp // 2))
@@ -174,15 +201,25 @@ def accuracy(out_dir, *, petals: int = 6, vertices: int = 2133, quick: bool = Fa
     for spec in plan(quick):
         spec = dict(spec)
         name = spec.pop("integrator")
+        size = spec.pop("vertices", None)
         if name == "quasi-static":
-            run = simulate(scene, name, ramp=1, **spec)
+            ramp = 1
         else:
-            run = simulate(scene, name, **spec)
-        err, dangle = shape_error(scene, run.positions, ref.positions)
-        rows.append({"integrator": label(run), "params": run.params, "steps": run.steps,
+            ramp = spec.pop("ramp")
+        if size is None:
+            run = simulate(scene, name, ramp=ramp, **spec)
+            err, dangle = shape_error(scene, run.positions, ref.positions)
+            name = label(run)
+        else:  # another mesh of the same bud: distances to the reference's surface
+            other = Scene.bud(petals, size)
+            run = simulate(other, name, ramp=ramp, **spec)
+            err, dangle = surface_error(other, run.positions, scene, ref.positions)
+            run.params += f" V={other.model.vertex_count}"
+            name = f"{label(run)}, mesh resolution"
+        rows.append({"integrator": name, "params": run.params, "steps": run.steps,
                      "newton_iterations": run.iterations, "wall_seconds": run.wall,
                      "error": err, "opening_difference_deg": dangle})
-        echo(f"{label(run):24s} {run.params:28s} {run.wall:8.2f} s  error {100 * err:8.3f}%  "
+        echo(f"{name:34s} {run.params:28s} {run.wall:8.2f} s  error {100 * err:8.3f}%  "
              f"opening {dangle:+7.2f} deg")
     with atomic_path(out_dir / "accuracy.csv") as tmp, open(tmp, "w", newline="") as fh:
         writer = csv.DictWriter(fh, fieldnames=list(rows[0]))

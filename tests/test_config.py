@@ -78,7 +78,7 @@ def test_overrides_are_typed_and_checked(tmp_path):
     assert cfg["growth.curve"] == "0.1*x**2"
     assert cfg["effects.curl.enabled"] is True
     assert cfg["simulate.eta"] == 0.0
-    with pytest.raises(BloomError, match=r"--set simulate.eta: simulate.eta: must be <= 0.5"):
+    with pytest.raises(BloomError, match=r"^--set: simulate.eta: must be <= 0.5"):
         load_config(path, ["simulate.eta=2"])
     with pytest.raises(BloomError, match="unknown key"):
         load_config(path, ["simulate.nope=2"])
