@@ -63,7 +63,7 @@ $(OUT)/%/growth.h5: $(OUT)/%/axis.h5 configs/%.toml stages/growth.py $(LIB)
 	$(BLOOM) growth $< --config configs/$*.toml --out $@
 
 $(OUT)/%/sim.h5: $(OUT)/%/growth.h5 configs/%.toml stages/simulate.py $(LIB)
-	$(BLOOM) simulate $< --config configs/$*.toml --out $@
+	$(BLOOM) simulate $< --config configs/$*.toml --out $@ --resume
 
 $(OUT)/%/render/bloom.mp4: $(OUT)/%/sim.h5 configs/%.toml stages/render.py $(LIB)
 	$(BLOOM) render $< --config configs/$*.toml --out $(OUT)/$*/render

@@ -100,6 +100,9 @@ SCHEMA: dict[str, Any] = {
         "bending_stiffness": Key(float, 0.0005, "K_b, per interior edge (paper: 0.0005)",
                                  low=0.0),
         "mass": Key(float, 1.0, "mass of every vertex (paper: 1)", low=0.0, low_open=True),
+        "checkpoint_seconds": Key(float, 20.0, "a running simulation writes a checkpoint at "
+                                  "most this often (wall seconds; 0: never); `bloom simulate "
+                                  "--resume` continues from it", low=0.0),
         "speed_limit": Key(float, 1.0, "divergence guard: a vertex faster than this (mesh "
                            "units per unit time) stops the run as diverged", low=0.0,
                            low_open=True),

@@ -18,10 +18,14 @@ from .common import config_options, input_hashes, load, log, output_options
 @output_options
 @click.option("--progress/--no-progress", default=None,
               help="Progress bar [default: on when stderr is a terminal].")
-def command(growth_h5: str, config_path, overrides, out, overwrite, progress) -> None:
+@click.option("--resume", is_flag=True,
+              help="Continue from the checkpoint an interrupted run of the same inputs and "
+                   "config left next to --out (same result as an uninterrupted run).")
+def command(growth_h5: str, config_path, overrides, out, overwrite, progress, resume) -> None:
     """Simulate the bloom of the petals in GROWTH_H5 and write the frames to sim.h5."""
     from pipeline import artifact, clean
     from pipeline.measure import PetalFrames
+    from pipeline.sim import checkpoint
     from pipeline.sim import effects as fx
     from pipeline.sim.integrators import Diverged, make_integrator
     from pipeline.sim.model import Control, Model, State
@@ -57,6 +61,15 @@ def command(growth_h5: str, config_path, overrides, out, overwrite, progress) ->
             params=cfg.nested().get("effects", {}))
         state = State.at_rest(model, v, control)
         effects.constrain(state.forces)
+        inputs = input_hashes(cfg, growth_h5)
+        ckpt = checkpoint.path_for(out)
+        key = checkpoint.fingerprint(cfg.to_json(), inputs)
+        dynamic = sim["integrator"] != "quasi-static"  # its solver state is not checkpointed
+        resumed = checkpoint.load(ckpt, key, state, effects) if resume and dynamic else None
+        resumed_step = state.step
+        if resumed is not None:
+            log.info("resuming from step %d (%s)", state.step, ckpt)
+        saver = _Saver(ckpt, key, effects, sim["checkpoint_seconds"] if dynamic else 0.0)
         log.info("%d vertices (%d fixed), %d springs, %d hinges; %d steps of h = %g, %d frames; "
                  "effects: %s", model.vertex_count, int(model.pinned.sum()), model.edge_count,
                  model.hinge_count, steps, h, frames, ", ".join(effects.names) or "none")
@@ -67,8 +80,10 @@ def command(growth_h5: str, config_path, overrides, out, overwrite, progress) ->
                                show_eta=True, show_percent=True) if show else _Null() as bar:
             try:
                 rec, wall = run(model, state, control, integrator, steps=steps, frames=frames,
-                                h=h, petals=petals, effects=effects, progress=bar.update)
+                                h=h, petals=petals, effects=effects, progress=bar.update,
+                                resume=resumed, checkpoint=saver)
             except Diverged as exc:
+                ckpt.unlink(missing_ok=True)
                 raise BloomError(
                     f"simulate.h: the simulation {exc} (of {steps}); likely cause: the time step "
                     "is too large for the stiffness, or growth too fast for the steps; remedy: "
@@ -98,8 +113,10 @@ def command(growth_h5: str, config_path, overrides, out, overwrite, progress) ->
                  "wall_seconds": wall, "ms_per_step": 1e3 * wall / steps,
                  "effects": ",".join(effects.names),
                  "integrator": sim["integrator"]}
+        if resumed is not None:
+            attrs["resumed_from_step"] = resumed_step
         with artifact.writing(out, stage="simulate", config_json=cfg.to_json(),
-                              inputs=input_hashes(cfg, growth_h5), attrs=attrs) as h5:
+                              inputs=inputs, attrs=attrs) as h5:
             src.copy_to(h5, ("mesh/faces", "mesh/petal", "axis/base", "axis/on_axis", "axis/x",
                              "axis/s", "axis/tip", "axis/plane", "growth/hinges"))
             artifact.put(h5, "frames/time", np.asarray(rec.time), "(T,) time of each frame")
@@ -112,7 +129,26 @@ def command(growth_h5: str, config_path, overrides, out, overwrite, progress) ->
                              "(C, 2) connected vertices, the first on the outer petal's rim")
                 artifact.put(h5, "effects/connections/broken_step", c.broken_step,
                              "(C,) step at which each spring broke, -1 if intact")
+    ckpt.unlink(missing_ok=True)
     log.info("wrote %s", out)
+
+
+class _Saver:
+    """Writes a checkpoint after a frame when ``every`` wall seconds have passed."""
+
+    def __init__(self, path, key, effects, every: float):
+        import time
+
+        self.path, self.key, self.effects, self.every = path, key, effects, every
+        self.clock = time.monotonic
+        self.last = self.clock()
+
+    def __call__(self, rec, state) -> None:
+        if self.every > 0 and self.clock() - self.last >= self.every:
+            from pipeline.sim import checkpoint
+
+            checkpoint.save(self.path, self.key, state, self.effects, rec)
+            self.last = self.clock()
 
 
 class _Null:

@@ -291,7 +291,8 @@ def test_quasi_static_refuses_dynamic_effects(chain, tmp_path):
 
 def test_study_accuracy_writes_csv_and_plot(tmp_path):
     """A small, quick study: every dynamic integrator's error falls as it spends more
-    time; the quasi-static one is on the reference (within 0.1%) at every cost."""
+    time; the quasi-static one is on the reference (within 0.1%) at every cost. (Other
+    meshes of the bud are other problems: K_s, K_b are per edge; see the README.)"""
     import csv
 
     out = tmp_path / "study"
@@ -308,7 +309,7 @@ def test_study_accuracy_writes_csv_and_plot(tmp_path):
     assert {"quasi-static", "semi-implicit eta=0.1", "Verlet (eta=0.5)",
             "explicit-damping"} <= set(by)
     for name, pts in by.items():
-        if name != "quasi-static":
+        if not name.startswith("quasi-static"):
             steps = sorted(pts)
             assert steps[-1][1] < 0.1 * steps[0][1], (name, pts)  # costliest: most accurate
     assert max(e for _, e in by["quasi-static"]) < 1e-3

@@ -57,16 +57,27 @@ def record(rec: Recording, model: Model, state: State, control: Control, h: floa
 
 def run(model: Model, state: State, control: Control, integrator, *, steps: int, frames: int,
         h: float, petals: PetalFrames | None = None, effects: Effects = NO_EFFECTS,
-        progress: Callable[[int], None] | None = None) -> tuple[Recording, float]:
+        progress: Callable[[int], None] | None = None, resume: Recording | None = None,
+        checkpoint: Callable[[Recording, State], None] | None = None
+        ) -> tuple[Recording, float]:
     """Advance ``state`` by ``steps`` steps, recording ``frames`` frames.
 
-    Returns the recording and the wall-clock seconds spent stepping.
+    ``resume``: the frames a checkpoint recorded, ``state`` (and effects) being restored
+    at the last of them; the run goes on from there. ``checkpoint`` is called after each
+    frame. Returns the recording and the wall-clock seconds spent stepping.
     """
-    rec = Recording()
-    record(rec, model, state, control, h, petals, effects, integrator)
+    if resume is None:
+        rec = Recording()
+        record(rec, model, state, control, h, petals, effects, integrator)
+    else:
+        rec = resume
+        if progress is not None:
+            progress(state.step)
     wall = 0.0
     targets = frame_steps(steps, frames)
     for target in targets[1:]:
+        if target <= state.step:
+            continue
         n = int(target - state.step)
         t0 = time.perf_counter()
         integrator.advance(model, state, control, n, h, effects)
@@ -74,4 +85,6 @@ def run(model: Model, state: State, control: Control, integrator, *, steps: int,
         record(rec, model, state, control, h, petals, effects, integrator)
         if progress is not None:
             progress(n)
+        if checkpoint is not None and target < targets[-1]:
+            checkpoint(rec, state)
     return rec, wall
