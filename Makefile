@@ -17,7 +17,7 @@ PYTEST_ARGS ?=
 # A stage's artifacts depend on the library and on the stage's own module.
 LIB := $(wildcard pipeline/*.py pipeline/sim/*.py) stages/cli.py stages/common.py
 
-.PHONY: all test lint bench accuracy venv clean clean-venv help
+.PHONY: all test lint bench accuracy stability venv clean clean-venv help
 all: $(SCENES:%=$(OUT)/%/render/bloom.mp4) $(SCENES:%=$(OUT)/%/report.json)  ## build every scene: artifacts, frames, MP4, report
 
 help:  ## list the targets
@@ -40,6 +40,9 @@ bench: $(INSTALLED)  ## print what each effect costs, as ratios to the bare simu
 accuracy: $(INSTALLED)  ## what accuracy costs in time: outputs/accuracy/accuracy.csv, .png (~6 min)
 	$(BLOOM) study accuracy --out $(OUT)/accuracy
 
+stability: $(INSTALLED)  ## the hard cases, slow ones included; prints the README's table (~30 s)
+	$(VENV)/bin/python -m pipeline.stability
+
 lint: $(INSTALLED)  ## ruff over the code
 	$(VENV)/bin/ruff check pipeline stages tests
 
@@ -48,7 +51,7 @@ $(OUT)/%/mesh.d: configs/%.toml | $(INSTALLED)
 	@mkdir -p $(@D)
 	@echo "$(OUT)/$*/remesh.h5: $$($(BLOOM) config $< --mesh-path)" > $@
 
-ifeq ($(filter test lint bench accuracy venv clean clean-venv help,$(MAKECMDGOALS)),)
+ifeq ($(filter test lint bench accuracy stability venv clean clean-venv help,$(MAKECMDGOALS)),)
 -include $(SCENES:%=$(OUT)/%/mesh.d)
 endif
 

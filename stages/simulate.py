@@ -86,9 +86,10 @@ def command(growth_h5: str, config_path, overrides, out, overwrite, progress, re
                 ckpt.unlink(missing_ok=True)
                 raise BloomError(
                     f"simulate.h: the simulation {exc} (of {steps}); likely cause: the time step "
-                    "is too large for the stiffness, or growth too fast for the steps; remedy: "
-                    "a smaller simulate.h, more simulate.steps, or a larger simulate.eta "
-                    "damping", where=where) from None
+                    "is too large for the stiffness (or the mesh has very skinny triangles), "
+                    "or growth too fast for the steps; remedy: a smaller simulate.h, more "
+                    "simulate.steps, remeshing (remesh.petal_vertices), or "
+                    "simulate.integrator = quasi-static", where=where) from None
             except NotConverged as exc:
                 raise BloomError(
                     f"simulate.stages: the quasi-static solver found {exc}; likely cause: a "

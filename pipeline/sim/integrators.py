@@ -16,10 +16,10 @@ NO_EFFECTS = Effects()
 class Diverged(RuntimeError):
     """The divergence guard stopped a run: non-finite energy or runaway speed."""
 
-    def __init__(self, step: int, energy: float, speed: float):
+    def __init__(self, step: int, energy: float, speed: float, why: str = ""):
         self.step, self.energy, self.speed = step, energy, speed
-        super().__init__(f"diverged at step {step}: potential energy {energy:.3g}, "
-                         f"max speed {speed:.3g}")
+        super().__init__(f"diverged at step {step}: "
+                         + (why or f"potential energy {energy:.3g}, max speed {speed:.3g}"))
 
 
 @dataclass

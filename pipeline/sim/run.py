@@ -10,8 +10,14 @@ import numpy as np
 
 from ..measure import PetalFrames
 from .effects import Effects
-from .integrators import NO_EFFECTS
+from .integrators import NO_EFFECTS, Diverged
 from .model import Control, Model, State
+
+#: energy guard: while growth holds, kinetic + potential energy may only fall (Eq. 8 with
+#: eta < 1/2, collisions and breaking springs all remove energy); a rise by more than
+#: this fraction of its value when the hold began is an instability (a time step at the
+#: scheme's limit grows energy slowly, below the speed limit)
+HOLD_ENERGY_RISE = 0.5
 
 
 def frame_steps(steps: int, frames: int) -> np.ndarray:
@@ -83,8 +89,21 @@ def run(model: Model, state: State, control: Control, integrator, *, steps: int,
         integrator.advance(model, state, control, n, h, effects)
         wall += time.perf_counter() - t0
         record(rec, model, state, control, h, petals, effects, integrator)
+        _guard_hold_energy(rec, state)
         if progress is not None:
             progress(n)
         if checkpoint is not None and target < targets[-1]:
             checkpoint(rec, state)
     return rec, wall
+
+
+def _guard_hold_energy(rec: Recording, state: State) -> None:
+    growth, total = rec.diagnostics["growth"], rec.diagnostics["total_energy"]
+    hold = [i for i, a in enumerate(growth) if a >= 1.0]
+    if len(hold) < 2:
+        return
+    start = total[hold[0]]
+    if total[-1] > start + HOLD_ENERGY_RISE * abs(start) + 1e-12:
+        raise Diverged(state.step, state.potential_energy, state.max_speed(),
+                       f"energy rose {100 * (total[-1] - start) / abs(start):.0f}% while "
+                       f"growth held (from {start:.3g} to {total[-1]:.3g})")

@@ -1,0 +1,49 @@
+"""The stability suite (pipeline/stability.py): hard cases through the real stages either
+finish with finite, bounded results or stop early with one clean line. The slow cases
+run under `make stability` (which runs them all and prints the README's table)."""
+
+import h5py
+import numpy as np
+import pytest
+
+from pipeline import stability
+
+FAST = [c for c in stability.CASES if not c.slow]
+
+
+@pytest.mark.parametrize("case", FAST, ids=[c.name for c in FAST])
+def test_hard_case_is_stable_or_stops_cleanly(case, tmp_path):
+    r = stability.run_case(case, tmp_path)
+    assert r.ok, (r.outcome, r.message, r.max_speed, r.drift, r.escape)
+    if r.outcome == "finished":
+        assert r.max_speed < 1.0 and r.escape < stability.MAX_ESCAPE
+        assert r.drift < stability.MAX_DRIFT
+    else:
+        assert r.outcome == "stopped" and "simulate." in r.message
+        assert not (tmp_path / "sim.h5").exists()
+
+
+def test_the_cases_exercise_what_they_claim(tmp_path):
+    """Folds near pi, contacts between interpenetrating petals, springs breaking en masse."""
+    by = {c.name: c for c in stability.CASES}
+    folded = stability.run_case(by["folded near pi"], tmp_path / "f")
+    assert "hinges folded past 170 deg" in folded.notes
+    crossing = stability.run_case(by["interpenetrating bud"], tmp_path / "c")
+    with h5py.File(tmp_path / "c" / "sim.h5") as h5:
+        assert h5["diagnostics/contacts"][()].sum() > 100
+    breaking = stability.run_case(by["mass breaking"], tmp_path / "b")
+    with h5py.File(tmp_path / "b" / "sim.h5") as h5:
+        intact = h5["diagnostics/connections_intact"][()]
+        broken_at = h5["effects/connections/broken_step"][()]
+    assert intact[0] > 20 and intact[-1] < intact[0] // 2
+    steps = np.sort(broken_at[broken_at >= 0])
+    burst = max(int(np.sum((steps >= s) & (steps < s + 1000))) for s in steps)
+    assert burst >= 10  # a burst: at least 10 within 1000 steps (of 30 000)
+    assert crossing.ok and breaking.ok and folded.ok
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("case", [c for c in stability.CASES if c.slow],
+                         ids=[c.name for c in stability.CASES if c.slow])
+def test_slow_hard_case(case, tmp_path):
+    assert stability.run_case(case, tmp_path).ok
