@@ -160,7 +160,14 @@ class Artifact:
         return name in self.file
 
     def __getitem__(self, name: str) -> np.ndarray:
-        return self.file[name][()]
+        if name not in self.file:
+            raise BloomError(f"dataset {name} is missing (a damaged or hand-edited artifact?); "
+                             f"rebuild it with `bloom {self.stage}`", where=str(self.path))
+        try:
+            return self.file[name][()]
+        except OSError:
+            raise BloomError(f"dataset {name} is unreadable (a damaged artifact?); rebuild it "
+                             f"with `bloom {self.stage}`", where=str(self.path)) from None
 
     @property
     def attrs(self) -> h5py.AttributeManager:

@@ -112,7 +112,8 @@ def clean_mesh(vertices: np.ndarray, faces: np.ndarray, weld_tolerance: float = 
     report.unreferenced = int((~used).sum())
     remap = np.cumsum(used) - 1
     v, f = v[used], remap[f]
-    f, report.flipped_faces = orient_consistently(f, len(v))
+    if len(f):
+        f, report.flipped_faces = orient_consistently(f, len(v))
     return v, f, report
 
 

@@ -105,5 +105,11 @@ def evaluate_curve(text: str, x: np.ndarray) -> np.ndarray:
 
 
 def check_curve(text: str) -> None:
-    """Raise ``ValueError`` unless ``text`` is a curve that is finite on [-1, 1]."""
-    evaluate_curve(text, np.linspace(-1.0, 1.0, 201))
+    """Raise ``ValueError`` unless ``text`` is a curve that is finite on [-1, 1] and above
+    -1 there (alpha <= -1 would make a rest length zero or negative, Eq. 6)."""
+    x = np.linspace(-1.0, 1.0, 201)
+    y = evaluate_curve(text, x)
+    if np.any(y <= -1.0):
+        at = x[np.argmin(y)]
+        raise ValueError(f"{y.min():.3g} at x = {at:.3g}: a growth ratio <= -1 makes a rest "
+                         "length zero or negative")
