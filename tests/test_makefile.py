@@ -85,3 +85,31 @@ def test_make_j_gives_the_same_arrays_as_a_serial_build(tree):
     r = make(tree, "-B", "-j1", "SCENES=one")
     assert r.returncode == 0, r.stderr[-2000:]
     assert _positions_hash(sims[0]) == parallel[0]
+
+
+def test_killed_make_then_make_gives_the_uninterrupted_arrays(tree):
+    """SIGKILL the whole `make` (and its bloom simulate) mid-simulation, then `make`
+    again: it resumes from the checkpoint, and the frames hash as an uninterrupted build
+    of the same scene does."""
+    import signal
+    import time
+
+    long = TINY.replace("steps = 300\nframes = 3", "steps = 60000\nframes = 31\n"
+                        "checkpoint_seconds = 0.2")
+    for scene in ("one", "two"):
+        (tree / "configs" / f"{scene}.toml").write_text(long.format(mesh="petal.obj"))
+    proc = subprocess.Popen(["make", "SCENES=one"], cwd=tree, stdout=subprocess.DEVNULL,
+                            stderr=subprocess.DEVNULL, start_new_session=True)
+    ckpt = tree / "outputs" / "one" / ".sim.h5.checkpoint"
+    deadline = time.monotonic() + 240
+    while not ckpt.exists() and proc.poll() is None and time.monotonic() < deadline:
+        time.sleep(0.05)
+    os.killpg(proc.pid, signal.SIGKILL)
+    proc.wait()
+    assert ckpt.exists() and not (tree / "outputs" / "one" / "sim.h5").exists()
+    r = make(tree)  # both scenes: `one` resumes, `two` runs uninterrupted
+    assert r.returncode == 0, r.stderr[-2000:]
+    assert "resuming from step" in r.stderr
+    assert not ckpt.exists()
+    one, two = (tree / "outputs" / s / "sim.h5" for s in ("one", "two"))
+    assert _positions_hash(one) == _positions_hash(two)
