@@ -48,8 +48,11 @@ def command(vertices: int, steps: int, sizes: tuple[int, ...], converge: bool,
                      "runs": study.time_to_converge(
                          scene, ref.positions, echo=None if as_json else click.echo)}
     if as_json:
-        click.echo(json.dumps({"effects": costs, "collision_scaling": scaling,
-                               "converged_bloom": converged}, indent=1))
+        steps = [{"vertices": r["vertices"], "edges": r["edges"], "ms_per_step": r["bare_ms"],
+                  "ns_per_edge": r["bare_ns_per_edge"]} for r in scaling]
+        click.echo(json.dumps({"step_cost": steps, "effects": costs,
+                               "collision_scaling": scaling, "converged_bloom": converged},
+                              indent=1))
         return
     click.echo(f"effects on a 6-petal bud of about {vertices} vertices, {steps} steps")
     click.echo(f"{'effects':58s} {'ms/step':>8s} {'ratio':>6s}")

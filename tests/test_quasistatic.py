@@ -129,3 +129,38 @@ def test_quasi_static_keeps_the_center_plane_and_curls(petal):
     plain = study.simulate(petal, "quasi-static", ramp=1, stages=10)
     # curl with beta = 1 flattens the cross-sections: a different bloom
     assert study.shape_error(petal, state.positions, plain.positions)[0] > 1e-3
+
+
+def test_time_to_converge_reports_each_integrator(petal):
+    """`bloom bench`'s converged-bloom figures on a lone petal: every integrator gets
+    within 1% (the dynamic ones with long enough growth), each row says what it cost,
+    and the paper's 44 s is beside it."""
+    ref = study.simulate(petal, "quasi-static", ramp=1, stages=40, tolerance=1e-8)
+    rows = study.time_to_converge(petal, ref.positions)
+    by = {r["integrator"]: r for r in rows}
+    assert set(by) == {"quasi-static", "semi-implicit eta=0.1", "Verlet (eta=0.5)",
+                       "explicit-damping d=0.999"}
+    for row in rows:
+        assert row["converged"] and row["error"] < 0.01 and row["paper_seconds"] == 44.0
+        assert row["wall_seconds"] > 0
+    assert by["semi-implicit eta=0.1"]["steps"] >= 15_000  # slow growth is what converges
+
+
+def test_bench_json_reports_step_cost_per_edge():
+    import json
+
+    from click.testing import CliRunner
+
+    from stages.cli import cli
+
+    r = CliRunner().invoke(cli, ["bench", "--json", "--vertices", "300", "--steps", "20",
+                                 "--sizes", "300,1200", "--no-converge"])
+    assert r.exit_code == 0, r.output
+    data = json.loads(r.output)
+    sizes = [row["vertices"] for row in data["step_cost"]]
+    assert len(sizes) == 2 and sizes[1] > 3 * sizes[0]
+    for row in data["step_cost"]:
+        assert row["edges"] > row["vertices"] and 0 < row["ns_per_edge"] < 1e4
+        assert row["ms_per_step"] == pytest.approx(row["ns_per_edge"] * row["edges"] / 1e6)
+    assert data["effects"][0]["effects"] == "none" and data["effects"][0]["ratio"] == 1.0
+    assert data["converged_bloom"] is None
