@@ -300,11 +300,11 @@ class QuasiStatic:
             return
         X = state.positions
         cos0, sin0 = self._rest_angles(model, effects, a_next)
-        energy = self._assemble(model, X, a_next, cos0, sin0)
-        g = self._system.gradient.ravel().copy()
+        scratch = np.empty_like(X)
+        energy, g = self._gradient(model, X, a_next, cos0, sin0, scratch)
         step = self._system.solve(-g)
         self.iterations += 1
-        self._line_search(model, X, a_next, cos0, sin0, np.empty_like(X), energy, g, step)
+        self._line_search(model, X, a_next, cos0, sin0, scratch, energy, g, step)
 
     def _rest_angles(self, model: Model, effects: Effects, A: float):
         if effects.curl is None:
@@ -348,8 +348,7 @@ class QuasiStatic:
         system = self._system
         self.residuals = []
         for _ in range(self.max_iterations):
-            energy = self._assemble(model, X, A, cos0, sin0)
-            g = system.gradient.ravel().copy()
+            energy, g = self._gradient(model, X, A, cos0, sin0, scratch)
             residual = float(np.abs(g).max())
             self.residuals.append(residual)
             # a mode as soft as floor moves less than tolerance (or the force is at rounding)
@@ -357,13 +356,13 @@ class QuasiStatic:
                 return None
             self.iterations += 1
             mu = 0.0
+            self._assemble(model, X, A, cos0, sin0)
             positive, down = system.factor()
             self._tangent = positive
             if not positive:
                 if down is not None:
                     energy = self._descend(model, X, A, cos0, sin0, scratch, energy, g, down)
-                    energy = self._assemble(model, X, A, cos0, sin0)
-                    g = system.gradient.ravel().copy()
+                    energy, g = self._gradient(model, X, A, cos0, sin0, scratch)
                 mu = floor
                 while not system.factor(mu)[0]:
                     self.shifted += 1
@@ -375,6 +374,19 @@ class QuasiStatic:
             if mu == 0.0 and length * float(np.abs(step).max()) < self.tolerance:
                 return None  # (the factorization is that of the equilibrium, to rounding)
         return residual
+
+    def _gradient(self, model, X, A, cos0, sin0, scratch) -> tuple[float, np.ndarray]:
+        """Energy and gradient (flattened) with the constraints applied, from the force
+        kernel: a fixed vertex's gradient is 0, a center-plane vertex's has no normal part."""
+        energy = self._energy(model, X, A, cos0, sin0, scratch)
+        s = self._system
+        g = -scratch
+        g[s.pinned] = 0.0
+        rows = np.flatnonzero(s.plane_row >= 0)
+        if len(rows):
+            n = s.normals[s.plane_row[rows]]
+            g[rows] -= np.einsum("ij,ij->i", g[rows], n)[:, None] * n
+        return energy, g.ravel()
 
     def _line_search(self, model, X, A, cos0, sin0, scratch, energy, g, step) -> float:
         """Backtracking (Armijo) along ``step``; moves X and returns the step length
