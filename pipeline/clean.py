@@ -92,14 +92,21 @@ def clean_mesh(vertices: np.ndarray, faces: np.ndarray, weld_tolerance: float = 
     f = np.asarray(faces, dtype=np.int64)
     diag = float(np.linalg.norm(v.max(axis=0) - v.min(axis=0)))
     v, f, report.welded = weld(v, f, weld_tolerance * max(diag, 1e-300))
-    # degenerate: repeated index, (numerically) zero area, or a sliver whose height is
+    # degenerate: repeated index, (numerically) zero area, or a sliver on the rim: height
     # under 1e-6 of its longest edge (three vertices collinear up to the file's rounding:
-    # its hinge would have no usable normal, its apex vertex no stiffness across)
+    # its hinge would have no usable normal, its apex no stiffness across) with two of
+    # its edges on the boundary, so that dropping it leaves the sheet whole. A sliver
+    # inside the sheet is kept (dropping it would cut a slit); remeshing removes it.
     repeated = (f[:, 0] == f[:, 1]) | (f[:, 1] == f[:, 2]) | (f[:, 2] == f[:, 0])
     area2 = np.linalg.norm(topology.face_normals(v, f), axis=1)
     p = v[f]
     longest2 = np.max(np.sum((p - np.roll(p, 1, axis=1)) ** 2, axis=2), axis=1)
-    flat = (area2 <= 1e-12 * max(diag, 1e-300) ** 2) | (area2 <= 1e-6 * longest2)
+    flat = area2 <= 1e-12 * max(diag, 1e-300) ** 2
+    sliver = ~flat & (area2 <= 1e-6 * longest2)
+    if sliver.any():
+        _, he_edge, count = topology.unique_edges(f)
+        on_rim = (count[he_edge] == 1).reshape(3, -1).sum(axis=0)  # half-edges: by corner
+        flat |= sliver & (on_rim >= 2)
     bad = repeated | flat
     report.degenerate_faces = int(bad.sum())
     f = f[~bad]

@@ -79,11 +79,14 @@ def command(growth_h5: str, config_path, overrides, out, overwrite, progress, re
         with click.progressbar(length=steps, label="simulate", file=sys.stderr,
                                show_eta=True, show_percent=True) if show else _Null() as bar:
             try:
-                rec, wall = run(model, state, control, integrator, steps=steps, frames=frames,
-                                h=h, petals=petals, effects=effects, progress=bar.update,
-                                resume=resumed, checkpoint=saver)
+                try:
+                    rec, wall = run(model, state, control, integrator, steps=steps,
+                                    frames=frames, h=h, petals=petals, effects=effects,
+                                    progress=bar.update, resume=resumed, checkpoint=saver)
+                except (Diverged, NotConverged, ValueError, RuntimeError):
+                    ckpt.unlink(missing_ok=True)  # a failed run's checkpoint would fail again
+                    raise
             except Diverged as exc:
-                ckpt.unlink(missing_ok=True)
                 raise BloomError(
                     f"simulate.h: the simulation {exc} (of {steps}); likely cause: the time step "
                     "is too large for the stiffness (or the mesh has very skinny triangles), "
@@ -96,25 +99,30 @@ def command(growth_h5: str, config_path, overrides, out, overwrite, progress, re
                     "growth curve too strong for the bending stiffness; remedy: more "
                     "simulate.stages, a larger simulate.tolerance, or a dynamic integrator",
                     where=where) from None
+            except ValueError as exc:  # what the integrator cannot do with this scene
+                raise BloomError(f"simulate.integrator: {exc}", where=where) from None
             except RuntimeError as exc:
-                raise BloomError(f"effects.collisions: {exc}", where=where) from None
+                key = "effects.collisions" if "collision" in str(exc) else "simulate"
+                raise BloomError(f"{key}: {exc}", where=where) from None
         diag = rec.arrays()
         positions = np.asarray(rec.positions)
         if not np.all(np.isfinite(positions)):
+            ckpt.unlink(missing_ok=True)
             raise BloomError("the simulation diverged (non-finite positions); try a smaller "
                              "simulate.h or a smaller simulate.eta", where=where)
         tail = max(1, (frames - 1) // 10)
         opening = diag.get("opening_angle", np.zeros(frames))
+        stepped = max(steps - resumed_step, 1)  # the steps this run took (after a resume)
         log.info("%.2f s (%.3f ms/step); opening %.1f deg, change over the last 10%% %.3f deg; "
-                 "final kinetic energy %.3g, max speed %.3g", wall, 1e3 * wall / steps,
+                 "final kinetic energy %.3g, max speed %.3g", wall, 1e3 * wall / stepped,
                  opening[-1], opening[-1] - opening[-1 - tail], diag["kinetic_energy"][-1],
                  diag["max_speed"][-1])
         attrs = {"scale": src.attrs["scale"], "flower_axis": src.attrs["flower_axis"],
                  "steps": steps, "h": h,
-                 "wall_seconds": wall, "ms_per_step": 1e3 * wall / steps,
+                 "wall_seconds": wall, "ms_per_step": 1e3 * wall / stepped,
                  "effects": ",".join(effects.names),
                  "integrator": sim["integrator"]}
-        if resumed is not None:
+        if resumed is not None:  # then wall_seconds covers this run's steps only
             attrs["resumed_from_step"] = resumed_step
         with artifact.writing(out, stage="simulate", config_json=cfg.to_json(),
                               inputs=inputs, attrs=attrs) as h5:

@@ -313,3 +313,16 @@ def test_study_accuracy_writes_csv_and_plot(tmp_path):
             steps = sorted(pts)
             assert steps[-1][1] < 0.1 * steps[0][1], (name, pts)  # costliest: most accurate
     assert max(e for _, e in by["quasi-static"]) < 1e-3
+
+
+def test_quasi_static_refuses_what_has_no_equilibrium(chain, tmp_path):
+    """Without bending stiffness a petal has no stiffness out of its plane: refused in
+    one line, no output, no checkpoint left behind."""
+    out = tmp_path / "sim.h5"
+    r = CliRunner().invoke(cli, ["simulate", str(chain["growth"]), "--out", str(out),
+                                 "--set", "simulate.integrator=quasi-static",
+                                 "--set", "simulate.bending_stiffness=0"])
+    assert r.exit_code != 0 and not out.exists()
+    lines = r.output.strip().splitlines()
+    assert "simulate.integrator" in lines[-1] and "bending stiffness" in lines[-1]
+    assert "Traceback" not in r.output and list(tmp_path.iterdir()) == []

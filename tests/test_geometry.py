@@ -131,3 +131,38 @@ def test_bud_bases_are_found_next_to_the_flower_axis():
     radius = np.linalg.norm(v[:, :2], axis=1)
     assert radius[axes.base].max() < 0.15 * radius.max() + 3.0
     assert np.all(v[axes.base, 2] < v[axes.tip, 2].min())
+
+
+def _with_sliver(interior: bool):
+    """A 3x3-vertex grid sheet plus a sliver (height ~1e-8 of its edge): on the rim, a
+    face hanging on a boundary edge; inside, a cap: the diagonal 0-4 bent through a point
+    m next to its middle, the cap (0, m, 4) filling the gap (a valid manifold sheet)."""
+    v = np.array([[x, y, 0.0] for y in range(3) for x in range(3)], dtype=float)
+    f = []
+    for y in range(2):
+        for x in range(2):
+            a = 3 * y + x
+            f += [[a, a + 1, a + 4], [a, a + 4, a + 3]]
+    m = len(v)
+    if interior:
+        v = np.vstack([v, [0.5 + 1e-8, 0.5 - 1e-8, 0.0]])
+        f = [t for t in f if t != [0, 1, 4]] + [[0, 1, m], [m, 1, 4], [0, m, 4]]
+        return v, np.array(f)
+    v = np.vstack([v, [0.5, -1e-8, 0.0]])  # under the bottom boundary edge 0-1
+    return v, np.array(f + [[0, m, 1]])
+
+
+def test_rim_sliver_is_dropped_and_an_inner_one_kept_whole():
+    from pipeline import clean, topology
+    from pipeline.remesh import boundary_loops
+
+    v, f = _with_sliver(interior=False)
+    v2, f2, rep = clean.clean_mesh(v, f)
+    assert rep.degenerate_faces == 1 and len(f2) == 8 and len(v2) == 9
+    assert len(boundary_loops(f2)) == 1
+    v, f = _with_sliver(interior=True)
+    _, _, count = topology.unique_edges(f)
+    assert count.max() == 2 and len(boundary_loops(f)) == 1
+    v3, f3, rep = clean.clean_mesh(v, f)
+    assert rep.degenerate_faces == 0 and len(f3) == len(f)  # the cap is kept ...
+    assert len(boundary_loops(f3)) == 1  # ... so no slit is cut into the sheet

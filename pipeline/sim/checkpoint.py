@@ -33,8 +33,22 @@ def path_for(out: str | Path) -> Path:
 
 
 def fingerprint(config_json: str, inputs: dict[str, str]) -> str:
-    text = json.dumps({"config": json.loads(config_json), "inputs": inputs, "v": VERSION},
-                      sort_keys=True)
+    """What a checkpoint must match to be resumed: the inputs, the config (but not how
+    often checkpoints are written), and the code that steps (Bloom's version, the
+    simulator's sources, numpy's and numba's versions): a checkpoint from other code
+    would splice two different runs into one artifact."""
+    import numba
+
+    from .. import __version__
+
+    config = json.loads(config_json)
+    config.get("simulate", {}).pop("checkpoint_seconds", None)
+    sources = hashlib.sha256()
+    for src in sorted(Path(__file__).parent.glob("*.py")):
+        sources.update(src.read_bytes())
+    text = json.dumps({"config": config, "inputs": inputs, "v": VERSION,
+                       "code": [__version__, sources.hexdigest(), np.__version__,
+                                numba.__version__]}, sort_keys=True)
     return hashlib.sha256(text.encode()).hexdigest()
 
 
@@ -43,7 +57,10 @@ def _bundle_arrays(effects: Effects) -> list[tuple[int, np.ndarray]]:
 
 
 def save(path: Path, key: str, state: State, effects: Effects, rec: Recording) -> None:
-    """Write the checkpoint (atomically: a kill while writing leaves the previous one)."""
+    """Write the checkpoint (atomically: a kill while writing leaves the previous one;
+    the half-written file of such a kill is removed by the next save)."""
+    for stale in path.parent.glob(f"{path.name}.tmp-*"):
+        stale.unlink(missing_ok=True)
     tmp = path.with_name(f"{path.name}.tmp-{os.getpid()}")
     try:
         with h5py.File(tmp, "w") as f:

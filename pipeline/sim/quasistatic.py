@@ -3,14 +3,20 @@
 A petal's bending modes are slow (a period of ~5e4 steps at h = 1), so an explicit
 scheme needs ~1e5 steps or more to settle where growth puts it. This integrator does
 not follow the dynamics: for each growth increment it finds the equilibrium
-(grad U = 0) by Newton's method, starting from a secant prediction along the path.
+(grad U = 0) by Newton's method, starting from a tangent prediction along the path.
 
-- Hessian: the analytic one of :mod:`hessian`. Each Newton step first factors it as is
-  (a sparse LDL^T through SuperLU with symmetric, diagonal pivoting, whose pivot signs
-  give its inertia); where it is not positive definite (the path passes a bifurcation,
-  or the prediction is far off), the step is taken with the per-element projected
-  Hessian instead, which is positive semi-definite, so the step goes downhill.
-  Near a stable equilibrium the full Hessian is used and convergence is quadratic.
+- Hessian: the analytic one of :mod:`hessian`. Each Newton step factors it as is (a
+  sparse LDL^T by qdldl, whose pivot signs give its inertia). Where it is positive
+  definite the step is Newton's, and near a stable equilibrium convergence is
+  quadratic. Where it is not (the path passes a bifurcation or a snap, or the
+  prediction is far off), the energy is first searched along a direction of negative
+  curvature read from the factors, then the step solves ``(H + mu I) p = -g`` with
+  ``mu`` raised until that is positive definite (see :meth:`QuasiStatic._newton`).
+  (Projecting each element's Hessian to positive definite, the other classic remedy,
+  was tried first: it converged linearly, 50-100 iterations per increment, and stalled
+  at snaps.)
+- Each connected piece (petal) is its own problem: without collisions or connection
+  springs petals do not interact.
 - Line search: backtracking on the energy (Armijo); a step within rounding of the
   energy is accepted.
 - Increments: ``ceil(dA * stages)`` per call, so ``stages`` bounds the growth per
@@ -69,6 +75,12 @@ def _split(model: Model, effects: Effects) -> list[_Part]:
     e = model.edge_indices
     graph = sp.coo_matrix((np.ones(len(e)), (e[:, 0], e[:, 1])), shape=(n, n))
     count, label = connected_components(graph, directed=False)
+    pinned_pieces = np.unique(label[model.pinned])
+    for c in range(count):
+        if c not in pinned_pieces and np.any(label[e[:, 0]] == c):
+            raise ValueError(f"a piece of the mesh ({int(np.sum(label == c))} vertices) has no "
+                             "fixed base vertex: with nothing holding it, it has no "
+                             "equilibrium; check axis.base")
     if count <= 1:
         return []
     parts = []
@@ -204,6 +216,7 @@ class QuasiStatic:
     iterations: int = 0  #: Newton iterations so far (all increments)
     increments: int = 0  #: growth increments solved so far
     shifted: int = 0  #: factorizations retried with a larger shift mu
+    descents: int = 0  #: searches along a direction of negative curvature
     residuals: list = field(default_factory=list, repr=False)  #: per iteration of the last solve
     _system: _System | None = field(default=None, repr=False)
     _tangent: bool = field(default=False, repr=False)  #: the factorization is H's at the last equilibrium
@@ -212,7 +225,8 @@ class QuasiStatic:
 
     def diagnostics(self) -> dict:
         return {"newton_iterations": self.iterations, "growth_increments": self.increments,
-                "shifted_factorizations": self.shifted}
+                "shifted_factorizations": self.shifted,
+                "negative_curvature_steps": self.descents}
 
     # --- one call: growth from A(t0) to A(t0 + n h) -----------------------------------
     def advance(self, model: Model, state: State, control: Control, n_steps: int, h: float,
@@ -220,6 +234,9 @@ class QuasiStatic:
         for name in DYNAMIC_ONLY:
             if getattr(effects, name) is not None:
                 raise ValueError(f"the quasi-static integrator cannot run effect {name!r}")
+        if model.hinge_count and not np.all(model.hinge_stiffness > 0.0):
+            raise ValueError("the quasi-static integrator needs bending stiffness > 0 (without "
+                             "it a petal has no stiffness out of its plane)")
         if self._parts is None:
             self._perturb(model, state, effects)
             self._parts = _split(model, effects)
@@ -234,9 +251,9 @@ class QuasiStatic:
             state.positions[part.vertices] = part.state.positions
         if self._parts:
             state.step += n_steps
-            self.iterations, self.increments, self.shifted = (
+            self.iterations, self.increments, self.shifted, self.descents = (
                 sum(getattr(p.solver, k) for p in self._parts)
-                for k in ("iterations", "increments", "shifted"))
+                for k in ("iterations", "increments", "shifted", "descents"))
         state.velocities[:] = 0.0
         cos0, sin0 = self._rest_angles(model, effects, control.growth_at(state.step * h))
         state.potential_energy = self._energy(model, state.positions,
@@ -250,8 +267,10 @@ class QuasiStatic:
             self._system = _System.build(model, effects)
         if not self._started:  # settle at the start so that a tangent exists
             self._started = True
-            if self._newton(model, state, effects, control.growth_at(state.step * h)) is not None:
-                raise NotConverged(state.step, control.growth_at(state.step * h), np.inf)
+            a0 = control.growth_at(state.step * h)
+            residual = self._newton(model, state, effects, a0)
+            if residual is not None:
+                raise NotConverged(state.step, a0, residual)
         a0 = control.growth_at(state.step * h)
         a1 = control.growth_at((state.step + n_steps) * h)
         pieces = max(1, math.ceil(abs(a1 - a0) * self.stages - 1e-9))
@@ -361,12 +380,16 @@ class QuasiStatic:
             self._tangent = positive
             if not positive:
                 if down is not None:
-                    energy = self._descend(model, X, A, cos0, sin0, scratch, energy, g, down)
+                    self.descents += 1
+                    energy = self._descend(model, X, A, cos0, sin0, scratch, energy, g,
+                                           self._constrained(down))
                     energy, g = self._gradient(model, X, A, cos0, sin0, scratch)
                 mu = floor
                 while not system.factor(mu)[0]:
                     self.shifted += 1
                     mu *= 10.0
+                    if mu > 1e6 * float(model.edge_stiffness.max()):
+                        return residual  # no shift makes it positive: not finite?
             step = system.solve(-g)
             length = self._line_search(model, X, A, cos0, sin0, scratch, energy, g, step)
             if length == 0.0:
@@ -377,16 +400,21 @@ class QuasiStatic:
 
     def _gradient(self, model, X, A, cos0, sin0, scratch) -> tuple[float, np.ndarray]:
         """Energy and gradient (flattened) with the constraints applied, from the force
-        kernel: a fixed vertex's gradient is 0, a center-plane vertex's has no normal part."""
+        kernel."""
         energy = self._energy(model, X, A, cos0, sin0, scratch)
+        return energy, self._constrained(-scratch)
+
+    def _constrained(self, vec: np.ndarray) -> np.ndarray:
+        """``vec`` (per vertex) without what the constraints forbid: nothing for a fixed
+        vertex, no normal part for a center-plane vertex. Flattened copy."""
         s = self._system
-        g = -scratch
-        g[s.pinned] = 0.0
+        out = np.array(vec, dtype=np.float64).reshape(-1, 3)
+        out[s.pinned] = 0.0
         rows = np.flatnonzero(s.plane_row >= 0)
         if len(rows):
             n = s.normals[s.plane_row[rows]]
-            g[rows] -= np.einsum("ij,ij->i", g[rows], n)[:, None] * n
-        return energy, g.ravel()
+            out[rows] -= np.einsum("ij,ij->i", out[rows], n)[:, None] * n
+        return out.ravel()
 
     def _line_search(self, model, X, A, cos0, sin0, scratch, energy, g, step) -> float:
         """Backtracking (Armijo) along ``step``; moves X and returns the step length
