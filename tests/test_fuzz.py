@@ -202,6 +202,30 @@ def test_fuzz_configs(tmp_path, chain):
     assert count >= 100
 
 
+RUNTIME = [  # valid configs that fail while simulating
+    ("diverges", ["simulate.h=3.0"]),
+    ("diverges, checkpointing", ["simulate.h=3.0", "simulate.checkpoint_seconds=0.0001"]),
+    ("speed guard", ["simulate.speed_limit=1e-9"]),
+    ("quasi-static without bending", ["simulate.integrator=quasi-static",
+                                      "simulate.bending_stiffness=0"]),
+]
+
+
+@pytest.mark.parametrize("name,sets", RUNTIME, ids=[n for n, _ in RUNTIME])
+def test_fuzz_runtime_failures(tmp_path, chain, name, sets):
+    """Failures found while simulating: one line naming the key, no sim.h5, and no
+    checkpoint or temporary file left behind."""
+    out = tmp_path / "sim.h5"
+    args = ["-q", "simulate", chain["growth"], "--out", out, "--set", "simulate.steps=3000",
+            "--set", "simulate.frames=31"]
+    for kv in sets:
+        args += ["--set", kv]
+    r = _Ran(args)
+    line = _one_clean_line(r, "simulate", "simulate.")
+    assert "diverged" in line or "quasi-static" in line or "bending" in line, line
+    assert list(tmp_path.iterdir()) == []
+
+
 def test_fuzz_artifacts(tmp_path, chain):
     """Every stage given every other stage's artifact, a truncated one, junk, a folder."""
     import h5py

@@ -29,7 +29,7 @@ def _energy_gradient(model, system, X, A):
     e = hessian.energy_gradient_hessian(
         X, model.edge_indices, model.edge_rest_length, model.edge_growth, model.edge_stiffness,
         model.hinge_indices, model.hinge_rest_cos, model.hinge_rest_sin, model.hinge_stiffness,
-        A, False, system.gradient, system.data, system.edge_slots, system.hinge_slots,
+        A, system.gradient, system.data, system.edge_slots, system.hinge_slots,
         system.work)
     return e, system.gradient.copy()
 

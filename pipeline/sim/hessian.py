@@ -8,14 +8,14 @@ Hessians, per element
 ---------------------
 - Spring, with ``u = d / l``: ``d^2E / dx_j^2 = K_s [u u^T + (1 - L / l)(I - u u^T)]``,
   and the ``i`` blocks by symmetry. Its eigenvalues are ``K_s`` (along u) and
-  ``K_s (1 - L/l)`` (twice, across): the positive-definite projection clamps the latter
-  at 0 (a compressed spring has no stiffness across).
+  ``K_s (1 - L/l)`` (twice, across: negative for a compressed spring).
 - Hinge: ``H = psi'' g g^T + psi' d^2theta``, ``g = grad theta``. ``d^2theta`` is the
   exact derivative of the discrete-shells gradient of :func:`kernels.bending_forces`
   (``g_k = -|e| n1 / |n1|^2``, ``g_l = -|e| n2 / |n2|^2``, ``g_i`` and ``g_j`` from the
-  projections of ``k`` and ``l`` onto the edge), differentiated term by term. The
-  projection keeps ``max(psi'', 0) g g^T`` (Gauss-Newton), which is positive
-  semi-definite.
+  projections of ``k`` and ``l`` onto the edge), differentiated term by term.
+
+The Hessian is exact (not made positive definite per element): the solver reads its
+inertia from the factorization and shifts it where needed (:mod:`quasistatic`).
 
 The matrix is stored as 3x3 blocks (scipy's BSR layout); ``slots`` map each element's
 vertex pairs to their block, so assembly is one pass that allocates nothing.
@@ -40,7 +40,7 @@ def _add_outer(M, r, c, s, u, v):
 
 
 @njit(cache=True)
-def stretch_terms(X, edges, rest0, growth, stiffness, A, project, G, data, slots):
+def stretch_terms(X, edges, rest0, growth, stiffness, A, G, data, slots):
     """Add each spring's gradient to ``G`` and Hessian blocks to ``data``; return the
     energy. ``slots[e]`` holds the block index of (i,i), (i,j), (j,i), (j,j)."""
     energy = 0.0
@@ -68,8 +68,6 @@ def stretch_terms(X, edges, rest0, growth, stiffness, A, project, G, data, slots
         G[j, 1] += t * u1
         G[j, 2] += t * u2
         across = k * (1.0 - rest / length)
-        if project and across < 0.0:
-            across = 0.0
         along = k - across
         for a in range(3):
             ua = u0 if a == 0 else (u1 if a == 1 else u2)
@@ -185,7 +183,7 @@ def hinge_theta_derivatives(X, i, j, k, l, g, H, work):
 
 
 @njit(cache=True)
-def bending_terms(X, hinges, cos0, sin0, stiffness, project, G, data, slots, work):
+def bending_terms(X, hinges, cos0, sin0, stiffness, G, data, slots, work):
     """Add each hinge's gradient to ``G`` and Hessian blocks to ``data``; return the
     energy. ``slots[h, 4 r + c]`` is the block of vertex pair (r, c), r, c in i, j, k, l."""
     g = np.empty((4, 3))
@@ -200,12 +198,6 @@ def bending_terms(X, hinges, cos0, sin0, stiffness, project, G, data, slots, wor
         energy += kb * (1.0 - (cos_t * cos0[h] + sin_t * sin0[h]))
         d1 = kb * (sin_t * cos0[h] - cos_t * sin0[h])  # psi'
         d2 = kb * (cos_t * cos0[h] + sin_t * sin0[h])  # psi''
-        if project:
-            if d2 < 0.0:
-                d2 = 0.0
-            d1h = 0.0
-        else:
-            d1h = d1
         for r in range(4):
             vr = v[r]
             for c in range(3):
@@ -214,7 +206,7 @@ def bending_terms(X, hinges, cos0, sin0, stiffness, project, G, data, slots, wor
                 block = slots[h, 4 * r + q]
                 for a in range(3):
                     for b in range(3):
-                        data[block, a, b] += d2 * g[r, a] * g[q, b] + d1h * Ht[r, q, a, b]
+                        data[block, a, b] += d2 * g[r, a] * g[q, b] + d1 * Ht[r, q, a, b]
     return energy
 
 
@@ -269,15 +261,15 @@ def constrain(indptr, indices, data, G, pinned, plane_row, normals):
 
 @njit(cache=True)
 def energy_gradient_hessian(X, edges, rest0, growth, edge_k, hinges, cos0, sin0, hinge_k, A,
-                            project, G, data, edge_slots, hinge_slots, work):
+                            G, data, edge_slots, hinge_slots, work):
     """Zero ``G`` and ``data``, then add stretch and bending; return the energy."""
     G[:, :] = 0.0
     data[:, :, :] = 0.0
     energy = 0.0
     if edges.shape[0]:
-        energy += stretch_terms(X, edges, rest0, growth, edge_k, A, project, G, data, edge_slots)
+        energy += stretch_terms(X, edges, rest0, growth, edge_k, A, G, data, edge_slots)
     if hinges.shape[0]:
-        energy += bending_terms(X, hinges, cos0, sin0, hinge_k, project, G, data, hinge_slots,
+        energy += bending_terms(X, hinges, cos0, sin0, hinge_k, G, data, hinge_slots,
                                 work)
     return energy
 

@@ -332,12 +332,12 @@ class QuasiStatic:
         kernels.curl_rest_angles(c.theta0, A * c.beta, c.cos_t, c.sin_t)
         return c.cos_t, c.sin_t
 
-    def _assemble(self, model, X, A, cos0, sin0, project: bool = False) -> float:
+    def _assemble(self, model, X, A, cos0, sin0) -> float:
         s = self._system
         energy = hessian.energy_gradient_hessian(
             X, model.edge_indices, model.edge_rest_length, model.edge_growth,
             model.edge_stiffness, model.hinge_indices, cos0, sin0, model.hinge_stiffness, A,
-            project, s.gradient, s.data, s.edge_slots, s.hinge_slots, s.work)
+            s.gradient, s.data, s.edge_slots, s.hinge_slots, s.work)
         hessian.constrain(s.indptr, s.indices, s.data, s.gradient, s.pinned, s.plane_row,
                           s.normals)
         return energy
