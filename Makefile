@@ -18,7 +18,7 @@ PYTEST_ARGS ?=
 LIB := $(wildcard pipeline/*.py pipeline/sim/*.py) stages/cli.py stages/common.py
 
 .PHONY: all test lint bench accuracy stability venv clean clean-venv help
-all: $(SCENES:%=$(OUT)/%/render/bloom.mp4) $(SCENES:%=$(OUT)/%/report.json)  ## build every scene: artifacts, frames, MP4, report
+all: $(SCENES:%=$(OUT)/%/render/bloom.mp4) $(SCENES:%=$(OUT)/%/report.json) $(SCENES:%=$(OUT)/%/bloom.usdc)  ## build every scene: artifacts, frames, MP4, report, USD
 
 help:  ## list the targets
 	@grep -E '^[a-z-]+:.*## ' $(MAKEFILE_LIST) | sed -E 's/:.*## /\t/'
@@ -57,22 +57,36 @@ endif
 
 # The pipeline, in order.
 $(OUT)/%/remesh.h5: configs/%.toml stages/remesh.py $(LIB) | $(INSTALLED)
-	$(BLOOM) remesh --config $< --out $@
+	@mkdir -p $(@D)/logs
+	$(BLOOM) remesh --config $< --out $@ $(call LOG,remesh)
 
 $(OUT)/%/axis.h5: $(OUT)/%/remesh.h5 configs/%.toml stages/axis.py $(LIB)
-	$(BLOOM) axis $< --config configs/$*.toml --out $@
+	@mkdir -p $(@D)/logs
+	$(BLOOM) axis $< --config configs/$*.toml --out $@ $(call LOG,axis)
 
 $(OUT)/%/growth.h5: $(OUT)/%/axis.h5 configs/%.toml stages/growth.py $(LIB)
-	$(BLOOM) growth $< --config configs/$*.toml --out $@
+	@mkdir -p $(@D)/logs
+	$(BLOOM) growth $< --config configs/$*.toml --out $@ $(call LOG,growth)
 
 $(OUT)/%/sim.h5: $(OUT)/%/growth.h5 configs/%.toml stages/simulate.py $(LIB)
-	$(BLOOM) simulate $< --config configs/$*.toml --out $@ --resume
+	@mkdir -p $(@D)/logs
+	$(BLOOM) simulate $< --config configs/$*.toml --out $@ --resume $(call LOG,simulate)
 
 $(OUT)/%/render/bloom.mp4: $(OUT)/%/sim.h5 configs/%.toml stages/render.py $(LIB)
-	$(BLOOM) render $< --config configs/$*.toml --out $(OUT)/$*/render
+	@mkdir -p $(OUT)/$*/logs
+	$(BLOOM) render $< --config configs/$*.toml --out $(OUT)/$*/render $(call LOG,render)
 
 $(OUT)/%/report.json: $(OUT)/%/sim.h5 stages/report.py $(LIB)
-	$(BLOOM) report $< --out $@
+	@mkdir -p $(@D)/logs
+	$(BLOOM) report $< --out $@ $(call LOG,report)
+
+$(OUT)/%/bloom.usdc: $(OUT)/%/sim.h5 configs/%.toml stages/export.py $(LIB)
+	@mkdir -p $(@D)/logs
+	$(BLOOM) export $< --config configs/$*.toml --out $@ $(call LOG,export)
+
+# Each stage's log (stderr) also goes to outputs/<scene>/logs/<stage>.log; pipefail keeps
+# the stage's exit code.
+LOG = 2>&1 | tee $(OUT)/$*/logs/$(1).log
 
 # Keep intermediate artifacts: they are the point of the pipeline.
 .PRECIOUS: $(OUT)/%/remesh.h5 $(OUT)/%/axis.h5 $(OUT)/%/growth.h5 $(OUT)/%/sim.h5

@@ -12,6 +12,7 @@ import hashlib
 import json
 import os
 import sys
+import time
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
@@ -73,15 +74,24 @@ def check_output(path: str | Path, stage: str, overwrite: bool) -> Path:
     return path
 
 
+#: when the running stage began (set by the command line for each command)
+STARTED = [time.monotonic()]
+
+
 @contextmanager
 def writing(path: str | Path, *, stage: str, config_json: str, inputs: dict[str, str],
-            attrs: dict[str, Any] | None = None) -> Iterator[h5py.File]:
+            attrs: dict[str, Any] | None = None,
+            previous: Artifact | None = None) -> Iterator[h5py.File]:
     """Open a temporary HDF5 file for ``path``; rename it into place if the block succeeds.
 
     On any exception (including KeyboardInterrupt) the temporary file is removed and the
-    previous artifact at ``path``, if any, is left as it was.
+    previous artifact at ``path``, if any, is left as it was. The artifact records the
+    wall seconds of every stage so far in ``timings`` (JSON: stage -> seconds), the
+    ``previous`` artifact's carried forward and this stage's (from its start to here).
     """
     path = Path(path)
+    timings = json.loads(previous.attrs.get("timings", "{}")) if previous is not None else {}
+    timings[stage] = round(time.monotonic() - STARTED[0], 3)
     tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
     try:
         with h5py.File(tmp, "w", track_order=True) as f:
@@ -90,6 +100,7 @@ def writing(path: str | Path, *, stage: str, config_json: str, inputs: dict[str,
             f.attrs["config"] = config_json
             f.attrs["inputs"] = json.dumps(inputs, sort_keys=True)
             f.attrs["version"] = __version__
+            f.attrs["timings"] = json.dumps(timings)
             for key, value in (attrs or {}).items():
                 f.attrs[key] = value
             yield f

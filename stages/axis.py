@@ -33,7 +33,7 @@ def command(remesh_h5: str, config_path, overrides, out, overwrite) -> None:
                      int(axes.tip[p]), axes.x[mine].min(), axes.x[mine].max())
         attrs = {"scale": src.attrs["scale"], "flower_axis": axes.flower_axis}
         with artifact.writing(out, stage="axis", config_json=cfg.to_json(),
-                              inputs=input_hashes(cfg, remesh_h5), attrs=attrs) as h5:
+                              inputs=input_hashes(cfg, remesh_h5), attrs=attrs, previous=src) as h5:
             src.copy_to(h5, CARRIED)
             artifact.put(h5, "axis/base", axes.base, "(V,) fixed base vertices")
             artifact.put(h5, "axis/on_axis", axes.on_axis, "(V,) vertices on the petal axis")

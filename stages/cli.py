@@ -24,6 +24,7 @@ COMMANDS = {
     "simulate": ("stages.simulate", "Simulate the bloom -> sim.h5."),
     "report": ("stages.report", "Measure a bloom and its effects -> report.json + report.png."),
     "render": ("stages.render", "Render an artifact off-screen: PNG frames, MP4, contact sheet."),
+    "export": ("stages.export", "Export sim.h5 as a USD stage or an OBJ/PLY sequence."),
     "bench": ("stages.bench", "Time the simulator: each effect's cost, collisions by size."),
     "study": ("stages.study", "Studies: what accuracy costs in time (accuracy.csv, .png)."),
     "inspect": ("stages.inspect", "Show what an artifact holds and how it was made."),
@@ -59,6 +60,11 @@ class LazyGroup(click.Group):
             formatter.write_dl(rows)
 
     def invoke(self, ctx):
+        import time
+
+        from pipeline import artifact
+
+        artifact.STARTED[0] = time.monotonic()  # this command's stage timing starts here
         try:
             return super().invoke(ctx)
         except BloomError as exc:

@@ -41,3 +41,38 @@ def input_hashes(cfg: Config, *paths: str | Path) -> dict[str, str]:
     if cfg.path is not None:
         files.append(cfg.path)
     return {str(p): sha256_file(p) for p in files}
+
+
+def prepare_folder(out: Path, overwrite: bool, marker: str, stage: str) -> Path:
+    """A temporary folder to write a folder output ``out`` into (committed by
+    :func:`commit_folder`). A folder that exists, is not empty and has no ``marker``
+    file (so this stage did not write it) is refused unless ``overwrite``."""
+    import os
+    import shutil
+
+    from pipeline.errors import BloomError
+
+    if out.exists() and not out.is_dir():
+        raise BloomError("exists and is not a folder; --out needs a folder", where=str(out))
+    if out.is_dir() and any(out.iterdir()) and not (out / marker).exists() and not overwrite:
+        raise BloomError(f"folder exists and was not written by `bloom {stage}`; not "
+                         "overwriting it (pass --overwrite)", where=str(out))
+    out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = out.with_name(f".{out.name}.tmp-{os.getpid()}")
+    if tmp.exists():
+        shutil.rmtree(tmp)
+    tmp.mkdir()
+    return tmp
+
+
+def commit_folder(tmp: Path, out: Path) -> None:
+    """Swap the finished folder into place; the old one is removed only after."""
+    import os
+    import shutil
+
+    old = out.with_name(f".{out.name}.old-{os.getpid()}")
+    if out.exists():
+        os.replace(out, old)
+    os.replace(tmp, out)
+    if old.exists():
+        shutil.rmtree(old)

@@ -40,7 +40,7 @@ def command(axis_h5: str, config_path, overrides, out, overwrite) -> None:
                  g.alpha.min(), g.alpha.max())
         attrs = {"scale": src.attrs["scale"], "flower_axis": src.attrs["flower_axis"]}
         with artifact.writing(out, stage="growth", config_json=cfg.to_json(),
-                              inputs=input_hashes(cfg, axis_h5), attrs=attrs) as h5:
+                              inputs=input_hashes(cfg, axis_h5), attrs=attrs, previous=src) as h5:
             src.copy_to(h5, CARRIED)
             artifact.put(h5, "growth/edges", g.edges, "(E, 2) vertex pairs, i < j")
             artifact.put(h5, "growth/alpha", g.alpha, "(E,) growth ratio (Eq. 6, 12)")

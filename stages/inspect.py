@@ -71,7 +71,12 @@ def command(artifact: str, as_json: bool) -> None:
     click.echo(f"  command: {attrs.get('command', '?')}")
     for path, digest in (attrs.get("inputs") or {}).items():
         click.echo(f"  input:   {path}  sha256 {digest[:16]}...")
-    others = {k: v for k, v in attrs.items() if k not in PROVENANCE}
+    timings = attrs.get("timings") or {}
+    if timings:
+        total = sum(timings.values())
+        click.echo("  stage times: " + ", ".join(f"{k} {v:.2f} s" for k, v in timings.items())
+                   + f"; total {total:.2f} s")
+    others = {k: v for k, v in attrs.items() if k not in PROVENANCE + ("timings",)}
     for key, value in others.items():
         text = json.dumps(value) if not isinstance(value, str) else value
         click.echo(f"  {key}: {text if len(text) < 100 else text[:97] + '...'}")

@@ -4,42 +4,15 @@ earlier artifact (petals, axis and base, growth map)."""
 from __future__ import annotations
 
 import json
-import os
 import shutil
 from pathlib import Path
 
 import click
 import numpy as np
 
-from pipeline.errors import BloomError
-
-from .common import config_options, load, log
+from .common import commit_folder, config_options, load, log, prepare_folder
 
 MARKER = "render.json"
-
-
-def _prepare(out: Path, overwrite: bool) -> Path:
-    if out.exists() and not out.is_dir():
-        raise BloomError("exists and is not a folder; --out needs a folder", where=str(out))
-    if out.is_dir() and any(out.iterdir()) and not (out / MARKER).exists() and not overwrite:
-        raise BloomError("folder exists and was not written by `bloom render`; not "
-                         "overwriting it (pass --overwrite)", where=str(out))
-    out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = out.with_name(f".{out.name}.tmp-{os.getpid()}")
-    if tmp.exists():
-        shutil.rmtree(tmp)
-    tmp.mkdir()
-    return tmp
-
-
-def _commit(tmp: Path, out: Path) -> None:
-    """Swap the finished folder into place; the old one is removed only after."""
-    old = out.with_name(f".{out.name}.old-{os.getpid()}")
-    if out.exists():
-        os.replace(out, old)
-    os.replace(tmp, out)
-    if old.exists():
-        shutil.rmtree(old)
 
 
 @click.command("render")
@@ -62,7 +35,7 @@ def command(artifact_h5: str, config_path, overrides, out, overwrite) -> None:
     with artifact.Artifact(artifact_h5, needs="remesh" if _stage(artifact_h5) != "simulate"
                            else "simulate", reader="render") as src:
         stage = src.stage
-        tmp = _prepare(out, overwrite)
+        tmp = prepare_folder(out, overwrite, MARKER, "render")
         try:
             up = _up_direction(src)
             if stage == "simulate":
@@ -87,7 +60,7 @@ def command(artifact_h5: str, config_path, overrides, out, overwrite) -> None:
         except BaseException:
             shutil.rmtree(tmp, ignore_errors=True)
             raise
-    _commit(tmp, out)
+    commit_folder(tmp, out)
     log.info("wrote %s", out)
 
 

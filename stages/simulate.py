@@ -125,7 +125,7 @@ def command(growth_h5: str, config_path, overrides, out, overwrite, progress, re
         if resumed is not None:  # then wall_seconds covers this run's steps only
             attrs["resumed_from_step"] = resumed_step
         with artifact.writing(out, stage="simulate", config_json=cfg.to_json(),
-                              inputs=inputs, attrs=attrs) as h5:
+                              inputs=inputs, attrs=attrs, previous=src) as h5:
             src.copy_to(h5, ("mesh/faces", "mesh/petal", "axis/base", "axis/on_axis", "axis/x",
                              "axis/s", "axis/tip", "axis/plane", "growth/hinges"))
             artifact.put(h5, "frames/time", np.asarray(rec.time), "(T,) time of each frame")

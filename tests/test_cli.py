@@ -326,3 +326,52 @@ def test_quasi_static_refuses_what_has_no_equilibrium(chain, tmp_path):
     lines = r.output.strip().splitlines()
     assert "simulate.integrator" in lines[-1] and "bending stiffness" in lines[-1]
     assert "Traceback" not in r.output and list(tmp_path.iterdir()) == []
+
+
+def test_export_usd_round_trip(chain, tmp_path):
+    """The USD reads back (pxr) with one mesh per petal, the frames' points at the
+    input's scale at several times, faces, normals, the frame rate; OBJ and PLY
+    sequences hold every frame."""
+    from pxr import Usd, UsdGeom
+
+    from pipeline import export
+
+    usd = tmp_path / "bloom.usdc"
+    r = invoke("export", chain["sim"], "--out", usd, "--set", "render.fps=30")
+    assert r.exit_code == 0, r.output
+    with h5py.File(chain["sim"]) as f:
+        pos = f["frames/positions"][()] / f.attrs["scale"]
+        faces, petal = f["mesh/faces"][()], f["mesh/petal"][()]
+    order = np.concatenate([np.flatnonzero(petal == p) for p in range(petal.max() + 1)])
+    stage = Usd.Stage.Open(str(usd))
+    assert stage.GetTimeCodesPerSecond() == 30 and UsdGeom.GetStageUpAxis(stage) == "Z"
+    assert stage.GetEndTimeCode() == len(pos) - 1
+    meshes = stage.GetPrimAtPath("/Bloom").GetChildren()
+    assert len(meshes) == petal.max() + 1
+    assert sum(len(UsdGeom.Mesh(m).GetFaceVertexCountsAttr().Get()) for m in meshes) == len(faces)
+    for t in (0, len(pos) // 2, len(pos) - 1):
+        got = export.read_usd_points(usd, t)
+        np.testing.assert_allclose(got, pos[t][order], rtol=0, atol=1e-5 * np.abs(pos).max())
+    normals = UsdGeom.Mesh(meshes[0]).GetNormalsAttr().Get(Usd.TimeCode(len(pos) - 1))
+    assert np.allclose(np.linalg.norm(np.asarray(normals), axis=1), 1.0, atol=1e-5)
+    for fmt in ("obj", "ply"):
+        seq = tmp_path / fmt
+        assert invoke("export", chain["sim"], "--format", fmt, "--out", seq).exit_code == 0
+        files = sorted(seq.glob(f"bloom_*.{fmt}"))
+        assert len(files) == len(pos)
+        import meshio
+
+        last = meshio.read(files[-1])
+        np.testing.assert_allclose(last.points, pos[-1], atol=1e-5 * np.abs(pos).max())
+        assert len(last.cells_dict["triangle"]) == len(faces)
+
+
+def test_export_never_replaces_a_foreign_file(chain, tmp_path):
+    mine = tmp_path / "shot.usda"
+    mine.write_text("#usda 1.0\n")
+    r = CliRunner().invoke(cli, ["export", str(chain["sim"]), "--out", str(mine)])
+    assert r.exit_code != 0 and "not written by `bloom export`" in r.output
+    assert mine.read_text() == "#usda 1.0\n"
+    r = CliRunner().invoke(cli, ["export", str(chain["sim"]), "--out", str(tmp_path / "x.abc")])
+    assert r.exit_code != 0 and ".usd" in r.output
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["shot.usda"]

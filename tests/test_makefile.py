@@ -10,7 +10,7 @@ import pytest
 
 from tests.conftest import ROOT
 
-STAGES = ("remesh", "axis", "growth", "simulate", "render", "report")
+STAGES = ("remesh", "axis", "growth", "simulate", "render", "report", "export")
 TINY = """[scene]
 mesh = "../assets/{mesh}"
 [simulate]
@@ -54,9 +54,12 @@ def test_make_builds_then_does_nothing_then_rebuilds_one_scene(tree):
     assert first.returncode == 0, first.stderr[-2000:]
     for scene in ("one", "two"):
         for artifact in ("remesh.h5", "axis.h5", "growth.h5", "sim.h5", "render/bloom.mp4",
-                         "report.json", "report.png"):
+                         "report.json", "report.png", "bloom.usdc"):
             assert (tree / "outputs" / scene / artifact).exists(), (scene, artifact)
-    assert len(stage_commands(first.stdout)) == 12
+        for stage in STAGES:  # each stage's log, with what the stage said
+            log = (tree / "outputs" / scene / "logs" / f"{stage}.log").read_text()
+            assert stage != "simulate" or "steps of h" in log, log
+    assert len(stage_commands(first.stdout)) == 14
     again = make(tree)
     assert again.returncode == 0 and stage_commands(again.stdout) == []
     assert "Nothing to be done" in again.stdout
@@ -111,7 +114,7 @@ def test_killed_make_then_make_gives_the_uninterrupted_arrays(tree):
     assert ckpt.exists() and not (tree / "outputs" / "one" / "sim.h5").exists()
     r = make(tree)  # both scenes: `one` resumes, `two` runs uninterrupted
     assert r.returncode == 0, r.stderr[-2000:]
-    assert "resuming from step" in r.stderr
+    assert "resuming from step" in (tree / "outputs" / "one" / "logs" / "simulate.log").read_text()
     assert not ckpt.exists()
     one, two = (tree / "outputs" / s / "sim.h5" for s in ("one", "two"))
     assert _positions_hash(one) == _positions_hash(two)

@@ -1,0 +1,91 @@
+"""Caches that DCC tools read: a USD stage (Blender, Houdini, Maya, usdview) and OBJ or
+PLY sequences, from a sim.h5, at the user's original scale.
+
+- USD (usd-core, the official wheel): one ``UsdGeom.Mesh`` per petal under
+  ``/Bloom`` (``/Bloom/petal_00`` ...), with faces, time-sampled points, vertex normals
+  and extents at every frame; the stage's time codes are frame numbers, played at the
+  scene's ``render.fps``; +Z is up (the flower's axis in Bloom's assets). Points are
+  divided by the artifact's ``scale`` (mesh units per input unit), so they come back in
+  the units of the mesh the user gave `bloom remesh`; ``metersPerUnit`` is left at
+  USD's default, since Bloom does not know what the input's unit was.
+- OBJ / PLY: one file per frame, ``bloom_0000.obj`` ..., in a folder (meshio).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from . import topology
+
+
+def petal_meshes(faces: np.ndarray, petal: np.ndarray) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Each petal's ``(vertex indices into the whole, faces in its own numbering)``."""
+    out = []
+    for p in range(int(petal.max()) + 1):
+        idx = np.flatnonzero(petal == p)
+        local = np.full(len(petal), -1, dtype=np.int64)
+        local[idx] = np.arange(len(idx))
+        out.append((idx, local[faces[petal[faces[:, 0]] == p]]))
+    return out
+
+
+def write_usd(path, positions: np.ndarray, faces: np.ndarray, petal: np.ndarray,
+              fps: float, source: dict | None = None) -> None:
+    """Write ``positions (T, V, 3)`` (already at the user's scale) as a USD stage;
+    ``source`` goes into the layer's custom data under ``bloom``."""
+    from pxr import Gf, Sdf, Usd, UsdGeom, Vt
+
+    stage = Usd.Stage.CreateNew(str(path))
+    stage.GetRootLayer().customLayerData = {"bloom": {k: str(v) for k, v in
+                                                      (source or {}).items()}}
+    UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.z)
+    stage.SetStartTimeCode(0)
+    stage.SetEndTimeCode(len(positions) - 1)
+    stage.SetTimeCodesPerSecond(fps)
+    stage.SetFramesPerSecond(fps)
+    root = UsdGeom.Xform.Define(stage, "/Bloom")
+    stage.SetDefaultPrim(root.GetPrim())
+    for p, (idx, local) in enumerate(petal_meshes(faces, petal)):
+        mesh = UsdGeom.Mesh.Define(stage, Sdf.Path(f"/Bloom/petal_{p:02d}"))
+        mesh.CreateSubdivisionSchemeAttr(UsdGeom.Tokens.none)
+        mesh.CreateFaceVertexCountsAttr(Vt.IntArray([3] * len(local)))
+        mesh.CreateFaceVertexIndicesAttr(Vt.IntArray(local.ravel().tolist()))
+        mesh.CreateDoubleSidedAttr(True)
+        points, normals, extent = (mesh.CreatePointsAttr(), mesh.CreateNormalsAttr(),
+                                   mesh.CreateExtentAttr())
+        mesh.SetNormalsInterpolation(UsdGeom.Tokens.vertex)
+        for t, X in enumerate(positions):
+            P = np.ascontiguousarray(X[idx], dtype=np.float64)
+            points.Set(Vt.Vec3fArray.FromNumpy(P.astype(np.float32)), Usd.TimeCode(t))
+            N = topology.vertex_normals(P, local).astype(np.float32)
+            normals.Set(Vt.Vec3fArray.FromNumpy(N), Usd.TimeCode(t))
+            lo, hi = P.min(axis=0), P.max(axis=0)
+            extent.Set(Vt.Vec3fArray([Gf.Vec3f(*map(float, lo)), Gf.Vec3f(*map(float, hi))]),
+                       Usd.TimeCode(t))
+    stage.GetRootLayer().Save()
+
+
+def read_usd_points(path, time: float) -> np.ndarray:
+    """All petals' points at ``time``, in petal order (for checks and tests)."""
+    from pxr import Usd, UsdGeom
+
+    stage = Usd.Stage.Open(str(path))
+    parts = []
+    for prim in stage.GetPrimAtPath("/Bloom").GetChildren():
+        pts = UsdGeom.Mesh(prim).GetPointsAttr().Get(Usd.TimeCode(time))
+        parts.append(np.asarray(pts, dtype=np.float64))
+    return np.concatenate(parts)
+
+
+def write_sequence(folder, positions: np.ndarray, faces: np.ndarray, fmt: str) -> list:
+    """One ``bloom_NNNN.<fmt>`` per frame into ``folder``; returns the paths."""
+    import meshio
+
+    paths = []
+    for t, X in enumerate(positions):
+        path = folder / f"bloom_{t:04d}.{fmt}"
+        meshio.write_points_cells(str(path), np.asarray(X, dtype=np.float64),
+                                  [("triangle", np.asarray(faces, dtype=np.int64))],
+                                  file_format=fmt if fmt == "obj" else "ply")
+        paths.append(path)
+    return paths

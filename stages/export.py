@@ -1,0 +1,81 @@
+"""bloom export: the bloom as a cache DCC tools read (USD; OBJ or PLY sequences)."""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+
+import click
+
+from pipeline.errors import BloomError
+
+from .common import commit_folder, config_options, load, log, prepare_folder
+
+MARKER = "export.json"
+USD_SUFFIXES = (".usd", ".usdc", ".usda")
+
+
+@click.command("export")
+@click.argument("sim_h5", type=click.Path(dir_okay=False))
+@config_options
+@click.option("--format", "fmt", type=click.Choice(["usd", "obj", "ply"]), default="usd",
+              show_default=True, help="usd: one stage file; obj, ply: a numbered sequence.")
+@click.option("--out", required=True, type=click.Path(),
+              help="bloom.usdc (or .usd, .usda) for usd; a folder for obj and ply.")
+@click.option("--overwrite", is_flag=True,
+              help="Replace --out even if `bloom export` did not write it.")
+def command(sim_h5: str, config_path, overrides, fmt: str, out: str, overwrite: bool) -> None:
+    """Export the frames of SIM_H5 at the input mesh's scale: a USD stage with one mesh
+    per petal and time-sampled points and normals (played at render.fps), or one OBJ or
+    PLY file per frame."""
+    from pipeline import artifact, export
+
+    cfg = load(config_path, overrides)
+    out = Path(out)
+    with artifact.Artifact(sim_h5, needs="simulate", reader="export") as src:
+        scale = float(src.attrs["scale"])
+        positions = src["frames/positions"] / scale
+        faces, petal = src["mesh/faces"], src["mesh/petal"]
+        if fmt == "usd":
+            if out.suffix.lower() not in USD_SUFFIXES:
+                raise BloomError("--out: a USD file must end in .usd, .usdc or .usda",
+                                 where=str(out))
+            _check_usd_output(out, overwrite)
+            out.parent.mkdir(parents=True, exist_ok=True)
+            tmp = out.with_name(f".{out.stem}.tmp-{os.getpid()}{out.suffix}")
+            try:
+                export.write_usd(tmp, positions, faces, petal, cfg["render.fps"],
+                                 source={"source": str(sim_h5),
+                                         "sha256": artifact.sha256_file(sim_h5)})
+                os.replace(tmp, out)
+            finally:
+                tmp.unlink(missing_ok=True)
+        else:
+            tmp = prepare_folder(out, overwrite, MARKER, "export")
+            try:
+                export.write_sequence(tmp, positions, faces, fmt)
+                (tmp / MARKER).write_text(json.dumps(
+                    {"source": str(sim_h5), "format": fmt, "frames": len(positions),
+                     "scale": "input units (positions / artifact scale)"}, indent=2))
+            except BaseException:
+                import shutil
+
+                shutil.rmtree(tmp, ignore_errors=True)
+                raise
+            commit_folder(tmp, out)
+    log.info("wrote %s (%d frames, %d petals)", out, len(positions), int(petal.max()) + 1)
+
+
+def _check_usd_output(out: Path, overwrite: bool) -> None:
+    """Never replace a USD file `bloom export` did not write (unless --overwrite)."""
+    if not out.exists() or overwrite:
+        return
+    if out.is_dir():
+        raise BloomError("is a folder; --out needs a .usd/.usdc/.usda file", where=str(out))
+    from pxr import Sdf
+
+    layer = Sdf.Layer.FindOrOpen(str(out))
+    if layer is None or "bloom" not in dict(layer.customLayerData):
+        raise BloomError("exists and was not written by `bloom export`; not overwriting it "
+                         "(pass --overwrite)", where=str(out))
