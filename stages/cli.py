@@ -25,6 +25,7 @@ COMMANDS = {
     "report": ("stages.report", "Measure a bloom and its effects -> report.json + report.png."),
     "render": ("stages.render", "Render an artifact off-screen: PNG frames, MP4, contact sheet."),
     "export": ("stages.export", "Export sim.h5 as a USD stage or an OBJ/PLY sequence."),
+    "batch": ("stages.batch", "Build many scenes on a Dask cluster (local or an address)."),
     "bench": ("stages.bench", "Time the simulator: each effect's cost, collisions by size."),
     "study": ("stages.study", "Studies: what accuracy costs in time (accuracy.csv, .png)."),
     "inspect": ("stages.inspect", "Show what an artifact holds and how it was made."),
