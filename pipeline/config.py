@@ -147,6 +147,11 @@ SCHEMA: dict[str, Any] = {
         "fps": Key(int, 24, "frame rate of the MP4", low=1, high=240),
         "color": Key(str, "#f4a6c1", "petal colour (a name or #rrggbb)", check=_check_color),
         "contact_frames": Key(int, 8, "frames on the contact sheet", low=1, high=64),
+        "palette": Key(str, "color", "petal colours: color (render.color everywhere), petals "
+                       "(one colour per petal) or growth (the growth map, alpha of Eq. 6)",
+                       choices=("color", "petals", "growth")),
+        "turntable_frames": Key(int, 72, "frames of turntable.mp4, one turn around the final "
+                                "bloom (0: none)", low=0, high=1440),
     },
 }
 

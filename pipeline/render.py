@@ -53,12 +53,20 @@ def new_plotter(width: int, height: int):
     return p
 
 
+#: the "petals" palette: soft blossom colours, one per petal (repeating)
+PETAL_COLOURS = ("#f4a6c1", "#e97fa5", "#f7c6d9", "#d8668f", "#fbd3e0", "#c9577f")
+
+
 def render_frames(positions: np.ndarray, faces: np.ndarray, out_dir: Path, *, width: int,
                   height: int, fps: int, color: str, contact_frames: int,
                   up: np.ndarray | None = None,
-                  labels: list[str] | None = None) -> list[Path]:
+                  labels: list[str] | None = None, petal: np.ndarray | None = None,
+                  growth: np.ndarray | None = None, turntable_frames: int = 0) -> list[Path]:
     """Render every frame of ``positions (T, V, 3)`` to ``out_dir/frames/NNNN.png``, then
-    ``out_dir/bloom.mp4`` and ``out_dir/contact_sheet.png``. Returns the frame paths."""
+    ``out_dir/bloom.mp4``, ``out_dir/contact_sheet.png`` and, with ``turntable_frames``,
+    ``out_dir/turntable.mp4`` (one turn around the last frame). Colours: ``color``;
+    or one of :data:`PETAL_COLOURS` per ``petal``; or the growth map ``growth (V,)``.
+    Returns the frame paths."""
     import imageio.v2 as imageio
 
     pv = _pv()
@@ -67,8 +75,18 @@ def render_frames(positions: np.ndarray, faces: np.ndarray, out_dir: Path, *, wi
     up = np.array([0.0, 0.0, 1.0]) if up is None else np.asarray(up, dtype=np.float64)
     plotter = new_plotter(width, height)
     mesh = _polydata(pv, positions[0], faces)
-    plotter.add_mesh(mesh, color=color, smooth_shading=True, specular=0.25, diffuse=0.85,
-                     ambient=0.15, show_edges=False)
+    look = dict(smooth_shading=True, specular=0.25, diffuse=0.85, ambient=0.15, show_edges=False)
+    if growth is not None:
+        mesh.point_data["growth"] = np.asarray(growth, dtype=np.float64)
+        plotter.add_mesh(mesh, scalars="growth", cmap="RdPu", show_scalar_bar=True,
+                         scalar_bar_args={"title": "growth ratio", "color": "#333333"}, **look)
+    elif petal is not None:
+        rgb = np.array([[int(c[i:i + 2], 16) for i in (1, 3, 5)] for c in PETAL_COLOURS],
+                       dtype=np.uint8)
+        mesh.point_data["colour"] = rgb[np.asarray(petal) % len(rgb)]
+        plotter.add_mesh(mesh, scalars="colour", rgb=True, **look)
+    else:
+        plotter.add_mesh(mesh, color=color, **look)
     plotter.camera_position = camera_for(positions.reshape(-1, 3), up)
     text = plotter.add_text("", position="lower_left", font_size=10, color="#333333")
     images, paths = [], []
@@ -83,12 +101,23 @@ def render_frames(positions: np.ndarray, faces: np.ndarray, out_dir: Path, *, wi
         imageio.imwrite(path, img)
         images.append(img)
         paths.append(path)
+    turn = []
+    if turntable_frames:
+        text.SetText(0, "")
+        plotter.camera.SetViewUp(*up)
+        for _ in range(turntable_frames):
+            plotter.camera.Azimuth(360.0 / turntable_frames)
+            plotter.render()
+            turn.append(plotter.screenshot(return_img=True))
     plotter.close()
-    with imageio.get_writer(out_dir / "bloom.mp4", fps=fps, codec="libx264", quality=8,
-                            macro_block_size=2, pixelformat="yuv420p",
-                            ffmpeg_log_level="error") as writer:
-        for img in images:
-            writer.append_data(img)
+    for name, seq in (("bloom.mp4", images), ("turntable.mp4", turn)):
+        if not seq:
+            continue
+        with imageio.get_writer(out_dir / name, fps=fps, codec="libx264", quality=8,
+                                macro_block_size=2, pixelformat="yuv420p",
+                                ffmpeg_log_level="error") as writer:
+            for img in seq:
+                writer.append_data(img)
     contact_sheet(images, out_dir / "contact_sheet.png", contact_frames)
     return paths
 

@@ -45,12 +45,23 @@ def command(artifact_h5: str, config_path, overrides, out, overwrite) -> None:
                 if "diagnostics/opening_angle" in src:
                     angle = src["diagnostics/opening_angle"]
                     labels = [f"{lab}   opening {a:+.1f} deg" for lab, a in zip(labels, angle, strict=True)]
+                palette = rc["palette"]
+                growth = None
+                if palette == "growth":
+                    from pipeline.expr import evaluate_curve
+
+                    curve = json.loads(src.attrs["config"])["growth"]["curve"]
+                    growth = evaluate_curve(curve, src["axis/x"])
                 render.render_frames(pos, src["mesh/faces"], tmp, width=rc["width"],
                                      height=rc["height"], fps=rc["fps"], color=rc["color"],
                                      contact_frames=rc["contact_frames"], up=up,
-                                     labels=labels)
+                                     labels=labels,
+                                     petal=src["mesh/petal"] if palette == "petals" else None,
+                                     growth=growth, turntable_frames=rc["turntable_frames"])
                 written = {"frames": len(pos), "mp4": "bloom.mp4",
                            "contact_sheet": "contact_sheet.png"}
+                if rc["turntable_frames"]:
+                    written["turntable"] = "turntable.mp4"
             else:
                 name = f"{stage}.png"
                 _debug_view(src, stage, tmp / name, rc, up)
