@@ -9,6 +9,9 @@ PLY sequences, from a sim.h5, at the user's original scale.
   the units of the mesh the user gave `bloom remesh`; ``metersPerUnit`` is left at
   USD's default, since Bloom does not know what the input's unit was.
 - OBJ / PLY: one file per frame, ``bloom_0000.obj`` ..., in a folder (meshio).
+- XDMF (ParaView): ``bloom.xdmf`` + ``bloom.h5`` in a folder (meshio's time series):
+  the first frame's mesh, and per frame the point data ``displacement`` (from the
+  first frame; Warp By Vector shows the bloom) and ``petal``.
 """
 
 from __future__ import annotations
@@ -89,3 +92,24 @@ def write_sequence(folder, positions: np.ndarray, faces: np.ndarray, fmt: str) -
                                   file_format=fmt if fmt == "obj" else "ply")
         paths.append(path)
     return paths
+
+
+def write_xdmf(folder, positions: np.ndarray, faces: np.ndarray, petal: np.ndarray,
+               fps: float) -> None:
+    """An XDMF time series in ``folder``: times in seconds at ``fps``."""
+    import os
+
+    import meshio
+
+    here = os.getcwd()
+    os.chdir(folder)  # meshio writes the .h5 beside the .xdmf, by name
+    try:
+        with meshio.xdmf.TimeSeriesWriter("bloom.xdmf") as writer:
+            writer.write_points_cells(np.asarray(positions[0], dtype=np.float64),
+                                      [("triangle", np.asarray(faces, dtype=np.int64))])
+            for t, X in enumerate(positions):
+                writer.write_data(t / fps, point_data={
+                    "displacement": np.asarray(X - positions[0], dtype=np.float64),
+                    "petal": np.asarray(petal, dtype=np.float64)})
+    finally:
+        os.chdir(here)

@@ -61,7 +61,8 @@ def render_frames(positions: np.ndarray, faces: np.ndarray, out_dir: Path, *, wi
                   height: int, fps: int, color: str, contact_frames: int,
                   up: np.ndarray | None = None,
                   labels: list[str] | None = None, petal: np.ndarray | None = None,
-                  growth: np.ndarray | None = None, turntable_frames: int = 0) -> list[Path]:
+                  growth: np.ndarray | None = None, turntable_frames: int = 0,
+                  progress=None) -> list[Path]:
     """Render every frame of ``positions (T, V, 3)`` to ``out_dir/frames/NNNN.png``, then
     ``out_dir/bloom.mp4``, ``out_dir/contact_sheet.png`` and, with ``turntable_frames``,
     ``out_dir/turntable.mp4`` (one turn around the last frame). Colours: ``color``;
@@ -101,6 +102,8 @@ def render_frames(positions: np.ndarray, faces: np.ndarray, out_dir: Path, *, wi
         imageio.imwrite(path, img)
         images.append(img)
         paths.append(path)
+        if progress is not None:
+            progress(1)
     turn = []
     if turntable_frames:
         text.SetText(0, "")
@@ -109,6 +112,8 @@ def render_frames(positions: np.ndarray, faces: np.ndarray, out_dir: Path, *, wi
             plotter.camera.Azimuth(360.0 / turntable_frames)
             plotter.render()
             turn.append(plotter.screenshot(return_img=True))
+            if progress is not None:
+                progress(1)
     plotter.close()
     for name, seq in (("bloom.mp4", images), ("turntable.mp4", turn)):
         if not seq:

@@ -76,3 +76,27 @@ def commit_folder(tmp: Path, out: Path) -> None:
     os.replace(tmp, out)
     if old.exists():
         shutil.rmtree(old)
+
+
+class _NoBar:
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        return False
+
+    def update(self, n):
+        pass
+
+
+def progress_bar(length: int, label: str, show: bool | None = None):
+    """A progress bar on stderr when it is a terminal (or when ``show``); otherwise a
+    bar that shows nothing, so logs and pipes stay clean."""
+    import sys
+
+    if show is None:
+        show = sys.stderr.isatty()
+    if not show:
+        return _NoBar()
+    return click.progressbar(length=length, label=label, file=sys.stderr, show_eta=True,
+                             show_percent=True)

@@ -19,10 +19,12 @@ USD_SUFFIXES = (".usd", ".usdc", ".usda")
 @click.command("export")
 @click.argument("sim_h5", type=click.Path(dir_okay=False))
 @config_options
-@click.option("--format", "fmt", type=click.Choice(["usd", "obj", "ply"]), default="usd",
-              show_default=True, help="usd: one stage file; obj, ply: a numbered sequence.")
+@click.option("--format", "fmt", type=click.Choice(["usd", "obj", "ply", "xdmf"]),
+              default="usd", show_default=True,
+              help="usd: one stage file; obj, ply: a numbered sequence; xdmf: a ParaView "
+                   "time series (bloom.xdmf + bloom.h5).")
 @click.option("--out", required=True, type=click.Path(),
-              help="bloom.usdc (or .usd, .usda) for usd; a folder for obj and ply.")
+              help="bloom.usdc (or .usd, .usda) for usd; a folder for obj, ply and xdmf.")
 @click.option("--overwrite", is_flag=True,
               help="Replace --out even if `bloom export` did not write it.")
 def command(sim_h5: str, config_path, overrides, fmt: str, out: str, overwrite: bool) -> None:
@@ -54,7 +56,10 @@ def command(sim_h5: str, config_path, overrides, fmt: str, out: str, overwrite: 
         else:
             tmp = prepare_folder(out, overwrite, MARKER, "export")
             try:
-                export.write_sequence(tmp, positions, faces, fmt)
+                if fmt == "xdmf":
+                    export.write_xdmf(tmp, positions, faces, petal, cfg["render.fps"])
+                else:
+                    export.write_sequence(tmp, positions, faces, fmt)
                 (tmp / MARKER).write_text(json.dumps(
                     {"source": str(sim_h5), "format": fmt, "frames": len(positions),
                      "scale": "input units (positions / artifact scale)"}, indent=2))

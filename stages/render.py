@@ -10,7 +10,7 @@ from pathlib import Path
 import click
 import numpy as np
 
-from .common import commit_folder, config_options, load, log, prepare_folder
+from .common import commit_folder, config_options, load, log, prepare_folder, progress_bar
 
 MARKER = "render.json"
 
@@ -52,12 +52,15 @@ def command(artifact_h5: str, config_path, overrides, out, overwrite) -> None:
 
                     curve = json.loads(src.attrs["config"])["growth"]["curve"]
                     growth = evaluate_curve(curve, src["axis/x"])
-                render.render_frames(pos, src["mesh/faces"], tmp, width=rc["width"],
-                                     height=rc["height"], fps=rc["fps"], color=rc["color"],
-                                     contact_frames=rc["contact_frames"], up=up,
-                                     labels=labels,
-                                     petal=src["mesh/petal"] if palette == "petals" else None,
-                                     growth=growth, turntable_frames=rc["turntable_frames"])
+                total = len(pos) + rc["turntable_frames"]
+                with progress_bar(total, "render") as bar:
+                    render.render_frames(
+                        pos, src["mesh/faces"], tmp, width=rc["width"], height=rc["height"],
+                        fps=rc["fps"], color=rc["color"], contact_frames=rc["contact_frames"],
+                        up=up, labels=labels,
+                        petal=src["mesh/petal"] if palette == "petals" else None,
+                        growth=growth, turntable_frames=rc["turntable_frames"],
+                        progress=bar.update)
                 written = {"frames": len(pos), "mp4": "bloom.mp4",
                            "contact_sheet": "contact_sheet.png"}
                 if rc["turntable_frames"]:

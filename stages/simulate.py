@@ -2,14 +2,12 @@
 
 from __future__ import annotations
 
-import sys
-
 import click
 import numpy as np
 
 from pipeline.errors import BloomError
 
-from .common import config_options, input_hashes, load, log, output_options
+from .common import config_options, input_hashes, load, log, output_options, progress_bar
 
 
 @click.command("simulate")
@@ -75,9 +73,7 @@ def command(growth_h5: str, config_path, overrides, out, overwrite, progress, re
                  model.hinge_count, steps, h, frames, ", ".join(effects.names) or "none")
         if effects.connections is not None:
             log.info("%d connection springs between petals", len(effects.connections.pairs))
-        show = sys.stderr.isatty() if progress is None else progress
-        with click.progressbar(length=steps, label="simulate", file=sys.stderr,
-                               show_eta=True, show_percent=True) if show else _Null() as bar:
+        with progress_bar(steps, "simulate", progress) as bar:
             try:
                 try:
                     rec, wall = run(model, state, control, integrator, steps=steps,
@@ -158,14 +154,3 @@ class _Saver:
 
             checkpoint.save(self.path, self.key, state, self.effects, rec)
             self.last = self.clock()
-
-
-class _Null:
-    def __enter__(self):
-        return self
-
-    def __exit__(self, *exc):
-        return False
-
-    def update(self, n):
-        pass

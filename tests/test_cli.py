@@ -386,6 +386,13 @@ def test_export_usd_round_trip(chain, tmp_path):
         last = meshio.read(files[-1])
         np.testing.assert_allclose(last.points, pos[-1], atol=1e-5 * np.abs(pos).max())
         assert len(last.cells_dict["triangle"]) == len(faces)
+    xdmf = tmp_path / "paraview"
+    assert invoke("export", chain["sim"], "--format", "xdmf", "--out", xdmf).exit_code == 0
+    with meshio.xdmf.TimeSeriesReader(str(xdmf / "bloom.xdmf")) as reader:
+        points, _ = reader.read_points_cells()
+        assert reader.num_steps == len(pos)
+        _, data, _ = reader.read_data(len(pos) - 1)
+    np.testing.assert_allclose(points + data["displacement"], pos[-1], atol=1e-9)
 
 
 def test_export_never_replaces_a_foreign_file(chain, tmp_path):
