@@ -8,6 +8,8 @@ up the checkpoint a lost simulation left. Workers must see the same files (one m
 or a shared file system) and the same project.
 
 Every stage's stderr goes to ``<out_root>/<scene>/logs/<stage>.log``, as under make.
+Like make, a stage whose output is newer than its input and config is not run again
+(``force`` runs everything); unlike make, changes to Bloom's own code are not tracked.
 """
 
 from __future__ import annotations
@@ -37,6 +39,8 @@ class Task:
     argv: tuple[str, ...]
     log: str
     needs: str | None  #: the stage whose output this one reads
+    output: str  #: what it writes (a file, or a folder for render)
+    sources: tuple[str, ...]  #: the files it reads (input artifact, config)
 
     @property
     def key(self) -> str:
@@ -59,16 +63,34 @@ def plan(configs: list[Path], out_root: Path) -> list[Task]:
             if stage not in NO_CONFIG:
                 argv += ["--config", str(config)]
             argv += ["--out", str(folder / out), *extra]
+            sources = ((str(folder / src),) if src else ()) + (str(config),)
             tasks.append(Task(scene, stage, tuple(argv), str(folder / "logs" / f"{stage}.log"),
-                              made.get(src)))
+                              made.get(src), str(folder / out), sources))
             made[out] = stage
     return tasks
 
 
-def run_stage(argv: tuple[str, ...], log: str, *upstream) -> str:
+def up_to_date(output: str, sources: tuple[str, ...]) -> bool:
+    """Like make: the output exists and is newer than everything it is made from (for
+    a folder, the marker file its stage writes last)."""
+    out = Path(output)
+    if out.is_dir():
+        out = out / "render.json"
+    if not out.exists():
+        return False
+    return all(out.stat().st_mtime >= Path(s).stat().st_mtime for s in sources)
+
+
+def run_stage(argv: tuple[str, ...], log: str, output: str, sources: tuple[str, ...],
+              force: bool, *upstream) -> str:
     """Run one ``bloom`` command in a subprocess (on a worker); its stderr goes to ``log``.
-    ``upstream`` are the results of the tasks it depends on (Dask waits for them).
-    Raises RuntimeError with the command's one-line error when it fails."""
+    ``upstream`` are the results of the tasks it depends on (Dask waits for them). An
+    up-to-date output is kept, as make keeps it (unless ``force``): a task run again
+    after a lost worker does not rebuild what is already there, so a simulation's
+    checkpoint still matches its input. Raises RuntimeError with the command's one-line
+    error when it fails."""
+    if not force and up_to_date(output, sources):
+        return output
     Path(log).parent.mkdir(parents=True, exist_ok=True)
     cmd = [sys.executable, "-c", "from stages.cli import main; main()", *argv]
     proc = subprocess.run(cmd, capture_output=True, text=True)
@@ -76,10 +98,11 @@ def run_stage(argv: tuple[str, ...], log: str, *upstream) -> str:
     if proc.returncode != 0:
         lines = proc.stderr.strip().splitlines()
         raise RuntimeError(lines[-1] if lines else f"exit code {proc.returncode}")
-    return argv[-1]
+    return output
 
 
-def run(tasks: list[Task], client, retries: int = 2) -> dict[str, str | None]:
+def run(tasks: list[Task], client, retries: int = 2, force: bool = False
+        ) -> dict[str, str | None]:
     """Submit the tasks to a ``distributed.Client``; wait for all. Returns each task's
     error (None when it succeeded; tasks after a failed one are not run)."""
     from distributed import wait
@@ -87,8 +110,9 @@ def run(tasks: list[Task], client, retries: int = 2) -> dict[str, str | None]:
     futures = {}
     for t in tasks:
         deps = [futures[f"{t.scene}/{t.needs}"]] if t.needs else []
-        futures[t.key] = client.submit(run_stage, t.argv, t.log, *deps, key=t.key.replace("/", "-"),
-                                       pure=False, retries=retries)
+        futures[t.key] = client.submit(run_stage, t.argv, t.log, t.output, t.sources,
+                                       force, *deps, key=t.key.replace("/", "-"), pure=False,
+                                       retries=retries)
     wait(list(futures.values()))
     errors = {}
     for key, fut in futures.items():

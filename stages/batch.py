@@ -22,7 +22,10 @@ from .common import log
               type=click.Path(file_okay=False), help="Scenes go to OUT_ROOT/<scene>/.")
 @click.option("--retries", default=2, show_default=True, type=click.IntRange(0, 10),
               help="How often a task lost with its worker (or failed) is tried again.")
-def command(configs, scheduler: str, workers: int, out_root: str, retries: int) -> None:
+@click.option("--force", is_flag=True,
+              help="Run every stage, even where the output is newer than its inputs.")
+def command(configs, scheduler: str, workers: int, out_root: str, retries: int,
+            force: bool) -> None:
     """Build CONFIGS (scene TOML files) as the Makefile does, each stage a Dask task
     whose input artifact is its dependency. Prints one line per scene; exits 1 if any
     stage failed (its log under OUT_ROOT/<scene>/logs/ says why)."""
@@ -55,7 +58,7 @@ def command(configs, scheduler: str, workers: int, out_root: str, retries: int) 
             raise BloomError(f"cannot reach the Dask scheduler ({exc})", where=scheduler) from None
     try:
         log.info("%d scenes, %d tasks on %s", len(paths), len(tasks), scheduler)
-        errors = batch.run(tasks, client, retries)
+        errors = batch.run(tasks, client, retries, force)
     finally:
         client.close()
         if cluster is not None:

@@ -153,3 +153,39 @@ def test_bloom_batch_on_a_local_dask_cluster_matches_make(tree):
         assert "steps of h" in (tree / "batch" / scene / "logs" / "simulate.log").read_text()
         mine = (tree / "batch" / scene / "render" / "bloom.mp4")
         assert mine.stat().st_size > 0
+
+
+def test_bloom_batch_survives_a_lost_worker(tree):
+    """Kill the Dask worker running a scene's simulation (and the simulation) mid-run:
+    the task is retried on another worker, resumes from the checkpoint (its inputs are
+    up to date, so not rebuilt), and the frames equal an uninterrupted make build's."""
+    import signal
+    import time
+
+    import psutil
+
+    long = TINY.replace("steps = 300\nframes = 3", "steps = 400000\nframes = 21\n"
+                        "checkpoint_seconds = 0.3")
+    for scene in ("one", "two"):
+        (tree / "configs" / f"{scene}.toml").write_text(long.format(mesh="petal.obj"))
+    assert make(tree, "SCENES=two").returncode == 0  # the uninterrupted reference
+    proc = subprocess.Popen([str(tree / ".venv" / "bin" / "bloom"), "batch", "configs/one.toml",
+                             "--out-root", "batch", "--workers", "2"], cwd=tree,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    ckpt = tree / "batch" / "one" / ".sim.h5.checkpoint"
+    deadline = time.monotonic() + 240
+    while not ckpt.exists() and proc.poll() is None and time.monotonic() < deadline:
+        time.sleep(0.05)
+    sims = [p for p in psutil.process_iter(["cmdline"])
+            if "simulate" in (p.info["cmdline"] or []) and str(tree) in " ".join(p.info["cmdline"])]
+    assert len(sims) == 1, "the simulation finished before its worker could be killed?"
+    worker = sims[0].parent()
+    for p in (worker, sims[0]):
+        p.send_signal(signal.SIGKILL)
+    _, err = proc.communicate(timeout=300)
+    assert proc.returncode == 0, err[-2000:]
+    assert "one: done (7 stages)" in err
+    log = (tree / "batch" / "one" / "logs" / "simulate.log").read_text()
+    assert "resuming from step" in log, log
+    assert _positions_hash(tree / "batch" / "one" / "sim.h5") == \
+        _positions_hash(tree / "outputs" / "two" / "sim.h5")

@@ -85,11 +85,15 @@ def load(path: Path, key: str, state: State, effects: Effects) -> Recording | No
     """Restore ``state`` and ``effects`` in place from the checkpoint and return the frames
     recorded so far; None if there is no checkpoint, or it is for other inputs or config
     (or unreadable: a checkpoint is only ever a shortcut)."""
+    import logging
+
+    log = logging.getLogger("bloom")
     if not path.exists():
         return None
     try:
         with h5py.File(path, "r") as f:
             if f.attrs.get("fingerprint") != key:
+                log.info("%s: not resumed: made from other inputs, config or code", path)
                 return None
             saved_state = {n: f[f"state/{n}"][()] for n in ("positions", "velocities", "forces")}
             saved_fx = {int(i): f[f"effects/{i}"][()] for i in f["effects"]}
@@ -103,6 +107,7 @@ def load(path: Path, key: str, state: State, effects: Effects) -> Recording | No
         if (sorted(saved_fx) != [i for i, _ in arrays]
                 or any(saved_fx[i].shape != a.shape for i, a in arrays)
                 or any(saved_state[n].shape != getattr(state, n).shape for n in saved_state)):
+            log.info("%s: not resumed: its arrays do not fit this run", path)
             return None
         for name, value in saved_state.items():
             getattr(state, name)[...] = value
@@ -110,5 +115,6 @@ def load(path: Path, key: str, state: State, effects: Effects) -> Recording | No
             a[...] = saved_fx[i]
         state.step, state.potential_energy = step, energy
         return rec
-    except (OSError, KeyError, ValueError):
+    except (OSError, KeyError, ValueError) as exc:
+        log.info("%s: not resumed: unreadable (%s)", path, exc)
         return None
