@@ -71,57 +71,103 @@ def plan(configs: list[Path], out_root: Path) -> list[Task]:
 
 
 def up_to_date(output: str, sources: tuple[str, ...]) -> bool:
-    """Like make: the output exists and is newer than everything it is made from (for
-    a folder, the marker file its stage writes last)."""
+    """Whether ``output`` need not be made again.
+
+    An HDF5 artifact records the sha256 of every file it was made from (its input
+    artifact, its config, for remesh its mesh): it is up to date when every one of
+    those still has that hash and the task's own sources are among them, whatever the
+    files' dates (a config restored with an old date, a mesh edited in place). A folder
+    (render) or another file (report, export) is up to date when it and every file its
+    stage lists exist and are newer than the sources, as make judges."""
+    import json
+
     out = Path(output)
-    if out.is_dir():
-        out = out / "render.json"
-    if not out.exists():
+    if out.suffix == ".h5":
+        if not out.exists():
+            return False
+        try:
+            import h5py
+
+            with h5py.File(out, "r") as f:
+                recorded = json.loads(f.attrs["inputs"])
+        except (OSError, KeyError, ValueError):
+            return False
+        from .artifact import sha256_file
+
+        if not {str(Path(s).resolve()) for s in sources} <= {
+                str(Path(p).resolve()) for p in recorded}:
+            return False
+        return all(Path(p).exists() and sha256_file(p) == digest for p, digest in recorded.items())
+    files = [out / "render.json", out / "bloom.mp4", out / "contact_sheet.png"] \
+        if out.suffix == "" else [out]
+    if not all(f.exists() for f in files):
         return False
-    return all(out.stat().st_mtime >= Path(s).stat().st_mtime for s in sources)
+    newest = max(Path(s).stat().st_mtime for s in sources)
+    return all(f.stat().st_mtime >= newest for f in files)
+
+
+FAILED = "FAILED: "  #: a task's result that says its stage failed (not an exception:
+#: a deterministic failure is not worth retrying, and its dependents skip)
+
+
+def _die_with_parent() -> None:  # pragma: no cover - runs in the child, before exec
+    """Linux: the stage's process is killed when its worker dies, so a retried task
+    never runs beside an orphan of the first attempt."""
+    import ctypes
+    import signal
+
+    try:
+        ctypes.CDLL(None, use_errno=True).prctl(1, signal.SIGKILL)  # PR_SET_PDEATHSIG
+    except (OSError, AttributeError):
+        pass
 
 
 def run_stage(argv: tuple[str, ...], log: str, output: str, sources: tuple[str, ...],
               force: bool, *upstream) -> str:
     """Run one ``bloom`` command in a subprocess (on a worker); its stderr goes to ``log``.
-    ``upstream`` are the results of the tasks it depends on (Dask waits for them). An
-    up-to-date output is kept, as make keeps it (unless ``force``): a task run again
-    after a lost worker does not rebuild what is already there, so a simulation's
-    checkpoint still matches its input. Raises RuntimeError with the command's one-line
-    error when it fails."""
+    ``upstream`` are the results of the tasks it depends on (Dask waits for them); if
+    one failed, this one is not run. An up-to-date output is kept, as make keeps it
+    (unless ``force``): a task run again after a lost worker does not rebuild what is
+    already there, so a simulation's checkpoint still matches its input. Returns the
+    output, or :data:`FAILED` and the command's one-line error."""
+    for result in upstream:
+        if str(result).startswith(FAILED):
+            return FAILED + "not run (an earlier stage failed)"
     if not force and up_to_date(output, sources):
         return output
     Path(log).parent.mkdir(parents=True, exist_ok=True)
-    cmd = [sys.executable, "-c", "from stages.cli import main; main()", *argv]
-    proc = subprocess.run(cmd, capture_output=True, text=True)
+    code = "import sys; sys.argv[0] = 'bloom'; from stages.cli import main; main()"
+    cmd = [sys.executable, "-c", code, *argv]
+    proc = subprocess.run(cmd, capture_output=True, text=True,
+                          preexec_fn=_die_with_parent if sys.platform == "linux" else None)
     Path(log).write_text(proc.stderr)
     if proc.returncode != 0:
         lines = proc.stderr.strip().splitlines()
-        raise RuntimeError(lines[-1] if lines else f"exit code {proc.returncode}")
+        return FAILED + (lines[-1] if lines else f"exit code {proc.returncode}")
     return output
 
 
-def run(tasks: list[Task], client, retries: int = 2, force: bool = False
-        ) -> dict[str, str | None]:
+def run(tasks: list[Task], client, force: bool = False) -> dict[str, str | None]:
     """Submit the tasks to a ``distributed.Client``; wait for all. Returns each task's
-    error (None when it succeeded; tasks after a failed one are not run)."""
+    error (None when it succeeded). A task lost with its worker is run again by the
+    scheduler (up to its ``distributed.scheduler.allowed-failures``)."""
+    import uuid
+
     from distributed import wait
 
+    run_id = uuid.uuid4().hex[:8]  # keys of this run only, on a shared scheduler
     futures = {}
     for t in tasks:
         deps = [futures[f"{t.scene}/{t.needs}"]] if t.needs else []
         futures[t.key] = client.submit(run_stage, t.argv, t.log, t.output, t.sources,
-                                       force, *deps, key=t.key.replace("/", "-"), pure=False,
-                                       retries=retries)
+                                       force, *deps, pure=False,
+                                       key=f"{t.scene}-{t.stage}-{run_id}")
     wait(list(futures.values()))
     errors = {}
     for key, fut in futures.items():
-        if fut.status == "finished":
-            errors[key] = None
-        else:
-            try:
-                exc = fut.exception()
-                errors[key] = str(exc) if exc is not None else fut.status
-            except Exception as exc:  # cancelled, or its input failed
-                errors[key] = f"{type(exc).__name__}: not run ({exc})"
+        if fut.status != "finished":
+            errors[key] = f"lost ({fut.status})"
+            continue
+        result = fut.result()
+        errors[key] = result[len(FAILED):] if str(result).startswith(FAILED) else None
     return errors

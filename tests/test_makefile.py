@@ -189,3 +189,30 @@ def test_bloom_batch_survives_a_lost_worker(tree):
     assert "resuming from step" in log, log
     assert _positions_hash(tree / "batch" / "one" / "sim.h5") == \
         _positions_hash(tree / "outputs" / "two" / "sim.h5")
+
+
+def test_bloom_batch_reports_failures_and_sees_changed_inputs(tree):
+    """A scene whose simulation diverges: one line naming it and the stage, no
+    traceback, exit 1, nothing after the failed stage. A config changed in content but
+    restored with an old date is still seen as changed (hashes, not dates)."""
+    import h5py
+
+    bloom = str(tree / ".venv" / "bin" / "bloom")
+    bad = TINY.format(mesh="petal.obj").replace("steps = 300", "steps = 300\nh = 3.0")
+    (tree / "configs" / "bad.toml").write_text(bad)
+    r = subprocess.run([bloom, "batch", "configs/one.toml", "configs/bad.toml", "--out-root", "b"],
+                       cwd=tree, capture_output=True, text=True)
+    assert r.returncode != 0
+    assert "one: done (7 stages)" in r.stderr and "Traceback" not in r.stderr
+    assert "bad: FAILED at simulate: " in r.stderr and "diverged" in r.stderr
+    assert not (tree / "b" / "bad" / "sim.h5").exists()
+    assert not (tree / "b" / "bad" / "render").exists()
+    one = tree / "configs" / "one.toml"
+    stamp = os.stat(one).st_mtime
+    one.write_text(one.read_text().replace("frames = 3", "frames = 5"))
+    os.utime(one, (stamp - 10**7, stamp - 10**7))  # restored with an old date
+    r = subprocess.run([bloom, "batch", "configs/one.toml", "--out-root", "b"], cwd=tree,
+                       capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr[-2000:]
+    with h5py.File(tree / "b" / "one" / "sim.h5") as f:
+        assert f["frames/positions"].shape[0] == 5

@@ -56,11 +56,22 @@ def _bundle_arrays(effects: Effects) -> list[tuple[int, np.ndarray]]:
     return [(i, a) for i, a in enumerate(effects.bundle()) if isinstance(a, np.ndarray)]
 
 
+def _alive(pid: str) -> bool:
+    try:
+        os.kill(int(pid), 0)
+    except (ValueError, ProcessLookupError):
+        return False
+    except PermissionError:
+        return True
+    return True
+
+
 def save(path: Path, key: str, state: State, effects: Effects, rec: Recording) -> None:
     """Write the checkpoint (atomically: a kill while writing leaves the previous one;
     the half-written file of such a kill is removed by the next save)."""
     for stale in path.parent.glob(f"{path.name}.tmp-*"):
-        stale.unlink(missing_ok=True)
+        if not _alive(stale.name.rsplit("-", 1)[-1]):  # never another live writer's
+            stale.unlink(missing_ok=True)
     tmp = path.with_name(f"{path.name}.tmp-{os.getpid()}")
     try:
         with h5py.File(tmp, "w") as f:
