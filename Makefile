@@ -58,35 +58,36 @@ endif
 # The pipeline, in order.
 $(OUT)/%/remesh.h5: configs/%.toml stages/remesh.py $(LIB) | $(INSTALLED)
 	@mkdir -p $(@D)/logs
-	$(BLOOM) remesh --config $< --out $@ $(call LOG,remesh)
+	$(call RUN,remesh,$(BLOOM) remesh --config $< --out $@)
 
 $(OUT)/%/axis.h5: $(OUT)/%/remesh.h5 configs/%.toml stages/axis.py $(LIB)
 	@mkdir -p $(@D)/logs
-	$(BLOOM) axis $< --config configs/$*.toml --out $@ $(call LOG,axis)
+	$(call RUN,axis,$(BLOOM) axis $< --config configs/$*.toml --out $@)
 
 $(OUT)/%/growth.h5: $(OUT)/%/axis.h5 configs/%.toml stages/growth.py $(LIB)
 	@mkdir -p $(@D)/logs
-	$(BLOOM) growth $< --config configs/$*.toml --out $@ $(call LOG,growth)
+	$(call RUN,growth,$(BLOOM) growth $< --config configs/$*.toml --out $@)
 
 $(OUT)/%/sim.h5: $(OUT)/%/growth.h5 configs/%.toml stages/simulate.py $(LIB)
 	@mkdir -p $(@D)/logs
-	$(BLOOM) simulate $< --config configs/$*.toml --out $@ --resume $(call LOG,simulate)
+	$(call RUN,simulate,$(BLOOM) simulate $< --config configs/$*.toml --out $@ --resume)
 
 $(OUT)/%/render/bloom.mp4: $(OUT)/%/sim.h5 configs/%.toml stages/render.py $(LIB)
 	@mkdir -p $(OUT)/$*/logs
-	$(BLOOM) render $< --config configs/$*.toml --out $(OUT)/$*/render $(call LOG,render)
+	$(call RUN,render,$(BLOOM) render $< --config configs/$*.toml --out $(OUT)/$*/render)
 
 $(OUT)/%/report.json: $(OUT)/%/sim.h5 stages/report.py $(LIB)
 	@mkdir -p $(@D)/logs
-	$(BLOOM) report $< --out $@ $(call LOG,report)
+	$(call RUN,report,$(BLOOM) report $< --out $@)
 
 $(OUT)/%/bloom.usdc: $(OUT)/%/sim.h5 configs/%.toml stages/export.py $(LIB)
 	@mkdir -p $(@D)/logs
-	$(BLOOM) export $< --config configs/$*.toml --out $@ $(call LOG,export)
+	$(call RUN,export,$(BLOOM) export $< --config configs/$*.toml --out $@)
 
-# Each stage's log (stderr) also goes to outputs/<scene>/logs/<stage>.log; pipefail keeps
-# the stage's exit code.
-LOG = 2>&1 | tee $(OUT)/$*/logs/$(1).log
+# Each stage's log (stderr) also goes to outputs/<scene>/logs/<stage>.log, and stays on
+# stderr (stdout stays stdout); pipefail keeps the stage's exit code. (Under make, stderr
+# is a pipe, so the stages show no progress bars.)
+RUN = { $(2) 2>&1 1>&3 | tee $(OUT)/$*/logs/$(1).log >&2; } 3>&1
 
 # Keep intermediate artifacts: they are the point of the pipeline.
 .PRECIOUS: $(OUT)/%/remesh.h5 $(OUT)/%/axis.h5 $(OUT)/%/growth.h5 $(OUT)/%/sim.h5

@@ -141,6 +141,11 @@ SCHEMA: dict[str, Any] = {
             "enabled": Key(bool, False, "axis vertices keep their distance to the center plane"),
         },
     },
+    "export": {
+        "meters_per_unit": Key(float, 1.0, "USD metersPerUnit: how many meters one unit of the "
+                               "input mesh is (Blender, Houdini scale by it)", low=0.0,
+                               low_open=True),
+    },
     "render": {
         "width": Key(int, 800, "frame width in pixels (even)", low=64, high=8192),
         "height": Key(int, 600, "frame height in pixels (even)", low=64, high=8192),

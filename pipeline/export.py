@@ -4,10 +4,11 @@ PLY sequences, from a sim.h5, at the user's original scale.
 - USD (usd-core, the official wheel): one ``UsdGeom.Mesh`` per petal under
   ``/Bloom`` (``/Bloom/petal_00`` ...), with faces, time-sampled points, vertex normals
   and extents at every frame; the stage's time codes are frame numbers, played at the
-  scene's ``render.fps``; +Z is up (the flower's axis in Bloom's assets). Points are
-  divided by the artifact's ``scale`` (mesh units per input unit), so they come back in
-  the units of the mesh the user gave `bloom remesh`; ``metersPerUnit`` is left at
-  USD's default, since Bloom does not know what the input's unit was.
+  scene's ``render.fps``. Points are divided by the artifact's ``scale`` (mesh units per
+  input unit), so they come back in the units of the mesh the user gave `bloom remesh`
+  (never rotated); ``metersPerUnit`` is ``export.meters_per_unit`` (1: the input was in
+  meters, as Blender's are); the up axis is Y or Z, whichever the flower's axis is
+  nearer (the input's own convention).
 - OBJ / PLY: one file per frame, ``bloom_0000.obj`` ..., in a folder (meshio).
 - XDMF (ParaView): ``bloom.xdmf`` + ``bloom.h5`` in a folder (meshio's time series):
   the first frame's mesh, and per frame the point data ``displacement`` (from the
@@ -33,15 +34,18 @@ def petal_meshes(faces: np.ndarray, petal: np.ndarray) -> list[tuple[np.ndarray,
 
 
 def write_usd(path, positions: np.ndarray, faces: np.ndarray, petal: np.ndarray,
-              fps: float, source: dict | None = None) -> None:
-    """Write ``positions (T, V, 3)`` (already at the user's scale) as a USD stage;
-    ``source`` goes into the layer's custom data under ``bloom``."""
+              fps: float, source: dict | None = None, up: str = "Z",
+              meters_per_unit: float = 1.0) -> None:
+    """Write ``positions (T, V, 3)`` (already at the user's scale) as a USD stage with
+    ``up`` ("Y" or "Z") as its up axis and ``meters_per_unit``; ``source`` goes into the
+    layer's custom data under ``bloom``."""
     from pxr import Gf, Sdf, Usd, UsdGeom, Vt
 
     stage = Usd.Stage.CreateNew(str(path))
     stage.GetRootLayer().customLayerData = {"bloom": {k: str(v) for k, v in
                                                       (source or {}).items()}}
-    UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.z)
+    UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.y if up == "Y" else UsdGeom.Tokens.z)
+    UsdGeom.SetStageMetersPerUnit(stage, float(meters_per_unit))
     stage.SetStartTimeCode(0)
     stage.SetEndTimeCode(len(positions) - 1)
     stage.SetTimeCodesPerSecond(fps)

@@ -100,3 +100,18 @@ def progress_bar(length: int, label: str, show: bool | None = None):
         return _NoBar()
     return click.progressbar(length=length, label=label, file=sys.stderr, show_eta=True,
                              show_percent=True)
+
+
+def up_direction(src):
+    """The flower's axis, pointing from the petals' bases toward their tips."""
+    import numpy as np
+
+    axis = src.attrs.get("flower_axis")
+    if axis is None or not np.all(np.isfinite(axis)):
+        return None
+    d = np.asarray(axis[3:], dtype=np.float64)
+    if "axis/tip" in src and "axis/base" in src:
+        v = src["mesh/vertices"] if "mesh/vertices" in src else src["frames/positions"][0]
+        if (v[src["axis/tip"]].mean(axis=0) - v[src["axis/base"]].mean(axis=0)) @ d < 0:
+            d = -d
+    return d

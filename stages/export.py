@@ -10,7 +10,7 @@ import click
 
 from pipeline.errors import BloomError
 
-from .common import commit_folder, config_options, load, log, prepare_folder
+from .common import commit_folder, config_options, load, log, prepare_folder, up_direction
 
 MARKER = "export.json"
 USD_SUFFIXES = (".usd", ".usdc", ".usda")
@@ -39,6 +39,9 @@ def command(sim_h5: str, config_path, overrides, fmt: str, out: str, overwrite: 
         scale = float(src.attrs["scale"])
         positions = src["frames/positions"] / scale
         faces, petal = src["mesh/faces"], src["mesh/petal"]
+        fps = cfg["render.fps"]  # the scene's, as simulated, unless given here
+        if config_path is None and not any(o.startswith("render.fps=") for o in overrides):
+            fps = src.config().get("render", {}).get("fps", fps)
         if fmt == "usd":
             if out.suffix.lower() not in USD_SUFFIXES:
                 raise BloomError("--out: a USD file must end in .usd, .usdc or .usda",
@@ -46,10 +49,13 @@ def command(sim_h5: str, config_path, overrides, fmt: str, out: str, overwrite: 
             _check_usd_output(out, overwrite)
             out.parent.mkdir(parents=True, exist_ok=True)
             tmp = out.with_name(f".{out.stem}.tmp-{os.getpid()}{out.suffix}")
+            up = up_direction(src)
             try:
-                export.write_usd(tmp, positions, faces, petal, cfg["render.fps"],
+                export.write_usd(tmp, positions, faces, petal, fps,
                                  source={"source": str(sim_h5),
-                                         "sha256": artifact.sha256_file(sim_h5)})
+                                         "sha256": artifact.sha256_file(sim_h5)},
+                                 up="Y" if up is not None and abs(up[1]) > abs(up[2]) else "Z",
+                                 meters_per_unit=cfg["export.meters_per_unit"])
                 os.replace(tmp, out)
             finally:
                 tmp.unlink(missing_ok=True)
@@ -57,7 +63,7 @@ def command(sim_h5: str, config_path, overrides, fmt: str, out: str, overwrite: 
             tmp = prepare_folder(out, overwrite, MARKER, "export")
             try:
                 if fmt == "xdmf":
-                    export.write_xdmf(tmp, positions, faces, petal, cfg["render.fps"])
+                    export.write_xdmf(tmp, positions, faces, petal, fps)
                 else:
                     export.write_sequence(tmp, positions, faces, fmt)
                 (tmp / MARKER).write_text(json.dumps(
@@ -74,13 +80,16 @@ def command(sim_h5: str, config_path, overrides, fmt: str, out: str, overwrite: 
 
 def _check_usd_output(out: Path, overwrite: bool) -> None:
     """Never replace a USD file `bloom export` did not write (unless --overwrite)."""
-    if not out.exists() or overwrite:
-        return
     if out.is_dir():
         raise BloomError("is a folder; --out needs a .usd/.usdc/.usda file", where=str(out))
-    from pxr import Sdf
+    if not out.exists() or overwrite:
+        return
+    from pxr import Sdf, Tf
 
-    layer = Sdf.Layer.FindOrOpen(str(out))
+    try:
+        layer = Sdf.Layer.FindOrOpen(str(out))
+    except Tf.ErrorException:
+        layer = None  # not a USD file at all
     if layer is None or "bloom" not in dict(layer.customLayerData):
         raise BloomError("exists and was not written by `bloom export`; not overwriting it "
                          "(pass --overwrite)", where=str(out))

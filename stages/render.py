@@ -10,7 +10,7 @@ from pathlib import Path
 import click
 import numpy as np
 
-from .common import commit_folder, config_options, load, log, prepare_folder, progress_bar
+from .common import commit_folder, config_options, load, log, prepare_folder, progress_bar, up_direction
 
 MARKER = "render.json"
 
@@ -37,7 +37,7 @@ def command(artifact_h5: str, config_path, overrides, out, overwrite) -> None:
         stage = src.stage
         tmp = prepare_folder(out, overwrite, MARKER, "render")
         try:
-            up = _up_direction(src)
+            up = up_direction(src)
             if stage == "simulate":
                 pos = src["frames/positions"]
                 times = src["frames/time"]
@@ -88,17 +88,6 @@ def _stage(path: str) -> str | None:
         return None
 
 
-def _up_direction(src) -> np.ndarray | None:
-    """The flower's axis, pointing from the petals' bases toward their tips."""
-    axis = src.attrs.get("flower_axis")
-    if axis is None or not np.all(np.isfinite(axis)):
-        return None
-    d = np.asarray(axis[3:], dtype=np.float64)
-    if "axis/tip" in src and "axis/base" in src:
-        v = src["mesh/vertices"] if "mesh/vertices" in src else src["frames/positions"][0]
-        if (v[src["axis/tip"]].mean(axis=0) - v[src["axis/base"]].mean(axis=0)) @ d < 0:
-            d = -d
-    return d
 
 
 def _debug_view(src, stage: str, path: Path, rc: dict, up) -> None:

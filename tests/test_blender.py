@@ -44,12 +44,13 @@ def test_blender_imports_the_usd_and_sees_the_same_points(tmp_path):
     line = next(x for x in r.stdout.splitlines() if x.startswith("JSON"))
     got = json.loads(line[4:])
     assert got["names"] == ["petal_00", "petal_01"]
-    meters = UsdGeom.GetStageMetersPerUnit(Usd.Stage.Open(str(usd)))  # Blender works in m
+    # metersPerUnit 1 (export.meters_per_unit): Blender's points are the USD's, unscaled
+    assert UsdGeom.GetStageMetersPerUnit(Usd.Stage.Open(str(usd))) == 1.0
     with h5py.File(prev) as f:
         pos = f["frames/positions"][()] / f.attrs["scale"]
         petal = f["mesh/petal"][()]
     order = np.concatenate([np.flatnonzero(petal == p) for p in range(petal.max() + 1)])
     for t in frames:
-        blender = np.asarray(got["points"][str(t)]) / meters
+        blender = np.asarray(got["points"][str(t)])
         np.testing.assert_allclose(blender, pos[t][order], atol=1e-5 * np.abs(pos).max())
     assert not np.allclose(pos[0], pos[-1])  # the frames differ: time samples were read

@@ -367,6 +367,7 @@ def test_export_usd_round_trip(chain, tmp_path):
     order = np.concatenate([np.flatnonzero(petal == p) for p in range(petal.max() + 1)])
     stage = Usd.Stage.Open(str(usd))
     assert stage.GetTimeCodesPerSecond() == 30 and UsdGeom.GetStageUpAxis(stage) == "Z"
+    assert UsdGeom.GetStageMetersPerUnit(stage) == 1.0
     assert stage.GetEndTimeCode() == len(pos) - 1
     meshes = stage.GetPrimAtPath("/Bloom").GetChildren()
     assert len(meshes) == petal.max() + 1
@@ -401,6 +402,15 @@ def test_export_never_replaces_a_foreign_file(chain, tmp_path):
     r = CliRunner().invoke(cli, ["export", str(chain["sim"]), "--out", str(mine)])
     assert r.exit_code != 0 and "not written by `bloom export`" in r.output
     assert mine.read_text() == "#usda 1.0\n"
+    junk = tmp_path / "junk.usdc"
+    junk.write_bytes(b"\x00not usd at all" * 10)
+    r = CliRunner().invoke(cli, ["export", str(chain["sim"]), "--out", str(junk)])
+    assert r.exit_code != 0 and "not written by `bloom export`" in r.output
+    assert isinstance(r.exception, SystemExit)  # one line, no traceback
+    folder = tmp_path / "d.usdc"
+    folder.mkdir()
+    r = CliRunner().invoke(cli, ["export", str(chain["sim"]), "--out", str(folder), "--overwrite"])
+    assert r.exit_code != 0 and "folder" in r.output and isinstance(r.exception, SystemExit)
     r = CliRunner().invoke(cli, ["export", str(chain["sim"]), "--out", str(tmp_path / "x.abc")])
     assert r.exit_code != 0 and ".usd" in r.output
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["shot.usda"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["d.usdc", "junk.usdc", "shot.usda"]

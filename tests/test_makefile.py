@@ -47,7 +47,9 @@ def make(tree, *args):
 
 
 def stage_commands(output: str) -> list[str]:
-    return [line for line in output.splitlines() if line.startswith(".venv/bin/bloom ")]
+    """The bloom commands make ran (each line is wrapped in the log redirection)."""
+    return [line[line.index(".venv/bin/bloom "):] for line in output.splitlines()
+            if ".venv/bin/bloom " in line]
 
 
 def test_make_builds_then_does_nothing_then_rebuilds_one_scene(tree):
@@ -216,3 +218,14 @@ def test_bloom_batch_reports_failures_and_sees_changed_inputs(tree):
     assert r.returncode == 0, r.stderr[-2000:]
     with h5py.File(tree / "b" / "one" / "sim.h5") as f:
         assert f["frames/positions"].shape[0] == 5
+
+
+def test_a_failing_stage_under_make_says_so_on_stderr(tree):
+    bad = TINY.format(mesh="petal.obj").replace("steps = 300", "steps = 300\nh = 3.0")
+    (tree / "configs" / "bad.toml").write_text(bad)
+    r = make(tree, "SCENES=bad")
+    assert r.returncode != 0
+    assert "bloom simulate: error: " in r.stderr and "diverged" in r.stderr
+    assert "bloom simulate: error: " not in r.stdout
+    assert "diverged" in (tree / "outputs" / "bad" / "logs" / "simulate.log").read_text()
+    assert not (tree / "outputs" / "bad" / "sim.h5").exists()
