@@ -1,5 +1,5 @@
-"""Gradient and Hessian of the potential energy, assembled into a block-sparse matrix
-for the quasi-static solver (numba, cached to disk).
+"""Hessian of the potential energy, assembled into a block-sparse matrix for the
+quasi-static solver (numba, cached to disk).
 
 The energy is the one of :mod:`kernels` (Eq. 2-3): ``1/2 K_s (l - L)^2`` per edge and
 ``psi(theta) = K_b (1 - cos(theta - theta0))`` per hinge, with the same hinge convention.
@@ -23,50 +23,25 @@ vertex pairs to their block, so assembly is one pass that allocates nothing.
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 from numba import njit
 
-from .kernels import _hinge_vectors
-
-
-@njit(cache=True, inline="always")
-def _add_outer(M, r, c, s, u, v):
-    """``M[r, c] += s u v^T`` for 3-vectors u, v given as arrays."""
-    for a in range(3):
-        for b in range(3):
-            M[r, c, a, b] += s * u[a] * v[b]
+from .kernels import _edge_vector, _hinge_angle, _hinge_vectors
 
 
 @njit(cache=True)
-def stretch_terms(X, edges, rest0, growth, stiffness, A, G, data, slots):
-    """Add each spring's gradient to ``G`` and Hessian blocks to ``data``; return the
-    energy. ``slots[e]`` holds the block index of (i,i), (i,j), (j,i), (j,j)."""
-    energy = 0.0
+def stretch_terms(X, edges, rest0, growth, stiffness, A, data, slots):
+    """Add each spring's Hessian blocks to ``data``. ``slots[e]`` holds the block index
+    of (i,i), (i,j), (j,i), (j,j)."""
     for e in range(edges.shape[0]):
-        i = edges[e, 0]
-        j = edges[e, 1]
-        dx = X[j, 0] - X[i, 0]
-        dy = X[j, 1] - X[i, 1]
-        dz = X[j, 2] - X[i, 2]
-        length = math.sqrt(dx * dx + dy * dy + dz * dz)
-        rest = rest0[e] * (1.0 + A * growth[e])
-        k = stiffness[e]
-        stretch = length - rest
-        energy += 0.5 * k * stretch * stretch
+        dx, dy, dz, length = _edge_vector(X, edges[e, 0], edges[e, 1])
         if length <= 0.0:
             continue
+        rest = rest0[e] * (1.0 + A * growth[e])
+        k = stiffness[e]
         u0 = dx / length
         u1 = dy / length
         u2 = dz / length
-        t = k * stretch
-        G[i, 0] -= t * u0
-        G[i, 1] -= t * u1
-        G[i, 2] -= t * u2
-        G[j, 0] += t * u0
-        G[j, 1] += t * u1
-        G[j, 2] += t * u2
         across = k * (1.0 - rest / length)
         along = k - across
         for a in range(3):
@@ -80,7 +55,6 @@ def stretch_terms(X, edges, rest0, growth, stiffness, A, G, data, slots):
                 data[slots[e, 1], a, b] -= kab
                 data[slots[e, 2], a, b] -= kab
                 data[slots[e, 3], a, b] += kab
-    return energy
 
 
 @njit(cache=True, inline="always")
@@ -112,13 +86,8 @@ def hinge_theta_derivatives(X, i, j, k, l, g, H, work):
     esq = ex * ex + ey * ey + ez * ez
     if n1sq <= 0.0 or n2sq <= 0.0 or esq <= 0.0:
         return 1.0, 0.0, False
-    elen = math.sqrt(esq)
-    inv = 1.0 / math.sqrt(n1sq * n2sq)
-    cos_t = (n1x * n2x + n1y * n2y + n1z * n2z) * inv
-    cx = n1y * n2z - n1z * n2y
-    cy = n1z * n2x - n1x * n2z
-    cz = n1x * n2y - n1y * n2x
-    sin_t = (cx * ex + cy * ey + cz * ez) * inv / elen
+    cos_t, sin_t, elen, _, _ = _hinge_angle(bx, by, bz, n1x, n1y, n1z, n2x, n2y, n2z,
+                                            n1sq, n2sq, esq)
     e = (ex, ey, ez)
     a = (ax, ay, az)
     n1 = (n1x, n1y, n1z)
@@ -183,51 +152,35 @@ def hinge_theta_derivatives(X, i, j, k, l, g, H, work):
 
 
 @njit(cache=True)
-def bending_terms(X, hinges, cos0, sin0, stiffness, G, data, slots, work):
-    """Add each hinge's gradient to ``G`` and Hessian blocks to ``data``; return the
-    energy. ``slots[h, 4 r + c]`` is the block of vertex pair (r, c), r, c in i, j, k, l."""
+def bending_terms(X, hinges, cos0, sin0, stiffness, data, slots, work):
+    """Add each hinge's Hessian blocks to ``data``. ``slots[h, 4 r + c]`` is the block of
+    vertex pair (r, c), r, c in i, j, k, l."""
     g = np.empty((4, 3))
     Ht = np.empty((4, 4, 3, 3))
-    energy = 0.0
     for h in range(hinges.shape[0]):
         v = hinges[h]
         cos_t, sin_t, ok = hinge_theta_derivatives(X, v[0], v[1], v[2], v[3], g, Ht, work)
         if not ok:
             continue
         kb = stiffness[h]
-        energy += kb * (1.0 - (cos_t * cos0[h] + sin_t * sin0[h]))
         d1 = kb * (sin_t * cos0[h] - cos_t * sin0[h])  # psi'
         d2 = kb * (cos_t * cos0[h] + sin_t * sin0[h])  # psi''
         for r in range(4):
-            vr = v[r]
-            for c in range(3):
-                G[vr, c] += d1 * g[r, c]
             for q in range(4):
                 block = slots[h, 4 * r + q]
                 for a in range(3):
                     for b in range(3):
                         data[block, a, b] += d2 * g[r, a] * g[q, b] + d1 * Ht[r, q, a, b]
-    return energy
 
 
 @njit(cache=True)
-def constrain(indptr, indices, data, G, pinned, plane_row, normals):
-    """Restrict the system to the free directions: a pinned vertex's rows and columns
-    become the identity with zero gradient; a center-plane vertex (``plane_row[v] >= 0``,
-    unit normal ``normals[plane_row[v]]``) is projected onto its plane,
-    ``P H P + n n^T`` with ``P = I - n n^T``, so that a Newton step never moves it
-    along its normal."""
-    nv = G.shape[0]
-    tmp = np.empty((3, 3))
-    for r in range(nv):
-        for c in range(3):
-            if pinned[r]:
-                G[r, c] = 0.0
-        if plane_row[r] >= 0:
-            n = normals[plane_row[r]]
-            dot = G[r, 0] * n[0] + G[r, 1] * n[1] + G[r, 2] * n[2]
-            for c in range(3):
-                G[r, c] -= dot * n[c]
+def constrain(indptr, indices, data, pinned, plane_row, normals):
+    """Restrict the Hessian to the free directions (the gradient is restricted alike by
+    the solver): a pinned vertex's rows and columns become the identity; a center-plane
+    vertex (``plane_row[v] >= 0``, unit normal ``normals[plane_row[v]]``) is projected
+    onto its plane, ``P H P + n n^T`` with ``P = I - n n^T``, so that a Newton step never
+    moves it along its normal."""
+    for r in range(pinned.shape[0]):
         for p in range(indptr[r], indptr[r + 1]):
             col = indices[p]
             B = data[p]
@@ -253,25 +206,19 @@ def constrain(indptr, indices, data, G, pinned, plane_row, normals):
                 n = normals[plane_row[r]]
                 for a in range(3):
                     for b in range(3):
-                        tmp[a, b] = n[a] * n[b]
-                for a in range(3):
-                    for b in range(3):
-                        B[a, b] += tmp[a, b]
+                        B[a, b] += n[a] * n[b]
 
 
 @njit(cache=True)
-def energy_gradient_hessian(X, edges, rest0, growth, edge_k, hinges, cos0, sin0, hinge_k, A,
-                            G, data, edge_slots, hinge_slots, work):
-    """Zero ``G`` and ``data``, then add stretch and bending; return the energy."""
-    G[:, :] = 0.0
+def hessian(X, edges, rest0, growth, edge_k, hinges, cos0, sin0, hinge_k, A, data,
+            edge_slots, hinge_slots, work):
+    """Zero ``data``, then add the stretch and bending Hessians. (The energy and its
+    gradient come from :func:`kernels.internal_forces`, the simulator's own.)"""
     data[:, :, :] = 0.0
-    energy = 0.0
     if edges.shape[0]:
-        energy += stretch_terms(X, edges, rest0, growth, edge_k, A, G, data, edge_slots)
+        stretch_terms(X, edges, rest0, growth, edge_k, A, data, edge_slots)
     if hinges.shape[0]:
-        energy += bending_terms(X, hinges, cos0, sin0, hinge_k, G, data, hinge_slots,
-                                work)
-    return energy
+        bending_terms(X, hinges, cos0, sin0, hinge_k, data, hinge_slots, work)
 
 
 def block_pattern(vertex_count: int, edges: np.ndarray, hinges: np.ndarray):
@@ -280,7 +227,7 @@ def block_pattern(vertex_count: int, edges: np.ndarray, hinges: np.ndarray):
     edges = np.asarray(edges, dtype=np.int64).reshape(-1, 2)
     hinges = np.asarray(hinges, dtype=np.int64).reshape(-1, 4)
     n = vertex_count
-    er = np.repeat(edges, 2, axis=1)[:, [0, 1, 2, 3]]  # (i, i, j, j)
+    er = np.repeat(edges, 2, axis=1)  # (i, i, j, j)
     ec = np.tile(edges, (1, 2))  # (i, j, i, j)
     hr = np.repeat(hinges, 4, axis=1)
     hc = np.tile(hinges, (1, 4))

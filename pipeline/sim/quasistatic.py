@@ -134,7 +134,6 @@ class _System:
     edge_slots: np.ndarray
     hinge_slots: np.ndarray
     data: np.ndarray
-    gradient: np.ndarray
     work: np.ndarray
     pinned: np.ndarray
     plane_row: np.ndarray
@@ -163,7 +162,7 @@ class _System:
         rows = np.repeat(np.arange(3 * n), np.diff(upper.indptr))  # column of each entry
         diagonal = np.flatnonzero(upper.indices == rows)
         return cls(indptr, indices, eslots, hslots, np.zeros((len(indices), 3, 3)),
-                   np.zeros((n, 3)), np.zeros((7, 4, 3, 3)), model.pinned.copy(),
+                   np.zeros((7, 4, 3, 3)), model.pinned.copy(),
                    plane_row, normals, upper, take, diagonal)
 
     def factor(self, mu: float = 0.0):
@@ -332,15 +331,13 @@ class QuasiStatic:
         kernels.curl_rest_angles(c.theta0, A * c.beta, c.cos_t, c.sin_t)
         return c.cos_t, c.sin_t
 
-    def _assemble(self, model, X, A, cos0, sin0) -> float:
+    def _assemble(self, model, X, A, cos0, sin0) -> None:
+        """The constrained Hessian at X into the system's blocks."""
         s = self._system
-        energy = hessian.energy_gradient_hessian(
-            X, model.edge_indices, model.edge_rest_length, model.edge_growth,
-            model.edge_stiffness, model.hinge_indices, cos0, sin0, model.hinge_stiffness, A,
-            s.gradient, s.data, s.edge_slots, s.hinge_slots, s.work)
-        hessian.constrain(s.indptr, s.indices, s.data, s.gradient, s.pinned, s.plane_row,
-                          s.normals)
-        return energy
+        hessian.hessian(X, model.edge_indices, model.edge_rest_length, model.edge_growth,
+                        model.edge_stiffness, model.hinge_indices, cos0, sin0,
+                        model.hinge_stiffness, A, s.data, s.edge_slots, s.hinge_slots, s.work)
+        hessian.constrain(s.indptr, s.indices, s.data, s.pinned, s.plane_row, s.normals)
 
     def _energy(self, model, X, A, cos0, sin0, scratch) -> float:
         return kernels.internal_forces(X, model.edge_indices, model.edge_rest_length,
