@@ -89,25 +89,18 @@ def writing(path: str | Path, *, stage: str, config_json: str, inputs: dict[str,
     wall seconds of every stage so far in ``timings`` (JSON: stage -> seconds), the
     ``previous`` artifact's carried forward and this stage's (from its start to here).
     """
-    path = Path(path)
     timings = json.loads(previous.attrs.get("timings", "{}")) if previous is not None else {}
     timings[stage] = round(time.monotonic() - STARTED[0], 3)
-    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
-    try:
-        with h5py.File(tmp, "w", track_order=True) as f:
-            f.attrs["stage"] = stage
-            f.attrs["command"] = command_line()
-            f.attrs["config"] = config_json
-            f.attrs["inputs"] = json.dumps(inputs, sort_keys=True)
-            f.attrs["version"] = __version__
-            f.attrs["timings"] = json.dumps(timings)
-            for key, value in (attrs or {}).items():
-                f.attrs[key] = value
-            yield f
-        os.replace(tmp, path)
-    finally:
-        if tmp.exists():
-            tmp.unlink()
+    with atomic_path(path) as tmp, h5py.File(tmp, "w", track_order=True) as f:
+        f.attrs["stage"] = stage
+        f.attrs["command"] = command_line()
+        f.attrs["config"] = config_json
+        f.attrs["inputs"] = json.dumps(inputs, sort_keys=True)
+        f.attrs["version"] = __version__
+        f.attrs["timings"] = json.dumps(timings)
+        for key, value in (attrs or {}).items():
+            f.attrs[key] = value
+        yield f
 
 
 @contextmanager

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import logging
+from contextlib import contextmanager
 from pathlib import Path
 
 import click
@@ -43,10 +44,24 @@ def input_hashes(cfg: Config, *paths: str | Path) -> dict[str, str]:
     return {str(p): sha256_file(p) for p in files}
 
 
-def prepare_folder(out: Path, overwrite: bool, marker: str, stage: str) -> Path:
-    """A temporary folder to write a folder output ``out`` into (committed by
-    :func:`commit_folder`). A folder that exists, is not empty and has no ``marker``
-    file (so this stage did not write it) is refused unless ``overwrite``."""
+@contextmanager
+def writing_folder(out: Path, overwrite: bool, marker: str, stage: str):
+    """A temporary folder to write the folder output ``out`` into: swapped into place if
+    the block succeeds, removed if it fails (the previous ``out`` is left as it was).
+    A folder that exists, is not empty and has no ``marker`` file (so this stage did not
+    write it) is refused unless ``overwrite``."""
+    import shutil
+
+    tmp = _prepare_folder(out, overwrite, marker, stage)
+    try:
+        yield tmp
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    _commit_folder(tmp, out)
+
+
+def _prepare_folder(out: Path, overwrite: bool, marker: str, stage: str) -> Path:
     import os
     import shutil
 
@@ -65,7 +80,7 @@ def prepare_folder(out: Path, overwrite: bool, marker: str, stage: str) -> Path:
     return tmp
 
 
-def commit_folder(tmp: Path, out: Path) -> None:
+def _commit_folder(tmp: Path, out: Path) -> None:
     """Swap the finished folder into place; the old one is removed only after."""
     import os
     import shutil

@@ -3,14 +3,13 @@
 from __future__ import annotations
 
 import json
-import os
 from pathlib import Path
 
 import click
 
 from pipeline.errors import BloomError
 
-from .common import commit_folder, config_options, load, log, prepare_folder, up_direction
+from .common import config_options, load, log, up_direction, writing_folder
 
 MARKER = "export.json"
 USD_SUFFIXES = (".usd", ".usdc", ".usda")
@@ -48,20 +47,15 @@ def command(sim_h5: str, config_path, overrides, fmt: str, out: str, overwrite: 
                                  where=str(out))
             _check_usd_output(out, overwrite)
             out.parent.mkdir(parents=True, exist_ok=True)
-            tmp = out.with_name(f".{out.stem}.tmp-{os.getpid()}{out.suffix}")
             up = up_direction(src)
-            try:
+            with artifact.atomic_path(out) as tmp:
                 export.write_usd(tmp, positions, faces, petal, fps,
                                  source={"source": str(sim_h5),
                                          "sha256": artifact.sha256_file(sim_h5)},
                                  up="Y" if up is not None and abs(up[1]) > abs(up[2]) else "Z",
                                  meters_per_unit=cfg["export.meters_per_unit"])
-                os.replace(tmp, out)
-            finally:
-                tmp.unlink(missing_ok=True)
         else:
-            tmp = prepare_folder(out, overwrite, MARKER, "export")
-            try:
+            with writing_folder(out, overwrite, MARKER, "export") as tmp:
                 if fmt == "xdmf":
                     export.write_xdmf(tmp, positions, faces, petal, fps)
                 else:
@@ -69,12 +63,6 @@ def command(sim_h5: str, config_path, overrides, fmt: str, out: str, overwrite: 
                 (tmp / MARKER).write_text(json.dumps(
                     {"source": str(sim_h5), "format": fmt, "frames": len(positions),
                      "scale": "input units (positions / artifact scale)"}, indent=2))
-            except BaseException:
-                import shutil
-
-                shutil.rmtree(tmp, ignore_errors=True)
-                raise
-            commit_folder(tmp, out)
     log.info("wrote %s (%d frames, %d petals)", out, len(positions), int(petal.max()) + 1)
 
 

@@ -4,13 +4,12 @@ earlier artifact (petals, axis and base, growth map)."""
 from __future__ import annotations
 
 import json
-import shutil
 from pathlib import Path
 
 import click
 import numpy as np
 
-from .common import commit_folder, config_options, load, log, prepare_folder, progress_bar, up_direction
+from .common import config_options, load, log, progress_bar, up_direction, writing_folder
 
 MARKER = "render.json"
 
@@ -35,8 +34,7 @@ def command(artifact_h5: str, config_path, overrides, out, overwrite) -> None:
     with artifact.Artifact(artifact_h5, needs="remesh" if _stage(artifact_h5) != "simulate"
                            else "simulate", reader="render") as src:
         stage = src.stage
-        tmp = prepare_folder(out, overwrite, MARKER, "render")
-        try:
+        with writing_folder(out, overwrite, MARKER, "render") as tmp:
             up = up_direction(src)
             if stage == "simulate":
                 pos = src["frames/positions"]
@@ -71,10 +69,6 @@ def command(artifact_h5: str, config_path, overrides, out, overwrite) -> None:
                 written = {"still": name}
             (tmp / MARKER).write_text(json.dumps({"source": str(artifact_h5), "stage": stage,
                                                   "render": rc, **written}, indent=2))
-        except BaseException:
-            shutil.rmtree(tmp, ignore_errors=True)
-            raise
-    commit_folder(tmp, out)
     log.info("wrote %s", out)
 
 
@@ -86,8 +80,6 @@ def _stage(path: str) -> str | None:
             return f.attrs.get("stage")
     except Exception:
         return None
-
-
 
 
 def _debug_view(src, stage: str, path: Path, rc: dict, up) -> None:

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import json
-import os
 from pathlib import Path
 
 import click
@@ -44,16 +43,9 @@ def command(sim_h5: str, out: str, overwrite: bool) -> None:
                              "rerun `bloom simulate` to report on it", where=str(sim_h5))
         data = {"stage": "report", "input": str(sim_h5), **report.compute(sim)}
     out_path.parent.mkdir(parents=True, exist_ok=True)
-    tmp_json = out_path.with_name(f".{out_path.name}.tmp-{os.getpid()}")
-    tmp_png = png.with_name(f".{png.stem}.tmp-{os.getpid()}.png")
-    try:
+    with artifact.atomic_path(out_path) as tmp_json, artifact.atomic_path(png) as tmp_png:
         tmp_json.write_text(json.dumps(data, indent=1) + "\n")
         report.plot(data, tmp_png)
-        os.replace(tmp_png, png)
-        os.replace(tmp_json, out_path)
-    finally:
-        for tmp in (tmp_json, tmp_png):
-            tmp.unlink(missing_ok=True)
     log.info("opening %.1f deg; wrinkles %d; crossings %d at the end",
              data["opening_angle_final_mean"], data["boundary_wrinkles"][-1], data["crossings"][-1])
     log.info("wrote %s and %s", out_path, png)
