@@ -22,6 +22,7 @@ from . import asset
 
 #: a finished case passes when these hold
 MAX_ESCAPE = 3.0  #: no vertex further from the receptacle than 3x the bud's initial reach
+MIN_OPENING = 10.0  #: degrees: a robustness case ("bloom") must open at least this much
 MAX_DRIFT = 0.1  #: total energy may not rise by more than 10% during the hold (measured
 #: energy of a vibrating mesh fluctuates a little; a steady rise is an instability)
 
@@ -32,7 +33,8 @@ class Case:
     what: str
     mesh: str  #: a key of MESHES
     settings: dict = field(default_factory=dict)  #: dotted config keys
-    expect: str = "finish"  #: finish, or stop (a clean early stop is the right outcome)
+    expect: str = "finish"  #: finish, stop (a clean early stop is the right outcome), or
+    #: bloom (finish, with the scene's default config, and open by at least MIN_OPENING)
     slow: bool = False
 
 
@@ -110,6 +112,111 @@ def _crossing_bud(seed: int = 0):
     return asset.bud(6, 1200, seed, asset.BudShape(layer_gap=-0.04))
 
 
+# --- unseen-style inputs: meshes as modelling tools and other people make them ----------
+
+def quad_petal(rows: int = 14, cols: int = 8, seed: int = 0, outline=asset.Outline()):
+    """A flat petal ``(points (V, 2), faces)`` as a modelling tool makes it: a quad grid
+    whose columns narrow to a tip (the last row is a fan to the tip vertex), each quad
+    split along a random diagonal, so no two halves mirror each other."""
+    rng = np.random.default_rng(seed)
+    s = np.linspace(0.0, 1.0, rows + 1)[:-1]
+    u = 2.0 * np.arange(cols + 1) / cols - 1.0
+    pts = np.stack([(outline.half_width(s)[:, None] * u[None, :]).ravel(),
+                    np.repeat(s, cols + 1)], axis=1)
+    tip = len(pts)
+    pts = np.vstack([pts, [[0.0, 1.0]]])
+    faces = []
+    for i in range(rows - 1):
+        for j in range(cols):
+            a, b = i * (cols + 1) + j, i * (cols + 1) + j + 1
+            c, d = b + cols + 1, a + cols + 1
+            faces += [(a, b, c), (a, c, d)] if rng.random() < 0.5 else [(a, b, d), (b, c, d)]
+    last = (rows - 1) * (cols + 1)
+    faces += [(last + j, last + j + 1, tip) for j in range(cols)]
+    return pts, np.asarray(faces, dtype=np.int64)
+
+
+def scattered_petal(vertices: int = 300, seed: int = 0, outline=asset.Outline()):
+    """A flat petal ``(points, faces)``: Delaunay triangulation of random points inside
+    the outline and on it (an asymmetric triangulation, as a scan or a retopology gives)."""
+    rng = np.random.default_rng(seed)
+    s_fine = np.linspace(0.0, 1.0, 2001)
+    w = outline.half_width(s_fine)
+    area = 2.0 * np.trapezoid(w, s_fine)
+    spacing = np.sqrt(area / (0.866 * vertices))
+    half = asset._resample(np.stack([w, s_fine], axis=1), spacing)
+    rim = np.vstack([half, (half * [-1.0, 1.0])[::-1][1:-1]])
+    base = asset._resample(np.array([[-outline.base_half_width, 0.0],
+                                     [outline.base_half_width, 0.0]]), spacing)[1:-1]
+    inner = np.stack([rng.uniform(-outline.max_half_width, outline.max_half_width, 8 * vertices),
+                      rng.uniform(0.0, 1.0, 8 * vertices)], axis=1)
+    inner = inner[np.abs(inner[:, 0]) < outline.half_width(inner[:, 1]) - 0.5 * spacing]
+    inner = inner[inner[:, 1] > 0.5 * spacing]
+    from scipy.spatial import cKDTree
+
+    kept = [*rim, *base]
+    tree = cKDTree(np.asarray(kept))
+    for q in inner:  # dart throwing: a minimum distance, positions random
+        if tree.query(q)[0] > 0.7 * spacing:
+            kept.append(q)
+            tree = cKDTree(np.asarray(kept)) if len(kept) % 64 == 0 else tree
+    pts = np.asarray(kept)
+    from scipy.spatial import Delaunay
+
+    tri = Delaunay(pts).simplices
+    c = pts[tri].mean(axis=1)
+    tri = tri[np.abs(c[:, 0]) < outline.half_width(c[:, 1])]
+    p = pts[tri]
+    area2 = ((p[:, 1, 0] - p[:, 0, 0]) * (p[:, 2, 1] - p[:, 0, 1])
+             - (p[:, 2, 0] - p[:, 0, 0]) * (p[:, 1, 1] - p[:, 0, 1]))
+    tri = tri[np.abs(area2) > 1e-9]
+    tri[area2[np.abs(area2) > 1e-9] < 0] = tri[area2[np.abs(area2) > 1e-9] < 0][:, [0, 2, 1]]
+    used = np.unique(tri)
+    remap = np.full(len(pts), -1)
+    remap[used] = np.arange(len(used))
+    return pts[used], remap[tri]
+
+
+def jittered_petal(vertices: int = 320, seed: int = 0, amount: float = 0.3):
+    """The project's own petal with every vertex moved at random by up to ``amount`` of
+    the lattice spacing, in the plane and out of it: no mirror pairs left."""
+    rng = np.random.default_rng(seed)
+    spacing = asset._spacing_for(asset.Outline(), vertices, seed)
+    pts, f = asset.flat_petal(asset.Outline(), spacing, rng)
+    pts = pts + rng.uniform(-amount, amount, pts.shape) * spacing
+    return pts, f
+
+
+def bud_of(flat, petals: int, seed: int = 0, shape=asset.BudShape()):
+    """Bend the flat petals ``flat(p)`` into a closed bud, as :func:`asset.bud` does."""
+    rng = np.random.default_rng(seed)
+    layers = asset.petal_layers(petals)
+    verts, faces, labels, offset = [], [], [], 0
+    for p in range(petals):
+        pts, f = flat(p)
+        azimuth = 2.0 * np.pi * p / petals + rng.uniform(-0.04, 0.04)
+        v = asset.bend_into_bud(pts, azimuth, layers[p], shape, 1.0 + rng.uniform(-0.04, 0.04))
+        verts.append(v)
+        faces.append(f + offset)
+        labels.append(np.full(len(v), p))
+        offset += len(v)
+    return np.concatenate(verts), np.concatenate(faces), np.concatenate(labels)
+
+
+def three_vertex_base(seed: int = 0):
+    """A lone petal whose base is one short edge: three boundary vertices (nearly) on a
+    line hold it."""
+    outline = asset.Outline(base_half_width=0.012)
+    pts, f = scattered_petal(300, seed, outline)
+    return bud_of(lambda p: (pts, f), 1, seed)
+
+
+def centimetres(seed: int = 0):
+    """A quad-grid 6-petal bud written in centimetres: petals 4.5 cm long."""
+    v, f, p = bud_of(lambda k: quad_petal(seed=seed + k), 6, seed)
+    return 4.5 * v, f, p
+
+
 MESHES = {
     "petal": lambda: _petal_points(320),
     "skinny": _skinny,
@@ -118,6 +225,14 @@ MESHES = {
     "bud6": lambda: asset.bud(6, 1200, 0),
     "crossing": _crossing_bud,
     "bud12": lambda: asset.bud(12, 2400, 0),
+    "quad petal": lambda: bud_of(lambda p: quad_petal(seed=p), 1),
+    "quad bud6": lambda: bud_of(lambda p: quad_petal(seed=p), 6),
+    "jittered": lambda: bud_of(lambda p: jittered_petal(seed=p), 1),
+    "asymmetric bud6": lambda: bud_of(lambda p: scattered_petal(200, seed=p), 6),
+    "quad bud12": lambda: bud_of(lambda p: quad_petal(18, 10, seed=p), 12),
+    "bud5 5000": lambda: bud_of(lambda p: scattered_petal(1050, seed=p), 5),
+    "three-vertex base": three_vertex_base,
+    "centimetres": centimetres,
 }
 
 STEPS = {"simulate.steps": 30_000, "simulate.frames": 31}
@@ -152,6 +267,22 @@ CASES = [
          {"simulate.h": 1.9}, expect="stop"),
     Case("h 2.5", "time step 2.5, past the explicit limit", "petal", {"simulate.h": 2.5},
          expect="stop"),
+    # unseen-style buds, each with the default config: it must bloom
+    Case("quad-grid petal", "a quad grid narrowing to a tip, random diagonals", "quad petal",
+         expect="bloom"),
+    Case("quad-grid bud", "6 such petals", "quad bud6", expect="bloom"),
+    Case("jittered petal", "every vertex jittered by 0.3 of the spacing, in and out of plane",
+         "jittered", expect="bloom"),
+    Case("asymmetric bud", "6 petals, Delaunay of random points (no mirror pairs)",
+         "asymmetric bud6", expect="bloom"),
+    Case("dense 12 petals", "12 quad-grid petals, 2388 vertices; collisions on", "quad bud12",
+         {"effects.collisions.enabled": True}, expect="bloom"),
+    Case("5000+ vertices", "5 petals of random Delaunay triangles, 5518 vertices", "bud5 5000",
+         expect="bloom"),
+    Case("3-vertex base", "a lone petal whose base is one short edge (3 boundary vertices)",
+         "three-vertex base", expect="bloom"),
+    Case("centimetres", "the quad-grid bud in centimetres (petals 4.5 long)", "centimetres",
+         expect="bloom"),
 ]
 
 
@@ -179,6 +310,7 @@ class Result:
     escape: float = float("nan")
     wall: float = 0.0
     ok: bool = False
+    opening: float = float("nan")  #: mean opening angle of the last frame, degrees
     notes: str = ""  #: what the case's artifacts show it exercised
 
 
@@ -192,7 +324,7 @@ def run_case(case: Case, workdir: Path, steps: dict | None = None) -> Result:
     v, f, p = MESHES[case.mesh]()
     mesh = workdir / "input.obj"
     asset.write_obj(mesh, v, f, p, f"stability case: {case.name}")
-    settings = {**STEPS, **(steps or {}), **case.settings}
+    settings = ({} if case.expect == "bloom" else {**STEPS, **(steps or {})}) | case.settings
     cfg = workdir / "scene.toml"
     cfg.write_text('[scene]\nmesh = "input.obj"\n' + _toml(settings))
     runner = CliRunner()
@@ -224,6 +356,8 @@ def run_case(case: Case, workdir: Path, steps: dict | None = None) -> Result:
         speed = h5["diagnostics/max_speed"][()]
         total = h5["diagnostics/total_energy"][()]
         growth = h5["diagnostics/growth"][()]
+        opening = (float(h5["diagnostics/opening_angle"][-1])
+                   if "diagnostics/opening_angle" in h5 else float("nan"))
         if "diagnostics/contacts" in h5:
             notes.append(f"{int(h5['diagnostics/contacts'][()].sum())} contacts pushed back")
         if "diagnostics/connections_intact" in h5:
@@ -238,21 +372,23 @@ def run_case(case: Case, workdir: Path, steps: dict | None = None) -> Result:
         e0 = total[hold[0]]
         drift = float((total[hold].max() - e0) / max(abs(e0), 1e-12))
     ok = (finite and escape < MAX_ESCAPE and drift < MAX_DRIFT
-          and case.expect in ("finish", "either"))
+          and (case.expect in ("finish", "either")
+               or case.expect == "bloom" and opening >= MIN_OPENING))
     return Result(case, "finished" if finite else "FAILED", "", float(speed.max()), drift,
-                  escape, wall, ok, "; ".join(notes))
+                  escape, wall, ok, opening, "; ".join(notes))
 
 
 def table(results: list[Result]) -> str:
-    rows = ["| case | what | outcome | max speed | energy drift (hold) | escape | wall |",
-            "|---|---|---|---|---|---|---|"]
+    rows = ["| case | what | outcome | opening | max speed | energy drift (hold) | escape | wall |",
+            "|---|---|---|---|---|---|---|---|"]
     for r in results:
         outcome = r.outcome
         if r.message:  # the stage's one line, without the case's path and remedy
             outcome += ": " + r.message.split(": ", 3)[-1].split("; likely cause")[0]
         if r.notes:
             outcome += f" ({r.notes})"
-        rows.append(f"| {r.case.name} | {r.case.what} | {outcome} | {r.max_speed:.3g} | "
+        rows.append(f"| {r.case.name} | {r.case.what} | {outcome} | {r.opening:.1f} deg | "
+                    f"{r.max_speed:.3g} | "
                     f"{r.drift:.2g} | {r.escape:.2f} | {r.wall:.1f} s |")
     return "\n".join(rows)
 
