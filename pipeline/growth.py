@@ -43,3 +43,43 @@ def assign_growth(vertices: np.ndarray, faces: np.ndarray, x: np.ndarray, curve:
     hinges, hinge_edge = topology.hinges(faces)
     rest = dihedral_angles(vertices, hinges)
     return GrowthMap(edges, alpha, stiffness, boundary, edge_x, hinges, hinge_edge, rest)
+
+
+#: rest-state check: every vertex is nudged by this many mean edges (far above rounding,
+#: far below any motion that matters) ...
+REST_NUDGE = 1e-9
+#: ... and the force that comes back may be at most this many times (K_s + K_b) per unit
+#: of nudge. A sound mesh measures 5-8 times K_s (the stiffest vertex's springs); a
+#: triangle collapsed to a sliver makes its hinge ~ K_b / height^2 stiff: 1e15 measured.
+REST_STIFFNESS = 1000.0
+
+
+def rest_stiffness(vertices: np.ndarray, growth: GrowthMap, petal: np.ndarray, pinned: np.ndarray,
+                   stretch_stiffness: float, bending_stiffness: float, seed: int = 0) -> np.ndarray:
+    """``(P,)`` how stiff each petal's rest state is, in units of ``K_s + K_b``: the
+    largest force on a free vertex after every vertex is nudged at random by
+    ``REST_NUDGE`` (mesh units, mean edge 1), over the nudge.
+
+    At growth 0 the rest state is an equilibrium by construction (rest lengths and
+    angles are measured on it), so the force there is zero; what can be wrong is that
+    it is not a *sound* one: rounding, or the first step, moves a degenerate triangle's
+    normal by a lot, and its hinge pushes back with a force no time step can integrate.
+    The nudge measures that; more than ``REST_STIFFNESS`` is a broken rest state.
+    """
+    from .sim import kernels
+    from .sim.model import Model
+
+    model = Model.build(vertices, growth.edges, growth.alpha, stretch_stiffness * growth.stiffness,
+                        growth.hinges, bending_stiffness, pinned)
+    rng = np.random.default_rng(seed)
+    X = vertices + rng.uniform(-REST_NUDGE, REST_NUDGE, vertices.shape)
+    F = np.zeros_like(X)
+    kernels.internal_forces(X, model.edge_indices, model.edge_rest_length, 0.0 * model.edge_growth,
+                            model.edge_stiffness, model.hinge_indices, model.hinge_rest_cos,
+                            model.hinge_rest_sin, model.hinge_stiffness, 0.0, F)
+    force = np.linalg.norm(F, axis=1)
+    force[model.pinned] = 0.0
+    force[~np.isfinite(force)] = np.inf
+    out = np.zeros(int(petal.max()) + 1 if len(petal) else 0)
+    np.maximum.at(out, petal, force)
+    return out / (REST_NUDGE * (stretch_stiffness + bending_stiffness))

@@ -27,8 +27,12 @@ def _sizes(ctx, param, value: str) -> tuple[int, ...]:
 @click.option("--converge/--no-converge", default=True, show_default=True,
               help="Also time a converged bloom of the Fig. 12-size bud with each integrator.")
 @click.option("--json", "as_json", is_flag=True, help="Print JSON instead of tables.")
+@click.option("--quick", is_flag=True,
+              help="Every part end to end on small buds (about a minute; for tests): at most "
+                   "600 vertices and 300 steps, sizes 600,1200, a 6-petal bud of 600 vertices "
+                   "for the converged bloom.")
 def command(vertices: int, steps: int, sizes: tuple[int, ...], converge: bool,
-            as_json: bool) -> None:
+            as_json: bool, quick: bool) -> None:
     """Time the simulator on a procedural 6-petal bud: no effect, each effect alone and
     all together (ratios to no effect, best of 3 interleaved runs); then the step cost
     and collisions at several sizes (cost per edge and per vertex should stay flat:
@@ -36,17 +40,24 @@ def command(vertices: int, steps: int, sizes: tuple[int, ...], converge: bool,
     needs for a bloom within 1% of the petal length of a converged reference, on a
     6-petal bud of 2133 vertices (the paper's Fig. 12 lily: 44 s)."""
     from pipeline import bench, study
+    from pipeline.errors import BloomError
 
-    costs = bench.effect_costs(vertices, steps)
-    scaling = bench.collision_scaling(sizes)
-    converged = None
-    if converge:
-        scene = study.Scene.bud(6, 2133)
-        ref, change = study.reference(scene)
-        converged = {"vertices": scene.model.vertex_count, "reference_seconds": ref.wall,
-                     "reference_refinement_change": change,
-                     "runs": study.time_to_converge(
-                         scene, ref.positions, echo=None if as_json else click.echo)}
+    if quick:
+        vertices, steps, sizes = min(vertices, 600), min(steps, 300), (600, 1200)
+    try:
+        costs = bench.effect_costs(vertices, steps)
+        scaling = bench.collision_scaling(sizes)
+        converged = None
+        if converge:
+            scene = study.Scene.bud(6, 600 if quick else 2133)
+            ref, change = study.reference(scene)
+            converged = {"vertices": scene.model.vertex_count, "reference_seconds": ref.wall,
+                         "reference_refinement_change": change,
+                         "runs": study.time_to_converge(
+                             scene, ref.positions, echo=None if as_json else click.echo,
+                             quick=quick)}
+    except RuntimeError as exc:  # a run that diverged or did not converge
+        raise BloomError(f"a benchmark run failed: {exc}", where="bloom bench") from None
     if as_json:
         steps = [{"vertices": r["vertices"], "edges": r["edges"], "ms_per_step": r["bare_ms"],
                   "ns_per_edge": r["bare_ns_per_edge"]} for r in scaling]

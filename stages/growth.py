@@ -20,7 +20,7 @@ CARRIED = ("mesh/vertices", "mesh/faces", "mesh/petal", "axis/base", "axis/on_ax
 def command(axis_h5: str, config_path, overrides, out, overwrite) -> None:
     """Assign each edge its growth ratio alpha = growth.curve(x) and list the hinges."""
     from pipeline import artifact
-    from pipeline.growth import assign_growth
+    from pipeline.growth import REST_STIFFNESS, assign_growth, rest_stiffness
 
     cfg = load(config_path, overrides)
     where = str(cfg.path) if cfg.path else "defaults"
@@ -35,6 +35,16 @@ def command(axis_h5: str, config_path, overrides, out, overwrite) -> None:
                                                   if wrinkles else 1.0))
         except ValueError as exc:
             raise BloomError(f"growth.curve: {exc}", where=where) from None
+        stiff = rest_stiffness(v, g, src["mesh/petal"], src["axis/base"],
+                               cfg["simulate.stretch_stiffness"], cfg["simulate.bending_stiffness"])
+        bad = np.flatnonzero(~(stiff <= REST_STIFFNESS))
+        if len(bad):
+            worst = int(bad[np.argmax(stiff[bad])])
+            raise BloomError(
+                f"remesh: petal {worst} is not a sound rest state ({len(bad)} petal(s) in all): a "
+                f"1e-9 nudge brings back a force {stiff[worst]:.3g} times K_s + K_b (a sound "
+                f"mesh: under 10), so its triangles are degenerate; rerun bloom remesh (and "
+                f"check remesh.petal_vertices) rather than simulate this", where=axis_h5)
         log.info("%d edges (%d on the boundary), %d hinges; alpha in [%.4g, %.4g]",
                  len(g.edges), int(g.boundary_edge.sum()), len(g.hinges),
                  g.alpha.min(), g.alpha.max())

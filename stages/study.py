@@ -32,5 +32,8 @@ def accuracy(out: str, petals: int, vertices: int, quick: bool) -> None:
     if folder.exists() and not folder.is_dir():
         raise BloomError("exists and is not a folder", where=str(folder))
     folder.mkdir(parents=True, exist_ok=True)
-    study.accuracy(folder, petals=petals, vertices=vertices, quick=quick, echo=click.echo)
+    try:
+        study.accuracy(folder, petals=petals, vertices=vertices, quick=quick, echo=click.echo)
+    except RuntimeError as exc:  # a run that diverged or did not converge
+        raise BloomError(f"a run of the study failed: {exc}", where=str(folder)) from None
     click.echo(f"wrote {folder / 'accuracy.csv'} and {folder / 'accuracy.png'}")
