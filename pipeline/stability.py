@@ -114,7 +114,10 @@ def _crossing_bud(seed: int = 0):
 
 # --- unseen-style inputs: meshes as modelling tools and other people make them ----------
 
-def quad_petal(rows: int = 14, cols: int = 8, seed: int = 0, outline=asset.Outline()):
+OUTLINE, SHAPE = asset.Outline(), asset.BudShape()
+
+
+def quad_petal(rows: int = 14, cols: int = 8, seed: int = 0, outline=OUTLINE):
     """A flat petal ``(points (V, 2), faces)`` as a modelling tool makes it: a quad grid
     whose columns narrow to a tip (the last row is a fan to the tip vertex), each quad
     split along a random diagonal, so no two halves mirror each other."""
@@ -136,7 +139,7 @@ def quad_petal(rows: int = 14, cols: int = 8, seed: int = 0, outline=asset.Outli
     return pts, np.asarray(faces, dtype=np.int64)
 
 
-def scattered_petal(vertices: int = 300, seed: int = 0, outline=asset.Outline()):
+def scattered_petal(vertices: int = 300, seed: int = 0, outline=OUTLINE):
     """A flat petal ``(points, faces)``: Delaunay triangulation of random points inside
     the outline and on it (an asymmetric triangulation, as a scan or a retopology gives)."""
     rng = np.random.default_rng(seed)
@@ -187,7 +190,7 @@ def jittered_petal(vertices: int = 320, seed: int = 0, amount: float = 0.3):
     return pts, f
 
 
-def bud_of(flat, petals: int, seed: int = 0, shape=asset.BudShape()):
+def bud_of(flat, petals: int, seed: int = 0, shape=SHAPE):
     """Bend the flat petals ``flat(p)`` into a closed bud, as :func:`asset.bud` does."""
     rng = np.random.default_rng(seed)
     layers = asset.petal_layers(petals)
