@@ -38,6 +38,69 @@ class PetalAxes:
     flower_axis: np.ndarray  #: (6,) point and unit direction of the flower's axis (nan if unknown)
 
 
+#: a petal's fixed base vertices must stray at least this far (fraction of the petal's
+#: length) from their own line: a base on a line leaves the petal free to turn about it
+#: (a zero-stiffness mode, and a stiffness that vanishes with the width as it shrinks).
+#: The project's buds' bases stray 0.016-0.021; a flat petal's straight base row, 0.
+MIN_BASE_WIDTH = 0.005
+#: how far along the petal (fraction of its length) a base may be widened
+BASE_REACH = 0.25
+
+
+class WeakBase(ValueError):
+    """A petal whose base cannot be widened to :data:`MIN_BASE_WIDTH`."""
+
+    def __init__(self, petal: int, count: int, width: float):
+        self.petal, self.count, self.width = petal, count, width
+        super().__init__(f"petal {petal}'s base is a line: its {count} fixed vertices stray "
+                         f"{width:.2g} of its length from one line (at least "
+                         f"{MIN_BASE_WIDTH:g} is needed, and no vertices near the base end "
+                         "widen it), so the petal would spin about that line")
+
+
+def base_width(fixed: np.ndarray, points: np.ndarray) -> float:
+    """How far the fixed points stray from their own line: the largest distance of one
+    from the line through their centroid along their principal direction, over the
+    extent of ``points`` (the petal) along its principal direction. Scale-free; 0 for
+    points on a line (or fewer than three)."""
+    fixed = np.asarray(fixed, dtype=np.float64)
+    pts = np.asarray(points, dtype=np.float64)
+    if len(fixed) < 3 or len(pts) < 2:
+        return 0.0
+    centred = fixed - fixed.mean(axis=0)
+    direction = np.linalg.svd(centred, full_matrices=False)[2][0]
+    off = centred - np.outer(centred @ direction, direction)
+    along = np.linalg.svd(pts - pts.mean(axis=0), full_matrices=False)[2][0]
+    length = float(np.ptp(pts @ along))
+    return float(np.linalg.norm(off, axis=1).max() / length) if length > 0.0 else 0.0
+
+
+def _widen_base(base: np.ndarray, boundary: np.ndarray, proj: np.ndarray, pts: np.ndarray,
+                sub, limit: float) -> bool:
+    """Add vertices to ``base`` (in place), nearest the base end first (by ``proj``),
+    until it strays :data:`MIN_BASE_WIDTH` from a line: boundary vertices first, then
+    rings of interior vertices around the base, none farther than ``limit`` along the
+    axis. Returns whether it got there (``base`` is then the smallest such set)."""
+    if base_width(pts[base], pts) >= MIN_BASE_WIDTH:
+        return True
+    near = proj <= limit
+    for v in np.flatnonzero(boundary & near & ~base)[np.argsort(proj[boundary & near & ~base],
+                                                                kind="stable")]:
+        base[v] = True
+        if base_width(pts[base], pts) >= MIN_BASE_WIDTH:
+            return True
+    while True:  # interior rings: the neighbours of the base, nearest the end first
+        ring = np.zeros(len(base), dtype=bool)
+        ring[sub[np.flatnonzero(base)].indices] = True
+        ring &= near & ~base
+        if not ring.any():
+            return False
+        for v in np.flatnonzero(ring)[np.argsort(proj[ring], kind="stable")]:
+            base[v] = True
+            if base_width(pts[base], pts) >= MIN_BASE_WIDTH:
+                return True
+
+
 def flower_axis(planes: np.ndarray) -> np.ndarray | None:
     """The line where the petals' center planes (nearly) meet, as ``(point, direction)``.
 
@@ -128,9 +191,14 @@ def find_axes(vertices: np.ndarray, faces: np.ndarray, petal: np.ndarray, *,
         if mine_base.sum() < 3:  # a petal held by fewer than 3 vertices can spin
             order = np.argsort(np.where(bnd, proj, np.inf), kind="stable")
             mine_base[order[:3]] = True
+        sub = graph[idx][:, idx].tocsr()
+        # held on a line, it could spin about it: widen the base, within a quarter of the
+        # petal (or base_fraction: the fixed part should stay a base, not become the petal)
+        reach = proj.min() + max(BASE_REACH, base_fraction) * span
+        if not _widen_base(mine_base, bnd, proj, pts, sub, reach):
+            raise WeakBase(p, int(mine_base.sum()), base_width(pts[mine_base], pts))
         base[idx] = mine_base
 
-        sub = graph[idx][:, idx]
         dist_base = dijkstra(sub, indices=np.flatnonzero(mine_base), min_only=True)
 
         # the axis: vertices on the center plane and the ends of edges crossing it

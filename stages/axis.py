@@ -17,15 +17,22 @@ CARRIED = ("mesh/vertices", "mesh/faces", "mesh/petal")
 def command(remesh_h5: str, config_path, overrides, out, overwrite) -> None:
     """Find each petal's base, tip, center plane and cross-section coordinates."""
     from pipeline import artifact
-    from pipeline.axis import find_axes
+    from pipeline.axis import BASE_REACH, WeakBase, find_axes
+    from pipeline.errors import BloomError
 
     cfg = load(config_path, overrides)
     out = artifact.check_output(out, "axis", overwrite)
     with artifact.Artifact(remesh_h5, needs="remesh", reader="axis") as src:
         v, f, petal = src["mesh/vertices"], src["mesh/faces"], src["mesh/petal"]
-        axes = find_axes(v, f, petal, base_mode=cfg["axis.base"],
-                         base_fraction=cfg["axis.base_fraction"],
-                         planes=src["mesh/plane"] if "mesh/plane" in src else None)
+        try:
+            axes = find_axes(v, f, petal, base_mode=cfg["axis.base"],
+                             base_fraction=cfg["axis.base_fraction"],
+                             planes=src["mesh/plane"] if "mesh/plane" in src else None)
+        except WeakBase as exc:  # held on a line, the petal has no equilibrium to find
+            raise BloomError(f"axis.base_fraction: {exc}; remedy: an axis.base_fraction above "
+                             f"{BASE_REACH:g} (the widening's reach; now "
+                             f"{cfg['axis.base_fraction']:g}), another axis.base end, or a mesh "
+                             "whose petal base is not a straight row", where=remesh_h5) from None
         for p in range(len(axes.tip)):
             mine = petal == p
             log.info("petal %d: %d base vertices, %d on the axis, tip %d, x in [%.3f, %.3f]",

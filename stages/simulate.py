@@ -89,12 +89,23 @@ def command(growth_h5: str, config_path, overrides, out, overwrite, progress, re
                     "or growth too fast for the steps; remedy: a smaller simulate.h, more "
                     "simulate.steps, remeshing (remesh.petal_vertices), or "
                     "simulate.integrator = quasi-static", where=where) from None
-            except NotConverged as exc:
+            except NotConverged as exc:  # the cause, as the solver names it, picks the key
+                name = f"petal {int(petal[exc.vertex])}" if len(petal) else "the mesh"
+                if exc.cause == "weak":
+                    raise BloomError(
+                        f"axis.base_fraction: the quasi-static solver found {exc}; {name}'s base "
+                        "is a line and it would spin about it; remedy: rerun bloom axis (it "
+                        "widens such a base) or a larger axis.base_fraction", where=where) from None
+                if exc.growth == 0.0:  # growth has not started: not the growth curve's doing
+                    cause = "its rest state is no stable equilibrium (check the mesh)"
+                elif exc.cause == "unstable":
+                    cause = "it has no stable equilibrium there: it buckles or snaps"
+                else:
+                    cause = "Newton stalls there with a real residual"
                 raise BloomError(
-                    f"simulate.stages: the quasi-static solver found {exc}; likely cause: a "
-                    "growth curve too strong for the bending stiffness; remedy: more "
-                    "simulate.stages, a larger simulate.tolerance, or a dynamic integrator",
-                    where=where) from None
+                    f"simulate.stages: the quasi-static solver found {exc}; {name}: likely "
+                    f"cause: {cause}; remedy: more simulate.stages, a larger "
+                    "simulate.tolerance, or a dynamic integrator", where=where) from None
             except ValueError as exc:  # what the integrator cannot do with this scene
                 raise BloomError(f"simulate.integrator: {exc}", where=where) from None
             except RuntimeError as exc:

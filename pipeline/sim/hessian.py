@@ -23,6 +23,8 @@ vertex pairs to their block, so assembly is one pass that allocates nothing.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from numba import njit
 
@@ -240,3 +242,73 @@ def block_pattern(vertex_count: int, edges: np.ndarray, hinges: np.ndarray):
     edge_slots = np.searchsorted(key, er * n + ec).astype(np.int64)
     hinge_slots = np.searchsorted(key, hr * n + hc).astype(np.int64)
     return indptr, indices, np.ascontiguousarray(edge_slots), np.ascontiguousarray(hinge_slots)
+
+
+@njit(cache=True)
+def rounding_scale(X, edges, rest0, growth, edge_k, hinges, cos0, sin0, hinge_k, A, scale):
+    """The size of what the force and energy kernels add and subtract, per vertex into
+    ``scale (V,)`` (force units), and for the energy (returned): ``eps`` times these
+    bounds what rounding alone can leave in the gradient and the energy, so the solver
+    never asks for less (see :meth:`quasistatic.QuasiStatic._rounding`).
+
+    Why each term: a spring's force ``K_s (l - L) d / l`` takes the difference of
+    ``l`` and ``L`` (each rounded to ``eps`` of itself) and of coordinates (``eps |x|``),
+    and a representable X is ``eps |x|`` from the exact equilibrium, which a spring
+    turns into ``K_s eps |x|`` of force along it and ``K_s |1 - L/l| eps |x|`` across.
+    A hinge's force ``psi' grad theta`` has ``psi' = K_b sin(theta - theta0)`` from a
+    difference of products of size ``K_b``, and ``theta`` moves by ``sum |grad theta|
+    eps |x|`` when its vertices move by their rounding. The energy adds ``K_b (1 - cos)``
+    per hinge (a difference of size ``K_b``) and ``1/2 K_s (l - L)^2`` per spring (its
+    rounding: ``K_s |l - L|`` times that of ``l - L``)."""
+    scale[:] = 0.0
+    energy = 0.0
+    for e in range(edges.shape[0]):
+        i = edges[e, 0]
+        j = edges[e, 1]
+        dx, dy, dz, length = _edge_vector(X, i, j)
+        rest = rest0[e] * (1.0 + A * growth[e])
+        k = abs(edge_k[e])
+        xi = max(abs(X[i, 0]), abs(X[i, 1]), abs(X[i, 2]))
+        xj = max(abs(X[j, 0]), abs(X[j, 1]), abs(X[j, 2]))
+        across = abs(1.0 - rest / length) if length > 0.0 else 1.0
+        term = k * (length + rest + (xi + xj) * (1.0 + across))
+        scale[i] += term
+        scale[j] += term
+        stretch = abs(length - rest)
+        energy += k * stretch * (0.5 * stretch + length + rest + xi + xj)
+    for h in range(hinges.shape[0]):
+        i = hinges[h, 0]
+        j = hinges[h, 1]
+        k = hinges[h, 2]
+        l = hinges[h, 3]
+        (ex, ey, ez, ax, ay, az, bx, by, bz,
+         n1x, n1y, n1z, n2x, n2y, n2z) = _hinge_vectors(X, i, j, k, l)
+        n1sq = n1x * n1x + n1y * n1y + n1z * n1z
+        n2sq = n2x * n2x + n2y * n2y + n2z * n2z
+        esq = ex * ex + ey * ey + ez * ez
+        kb = abs(hinge_k[h])
+        energy += 2.0 * kb
+        if n1sq <= 0.0 or n2sq <= 0.0 or esq <= 0.0:
+            continue  # no bending force (the kernels skip it too)
+        cos_t, sin_t, elen, _, _ = _hinge_angle(bx, by, bz, n1x, n1y, n1z, n2x, n2y, n2z,
+                                                n1sq, n2sq, esq)
+        dpsi = abs(kb * (sin_t * cos0[h] - cos_t * sin0[h]))
+        # |grad theta| of k and l (|e| / |n|), and bounds for i and j (each takes a
+        # share of both, by the projections of k and l onto the edge)
+        gk = elen / math.sqrt(n1sq)
+        gl = elen / math.sqrt(n2sq)
+        lk = abs(ax * ex + ay * ey + az * ez) / esq
+        ll = abs((bx + ex) * ex + (by + ey) * ey + (bz + ez) * ez) / esq
+        gi = (1.0 + lk) * gk + (1.0 + ll) * gl
+        gj = lk * gk + ll * gl
+        move = 0.0  # how far theta moves when the four vertices move by their rounding
+        g4 = (gi, gj, gk, gl)
+        v4 = (i, j, k, l)
+        for t in range(4):
+            v = v4[t]
+            move += g4[t] * max(abs(X[v, 0]), abs(X[v, 1]), abs(X[v, 2]))
+        size = (kb + dpsi) * (1.0 + move)
+        for t in range(4):
+            scale[v4[t]] += g4[t] * size
+        energy += dpsi * move
+    return energy

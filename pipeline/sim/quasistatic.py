@@ -116,13 +116,43 @@ def _split(model: Model, effects: Effects) -> list[_Part]:
     return parts
 
 
-class NotConverged(RuntimeError):
-    """Newton did not reach an equilibrium, even with halved growth increments."""
+#: a gradient component below this many times ``eps`` times the force scale (the size of
+#: what the force kernel adds and subtracts at that vertex, :func:`hessian.rounding_scale`)
+#: is rounding: Newton's own steps end at 0.1-0.2 of it on the project's buds
+ROUNDING_FACTOR = 2.0
+EPS = float(np.finfo(np.float64).eps)
+@dataclass
+class _Failure:
+    """Why Newton stopped without an equilibrium."""
 
-    def __init__(self, step: int, growth: float, residual: float):
+    residual: float  #: largest gradient component left (force units)
+    scale: float  #: the force scale there (eps * scale * ROUNDING_FACTOR: the rounding level)
+    how: str  #: stalled (no descent along the step), iterations, or shift (no shift helped)
+    inertia: str  #: the Hessian's last factorization: definite, indefinite or singular
+
+    @property
+    def rounding(self) -> float:
+        return ROUNDING_FACTOR * EPS * self.scale
+
+
+class NotConverged(RuntimeError):
+    """Newton did not reach an equilibrium, even with halved growth increments.
+
+    ``cause``: ``weak`` (the piece is held by fixed vertices on a line and can turn about
+    it), ``unstable`` (Newton stalled with a real residual where the Hessian is
+    indefinite or singular: no stable equilibrium there, the petal buckles or snaps) or
+    ``stalled`` (a real residual at a positive definite Hessian, or out of iterations).
+    ``vertex``: a vertex of the piece that failed (for naming its petal)."""
+
+    def __init__(self, step: int, growth: float, residual: float, *, scale: float = float("nan"),
+                 cause: str = "stalled", detail: str = "", vertex: int = 0):
         self.step, self.growth, self.residual = step, growth, residual
-        super().__init__(f"no equilibrium found at step {step} (growth A = {growth:.4g}, "
-                         f"residual force {residual:.3g})")
+        self.scale, self.cause, self.vertex = scale, cause, vertex
+        rounding = ROUNDING_FACTOR * EPS * scale
+        text = (f"no equilibrium at step {step} (growth A = {growth:.4g}): residual force "
+                f"{residual:.3g}, {residual / rounding:.3g} times its rounding level "
+                f"{rounding:.2g} (force scale {scale:.3g})")
+        super().__init__(f"{text}; {detail}" if detail else text)
 
 
 @dataclass
@@ -221,6 +251,8 @@ class QuasiStatic:
     _tangent: bool = field(default=False, repr=False)  #: the factorization is H's at the last equilibrium
     _started: bool = field(default=False, repr=False)
     _parts: list | None = field(default=None, repr=False)  #: one solver per petal, or []
+    _energy_rounding: float = field(default=0.0, repr=False)  #: of the last Newton iterate
+    _scale_work: np.ndarray | None = field(default=None, repr=False)
 
     def diagnostics(self) -> dict:
         return {"newton_iterations": self.iterations, "growth_increments": self.increments,
@@ -246,7 +278,11 @@ class QuasiStatic:
             self._advance(model, state, control, n_steps, h, effects)
         for part in self._parts:  # independent petals: each follows its own path
             part.state.positions[:] = state.positions[part.vertices]
-            part.solver._advance(part.model, part.state, control, n_steps, h, part.effects)
+            try:
+                part.solver._advance(part.model, part.state, control, n_steps, h, part.effects)
+            except NotConverged as exc:
+                exc.vertex = int(part.vertices[exc.vertex])  # name it in the whole mesh
+                raise
             state.positions[part.vertices] = part.state.positions
         if self._parts:
             state.step += n_steps
@@ -267,9 +303,9 @@ class QuasiStatic:
         if not self._started:  # settle at the start so that a tangent exists
             self._started = True
             a0 = control.growth_at(state.step * h)
-            residual = self._newton(model, state, effects, a0)
-            if residual is not None:
-                raise NotConverged(state.step, a0, residual)
+            failure = self._newton(model, state, effects, a0)
+            if failure is not None:
+                raise self._not_converged(model, state.positions, state.step, a0, failure)
         a0 = control.growth_at(state.step * h)
         a1 = control.growth_at((state.step + n_steps) * h)
         pieces = max(1, math.ceil(abs(a1 - a0) * self.stages - 1e-9))
@@ -278,6 +314,33 @@ class QuasiStatic:
         for target in targets:
             done = self._reach(model, state, effects, done, float(target), state.step + n_steps)
         state.step += n_steps
+
+    def _not_converged(self, model, X, step: int, growth: float,
+                       failure: _Failure) -> NotConverged:
+        """The failure, with the cause named: a piece held on a line (it can turn about
+        it), no stable equilibrium (a stall where the Hessian is not positive definite:
+        it buckles or snaps), or a stall at a positive definite Hessian."""
+        from ..axis import MIN_BASE_WIDTH, base_width
+
+        how = {"stalled": "found no descent along its step",
+               "iterations": f"ran out of iterations ({self.max_iterations})",
+               "shift": "found no shift that makes the Hessian positive definite"}[failure.how]
+        pinned = model.pinned
+        width = base_width(X[pinned], X)
+        if width < MIN_BASE_WIDTH:
+            cause = "weak"
+            detail = (f"its piece is held by {int(pinned.sum())} fixed vertices on a line (they "
+                      f"stray {width:.2g} of its length from it) and can turn about it "
+                      f"(Newton {how})")
+        elif failure.inertia != "definite":
+            cause = "unstable"
+            detail = (f"Newton {how} where the Hessian is {failure.inertia}: the petal has no "
+                      "stable equilibrium there (it buckles or snaps)")
+        else:
+            cause = "stalled"
+            detail = f"Newton {how} where the Hessian is positive definite"
+        return NotConverged(step, growth, failure.residual, scale=failure.scale, cause=cause,
+                            detail=detail)
 
     def _perturb(self, model: Model, state: State, effects: Effects) -> None:
         if self.perturbation <= 0.0:
@@ -297,8 +360,8 @@ class QuasiStatic:
             a_next = a_to if abs(a_to - a_now) <= abs(size) * (1 + 1e-9) else a_now + size
             start = state.positions.copy()
             self._predict(model, state, effects, a_next)
-            residual = self._newton(model, state, effects, a_next)
-            if residual is None:
+            failure = self._newton(model, state, effects, a_next)
+            if failure is None:
                 self.increments += 1
                 a_now = a_next
                 continue
@@ -306,7 +369,7 @@ class QuasiStatic:
             self._tangent = False
             halvings += 1
             if halvings > 6:
-                raise NotConverged(step, a_next, residual)
+                raise self._not_converged(model, state.positions, step, a_next, failure)
             size *= 0.5
         return a_to
 
@@ -345,8 +408,14 @@ class QuasiStatic:
                                        model.hinge_indices, cos0, sin0, model.hinge_stiffness,
                                        A, scratch)
 
-    def _newton(self, model, state, effects, A: float) -> float | None:
-        """Newton iterations at growth A; None when converged, else the residual force.
+    def _newton(self, model, state, effects, A: float) -> _Failure | None:
+        """Newton iterations at growth A; None when converged, else why not.
+
+        Converged: the residual force is at the rounding level of the forces
+        (:meth:`_rounding`), whatever the Hessian's inertia (a piece free to turn, or at
+        a bifurcation, has a singular Hessian at its equilibrium: that is no reason to go
+        on); or it is below ``tolerance`` times the softest stiffness that matters and
+        the Hessian is positive definite (then the tangent predictor can use it).
 
         Where H is positive definite the step is Newton's. Where it is not (the path
         is at a bifurcation or a snap, or the prediction is far off), the energy is
@@ -363,18 +432,25 @@ class QuasiStatic:
         floor = 1e-3 * float(model.hinge_stiffness.max(initial=0.0) or model.edge_stiffness.max())
         system = self._system
         self.residuals = []
+        inertia = "definite"
+        scale = 0.0
         for _ in range(self.max_iterations):
             energy, g = self._gradient(model, X, A, cos0, sin0, scratch)
             residual = float(np.abs(g).max())
             self.residuals.append(residual)
-            # a mode as soft as floor moves less than tolerance (or the force is at rounding)
-            if residual <= max(self.tolerance * floor, 1e-14) and self._tangent:
+            scale, self._energy_rounding = self._rounding(model, X, A, cos0, sin0)
+            if residual <= ROUNDING_FACTOR * EPS * scale:
+                return None  # at rounding: no step can do better
+            # a mode as soft as floor moves less than tolerance
+            if residual <= self.tolerance * floor and self._tangent:
                 return None
             self.iterations += 1
             mu = 0.0
             self._assemble(model, X, A, cos0, sin0)
             positive, down = system.factor()
             self._tangent = positive
+            inertia = "definite" if positive else ("singular" if system.solver is None
+                                                   else "indefinite")
             if not positive:
                 if down is not None:
                     self.descents += 1
@@ -386,14 +462,33 @@ class QuasiStatic:
                     self.shifted += 1
                     mu *= 10.0
                     if mu > 1e6 * float(model.edge_stiffness.max()):
-                        return residual  # no shift makes it positive: not finite?
+                        # no shift makes it positive: not finite?
+                        return _Failure(residual, scale, "shift", inertia)
             step = system.solve(-g)
             length = self._line_search(model, X, A, cos0, sin0, scratch, energy, g, step)
             if length == 0.0:
-                return residual
+                return _Failure(residual, scale, "stalled", inertia)
             if mu == 0.0 and length * float(np.abs(step).max()) < self.tolerance:
                 return None  # (the factorization is that of the equilibrium, to rounding)
-        return residual
+        return _Failure(residual, scale, "iterations", inertia)
+
+    def _rounding(self, model, X, A, cos0, sin0) -> tuple[float, float]:
+        """The force scale (the largest, over the vertices, of what the force kernel adds
+        and subtracts there: :func:`hessian.rounding_scale`) and the rounding level of
+        the energy. ``eps`` times the force scale bounds the gradient that rounding
+        alone leaves (of coordinates, lengths, angles and sums), on any machine: a
+        residual below it is no reason to iterate. Both scale with the stiffnesses and
+        with the mesh's size, as the forces do."""
+        per_vertex = self._scale_work
+        if per_vertex is None or len(per_vertex) != len(X):
+            per_vertex = self._scale_work = np.empty(len(X))
+        energy = hessian.rounding_scale(X, model.edge_indices, model.edge_rest_length,
+                                        model.edge_growth, model.edge_stiffness,
+                                        model.hinge_indices, cos0, sin0, model.hinge_stiffness,
+                                        A, per_vertex)
+        free = ~self._system.pinned
+        force = float(per_vertex[free].max()) if free.any() else 0.0
+        return force, EPS * energy
 
     def _gradient(self, model, X, A, cos0, sin0, scratch) -> tuple[float, np.ndarray]:
         """Energy and gradient (flattened) with the constraints applied, from the force
@@ -415,14 +510,21 @@ class QuasiStatic:
 
     def _line_search(self, model, X, A, cos0, sin0, scratch, energy, g, step) -> float:
         """Backtracking (Armijo) along ``step``; moves X and returns the step length
-        taken (0: none found). A change within rounding of the energy is accepted."""
+        taken (0: none found). A change within rounding of the energy is accepted (as
+        :meth:`_rounding` measures it, or 1e-14 of the energy)."""
         slope = float(g @ step)
         length = 1.0
         base = X.copy()
+        # two energies each within their rounding differ by up to twice it: a step whose
+        # predicted change is below that cannot be judged by the energy (near an
+        # equilibrium, where only the gradient still tells), so it is taken as Newton's
+        blind = 2.0 * self._energy_rounding
         while length >= 1e-6:
             X[:] = base + length * step.reshape(-1, 3)
             trial = self._energy(model, X, A, cos0, sin0, scratch)
-            if trial <= energy + 1e-4 * length * slope or abs(trial - energy) <= 1e-14 * abs(energy):
+            change = abs(trial - energy)
+            if (trial <= energy + 1e-4 * length * slope or change <= 1e-14 * abs(energy)
+                    or (change <= blind and length * abs(slope) <= blind)):
                 return length
             length *= 0.5
         X[:] = base
