@@ -96,16 +96,12 @@ def command(growth_h5: str, config_path, overrides, out, overwrite, progress, re
                         f"axis.base_fraction: the quasi-static solver found {exc}; {name}'s base "
                         "is a line and it would spin about it; remedy: rerun bloom axis (it "
                         "widens such a base) or a larger axis.base_fraction", where=where) from None
+                remedy = ("more simulate.stages, a larger simulate.tolerance, or a dynamic "
+                          "integrator (it follows a snap)")
                 if exc.growth == 0.0:  # growth has not started: not the growth curve's doing
-                    cause = "its rest state is no stable equilibrium (check the mesh)"
-                elif exc.cause == "unstable":
-                    cause = "it has no stable equilibrium there: it buckles or snaps"
-                else:
-                    cause = "Newton stalls there with a real residual"
-                raise BloomError(
-                    f"simulate.stages: the quasi-static solver found {exc}; {name}: likely "
-                    f"cause: {cause}; remedy: more simulate.stages, a larger "
-                    "simulate.tolerance, or a dynamic integrator", where=where) from None
+                    remedy = "check the mesh (bloom inspect), or a dynamic integrator"
+                raise BloomError(f"simulate.stages: the quasi-static solver found {exc} ({name}); "
+                                 f"remedy: {remedy}", where=where) from None
             except ValueError as exc:  # what the integrator cannot do with this scene
                 raise BloomError(f"simulate.integrator: {exc}", where=where) from None
             except RuntimeError as exc:

@@ -172,3 +172,168 @@ def test_bench_json_reports_step_cost_per_edge():
         assert row["ms_per_step"] == pytest.approx(row["ns_per_edge"] * row["edges"] / 1e6)
     assert data["effects"][0]["effects"] == "none" and data["effects"][0]["ratio"] == 1.0
     assert data["converged_bloom"] is None
+
+
+def _rounding_bound(model, X, A=0.0):
+    """The solver's rounding level of the forces at X: ROUNDING_FACTOR eps times the
+    largest free vertex's force scale (hessian.rounding_scale)."""
+    from pipeline.sim.quasistatic import EPS, ROUNDING_FACTOR
+
+    scale = np.empty(len(X))
+    hessian.rounding_scale(X, model.edge_indices, model.edge_rest_length, model.edge_growth,
+                           model.edge_stiffness, model.hinge_indices, model.hinge_rest_cos,
+                           model.hinge_rest_sin, model.hinge_stiffness, A, scale)
+    return ROUNDING_FACTOR * EPS * scale[~model.pinned].max()
+
+
+def _residual(model, X, A=0.0):
+    g = _gradient(model, X, A)
+    g[model.pinned] = 0.0
+    return float(np.abs(g).max())
+
+
+def test_a_rest_state_converges_at_the_rounding_level_of_its_forces():
+    """A 6-petal bud at A = 0 with a tight tolerance (1e-9: tolerance times the soft
+    stiffness is 5e-16, below what rounding leaves of forces on vertices 20 mesh units
+    from the origin). It used to end in 'no equilibrium found at step 0 (growth A = 0,
+    residual force 2.11e-13)': the energy could no longer see Newton's decrease, and
+    1e-14 was an absolute floor. Now Newton goes on to the rounding level and stops."""
+    scene = study.Scene.bud(6, 600)
+    m = scene.model
+    control = Control("smootherstep", 1.0)
+    state = State.at_rest(m, scene.vertices, control)
+    qs = QuasiStatic(stages=80, tolerance=1e-9)
+    qs.advance(m, state, control, 0, 1.0)  # the settle at A = 0 only
+    bound = _rounding_bound(m, state.positions)
+    assert 1e-15 < bound < 1e-13  # eps x (K_s x ~20 mesh units x a few springs)
+    assert _residual(m, state.positions) <= bound
+
+
+def test_stiffness_scale_does_not_change_convergence(petal):
+    """The same petal with K_s and K_b scaled by 1e-3 and 1e3: the same Newton
+    iterations and the same equilibria (to rounding), and each residual below its own
+    rounding bound. (With the old absolute 1e-14 floor: 55, 63 and 73 iterations, and
+    shapes 5e-10 apart.)"""
+    m = petal.model
+    runs = {}
+    for k in (1e-3, 1.0, 1e3):
+        model = Model.build(petal.vertices, m.edge_indices, m.edge_growth, k * m.edge_stiffness,
+                            m.hinge_indices, k * m.hinge_stiffness, m.pinned)
+        control = Control("linear", 100.0)
+        state = State.at_rest(model, petal.vertices, control)
+        qs = QuasiStatic(stages=10, tolerance=1e-10)
+        qs.advance(model, state, control, 100, 1.0)
+        runs[k] = qs.iterations, state.positions.copy()
+        X = state.positions
+        assert _residual(model, X, 1.0) <= _rounding_bound(model, X, 1.0), k
+    assert runs[1e-3][0] == runs[1.0][0] == runs[1e3][0], {k: r[0] for k, r in runs.items()}
+    for k in (1e-3, 1e3):
+        assert np.abs(runs[k][1] - runs[1.0][1]).max() < 1e-12 * petal.length, k
+
+
+def test_a_petal_held_on_a_line_converges_where_its_hessian_is_singular():
+    """A cupped petal fixed by 3 vertices of its straight base row: it can turn about
+    that line (a null mode, so the Hessian is singular at every equilibrium). Stiffness
+    x1e3 and tolerance 1e-10: the residual can only reach rounding, where the old solver
+    said 'no equilibrium found at step 100 (growth A = 0.2047, residual force 2.92e-13)'.
+    Now a residual at rounding is converged, whatever the inertia."""
+    from test_axis_base import cupped_petal
+
+    from pipeline.axis import find_axes
+    from pipeline.growth import assign_growth
+
+    v, f = cupped_petal()
+    axes = find_axes(v, f, np.zeros(len(v), dtype=np.int64))
+    g = assign_growth(v, f, axes.x, "0.2*x**2")
+    pinned = np.zeros(len(v), dtype=bool)
+    pinned[[3, 4, 5]] = True  # on the x axis: (u, 0, 0)
+    model = Model.build(v, g.edges, g.alpha, 100.0 * g.stiffness, g.hinges, 0.5, pinned)
+    control = Control("linear", 100.0)
+    state = State.at_rest(model, v, control)
+    qs = QuasiStatic(stages=10, tolerance=1e-10)
+    qs.advance(model, state, control, 100, 1.0)
+    X = state.positions
+    assert _residual(model, X, 1.0) <= _rounding_bound(model, X, 1.0)
+    # the turn about the base line (the x axis) costs nothing: H r = 0 to rounding on
+    # the free vertices (E(R X) = E(X) gives H r = w x g, and g = 0 where free)
+    system = _System.build(model, fx.Effects())
+    hessian.hessian(X, model.edge_indices, model.edge_rest_length, model.edge_growth,
+                    model.edge_stiffness, model.hinge_indices, model.hinge_rest_cos,
+                    model.hinge_rest_sin, model.hinge_stiffness, 1.0, system.data,
+                    system.edge_slots, system.hinge_slots, system.work)
+    import scipy.sparse as sp
+
+    n = 3 * model.vertex_count
+    H = sp.bsr_matrix((system.data, system.indices, system.indptr), shape=(n, n))
+    turn = np.cross([1.0, 0.0, 0.0], X).ravel()
+    assert np.abs(turn.reshape(-1, 3)[pinned]).max() == 0.0  # the fixed ones stay put
+    free = np.repeat(~pinned, 3)
+    assert np.abs((H @ turn)[free]).max() < 1e-12 * np.abs(H).max() * np.abs(turn).max()
+    # and the petal did open (the growth acted; it did not just spin)
+    assert np.linalg.norm(X - v, axis=1).max() > 1.0
+
+
+def test_failures_name_their_cause():
+    """A piece fixed on a line is 'weak'; a stall where the Hessian is indefinite is
+    'unstable' (no stable equilibrium: it buckles or snaps); both say the residual over
+    its rounding level and the force scale; the message has no doubled 'found'."""
+    from test_axis_base import cupped_petal
+
+    from pipeline.sim.quasistatic import _Failure
+
+    v, f = cupped_petal()
+    edges = np.array(sorted({tuple(sorted(e)) for t in f for e in ((t[0], t[1]), (t[1], t[2]),
+                                                                   (t[0], t[2]))}))
+    qs = QuasiStatic()
+    for row, cause in (([3, 4, 5], "weak"), ([0, 8, 13], "unstable")):
+        pinned = np.zeros(len(v), dtype=bool)
+        pinned[row] = True
+        model = Model.build(v, edges, 0.0, 0.1, np.zeros((0, 4), dtype=np.int64), 0.0, pinned)
+        exc = qs._not_converged(model, v, 7, 0.5, _Failure(3e-9, 0.25, "stalled", "indefinite"))
+        assert exc.cause == cause, str(exc)
+        text = str(exc)
+        assert text.startswith("no equilibrium at step 7 (growth A = 0.5): residual force 3e-09")
+        assert "times its rounding level" in text and "force scale 0.25" in text
+        assert ("on a line" in text) == (cause == "weak")
+        assert ("no stable equilibrium there (it buckles" in text) == (cause == "unstable")
+
+
+def test_simulate_names_the_cause_in_one_line(tmp_path, monkeypatch):
+    """The stage's message for each cause: a stall at the rest state does not blame the
+    growth curve; a piece held on a line points at axis.base_fraction; one line, the
+    typo 'found no equilibrium found' gone, no output file."""
+    from click.testing import CliRunner
+
+    from pipeline import axis
+    from pipeline.sim import quasistatic
+    from stages.cli import cli
+
+    runner = CliRunner()
+    mesh, paths = tmp_path / "petal.obj", {k: tmp_path / f"{k}.h5" for k in ("r", "a", "g")}
+    assert runner.invoke(cli, ["asset", "petal", "--vertices", "200", "--out", str(mesh)]).exit_code == 0
+    for stage, src, out in (("remesh", mesh, "r"), ("axis", paths["r"], "a"),
+                            ("growth", paths["a"], "g")):
+        r = runner.invoke(cli, ["-q", stage, str(src), "--out", str(paths[out])])
+        assert r.exit_code == 0, r.output
+
+    def stall(self, model, state, effects, A):
+        return quasistatic._Failure(3e-9, 0.25, "stalled", "indefinite")
+
+    monkeypatch.setattr(quasistatic.QuasiStatic, "_newton", stall)
+    lines = {}
+    for case in ("rest", "weak"):
+        if case == "weak":  # every base now counts as a line
+            monkeypatch.setattr(axis, "MIN_BASE_WIDTH", 1.0)
+        out = tmp_path / f"sim-{case}.h5"
+        r = runner.invoke(cli, ["-q", "simulate", str(paths["g"]), "--out", str(out), "--set",
+                                "simulate.integrator=quasi-static"])
+        line = r.output.strip()
+        assert r.exit_code != 0 and len(line.splitlines()) == 1 and not out.exists(), line
+        assert "found no equilibrium at step 0 (growth A = 0)" in line, line
+        assert "found no equilibrium found" not in line
+        assert "times its rounding level" in line, line
+        lines[case] = line
+    assert "simulate.stages" in lines["rest"] and "rest state is no stable" in lines["rest"]
+    assert "growth curve" not in lines["rest"]
+    assert "axis.base_fraction" in lines["weak"] and "base is a line" in lines["weak"]
+    assert "spin about it" in lines["weak"] and "petal 0" in lines["weak"]

@@ -334,8 +334,9 @@ class QuasiStatic:
                       f"(Newton {how})")
         elif failure.inertia != "definite":
             cause = "unstable"
-            detail = (f"Newton {how} where the Hessian is {failure.inertia}: the petal has no "
-                      "stable equilibrium there (it buckles or snaps)")
+            detail = (f"Newton {how} where the Hessian is {failure.inertia}: "
+                      + ("its rest state is no stable equilibrium" if growth == 0.0 else
+                         "it has no stable equilibrium there (it buckles or snaps)"))
         else:
             cause = "stalled"
             detail = f"Newton {how} where the Hessian is positive definite"
