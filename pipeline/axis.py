@@ -36,6 +36,7 @@ class PetalAxes:
     x: np.ndarray  #: (V,) cross-section coordinate in [-1, 1]
     s: np.ndarray  #: (V,) normalized distance from the base in [0, 1]
     flower_axis: np.ndarray  #: (6,) point and unit direction of the flower's axis (nan if unknown)
+    widened: tuple = ()  #: petals whose base was on a line and got more fixed vertices
 
 
 #: a petal's fixed base vertices must stray at least this far (fraction of the petal's
@@ -162,6 +163,7 @@ def find_axes(vertices: np.ndarray, faces: np.ndarray, petal: np.ndarray, *,
     axis_line = flower_axis(planes) if base_mode == "auto" else None
 
     base = np.zeros(nv, dtype=bool)
+    widened = []
     on_axis = np.zeros(nv, dtype=bool)
     tips = np.zeros(count, dtype=np.int64)
     x = np.zeros(nv)
@@ -195,8 +197,11 @@ def find_axes(vertices: np.ndarray, faces: np.ndarray, petal: np.ndarray, *,
         # held on a line, it could spin about it: widen the base, within a quarter of the
         # petal (or base_fraction: the fixed part should stay a base, not become the petal)
         reach = proj.min() + max(BASE_REACH, base_fraction) * span
+        count = int(mine_base.sum())
         if not _widen_base(mine_base, bnd, proj, pts, sub, reach):
             raise WeakBase(p, int(mine_base.sum()), base_width(pts[mine_base], pts))
+        if mine_base.sum() > count:
+            widened.append(p)
         base[idx] = mine_base
 
         dist_base = dijkstra(sub, indices=np.flatnonzero(mine_base), min_only=True)
@@ -240,4 +245,4 @@ def find_axes(vertices: np.ndarray, faces: np.ndarray, petal: np.ndarray, *,
         x[idx] = xs
 
     line = axis_line if axis_line is not None else np.full(6, np.nan)
-    return PetalAxes(base, on_axis, tips, planes, x, s, line)
+    return PetalAxes(base, on_axis, tips, planes, x, s, line, tuple(widened))

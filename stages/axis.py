@@ -33,6 +33,9 @@ def command(remesh_h5: str, config_path, overrides, out, overwrite) -> None:
                              f"{BASE_REACH:g} (the widening's reach; now "
                              f"{cfg['axis.base_fraction']:g}), another axis.base end, or a mesh "
                              "whose petal base is not a straight row", where=remesh_h5) from None
+        for p in axes.widened:
+            log.warning("petal %d: its base was on a line (it could spin about it): widened to "
+                        "%d fixed vertices", p, int(axes.base[petal == p].sum()))
         for p in range(len(axes.tip)):
             mine = petal == p
             log.info("petal %d: %d base vertices, %d on the axis, tip %d, x in [%.3f, %.3f]",

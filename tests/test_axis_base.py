@@ -41,6 +41,7 @@ def test_a_base_on_a_line_is_widened_near_the_base_end():
     # widened by the nearest vertices only: all within the first rows, few added
     assert v[base, 1].max() <= 2.5 / 14 * np.ptp(v[:, 1])
     assert len(base) <= 9 + 4
+    assert axes.widened == (0,)
 
 
 def test_a_base_that_cannot_be_widened_is_refused_in_one_line(tmp_path, monkeypatch):
@@ -76,6 +77,6 @@ def test_the_project_buds_keep_their_bases(petals, vertices, monkeypatch):
     now = find_axes(v, f, p)
     monkeypatch.setattr(axis, "MIN_BASE_WIDTH", 0.0)  # the rule before widening
     before = find_axes(v, f, p)
-    assert np.array_equal(now.base, before.base)
+    assert np.array_equal(now.base, before.base) and now.widened == ()
     for k in range(petals):
         assert base_width(v[now.base & (p == k)], v[p == k]) >= 2 * MIN_BASE_WIDTH
