@@ -406,3 +406,20 @@ def test_export_never_replaces_a_foreign_file(chain, tmp_path):
     r = CliRunner().invoke(cli, ["export", str(chain["sim"]), "--out", str(tmp_path / "x.abc")])
     assert r.exit_code != 0 and ".usd" in r.output
     assert sorted(p.name for p in tmp_path.iterdir()) == ["d.usdc", "junk.usdc", "shot.usda"]
+
+
+def test_bench_quick_runs_every_part_end_to_end():
+    """`bloom bench --quick --json`: effect costs, step cost by size and the converged
+    bloom of a 6-petal bud, all of it, in about 15 s; the quasi-static run converges."""
+    r = CliRunner().invoke(cli, ["bench", "--quick", "--json"])
+    assert r.exit_code == 0, r.output
+    data = json.loads(r.output)
+    assert [row["vertices"] for row in data["step_cost"]][0] < 700
+    assert len(data["effects"]) == 7 and data["effects"][0]["ratio"] == 1.0
+    runs = {row["integrator"]: row for row in data["converged_bloom"]["runs"]}
+    assert set(runs) == {"quasi-static", "semi-implicit eta=0.1", "Verlet (eta=0.5)",
+                         "explicit-damping d=0.999"}
+    assert runs["quasi-static"]["converged"] and runs["quasi-static"]["error"] < 0.01
+    assert data["converged_bloom"]["reference_refinement_change"] < 1e-3
+    for row in runs.values():
+        assert row["wall_seconds"] > 0 and np.isfinite(row["error"])
