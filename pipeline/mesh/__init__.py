@@ -1,0 +1,17 @@
+"""Geometry functions over plain arrays, one public function per module.
+
+In the style of gpytoolbox: each function takes ``vertices (V, 3) float`` and
+``faces (F, 3) int`` (and whatever else it needs) and returns arrays or a small named
+tuple of arrays; none modifies its inputs. Tolerances are relative to the part's size,
+so a model in centimetres and the same model in metres give the same answer.
+
+- :func:`pipeline.mesh.thickness.thickness`: per-face distance to the surface behind,
+  and whether a part is a thin shell;
+- :func:`pipeline.mesh.midsurface.midsurface`: the open sheet halfway between the two
+  sides of a thin shell (a solidified, boxed, tubular or two-layer petal).
+"""
+
+from .midsurface import Midsurface, midsurface
+from .thickness import Thickness, thickness
+
+__all__ = ["Midsurface", "Thickness", "midsurface", "thickness"]
