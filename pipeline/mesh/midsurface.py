@@ -21,6 +21,8 @@ SIDE_DEGREES = 60.0
 #: a projected face is dropped when its area (signed, against its old normal) falls
 #: under this fraction of the old: collapsed or flipped by the projection
 MIN_AREA_RATIO = 0.05
+#: rounds of moving a middle point along its segment to equal distances from both sides
+MIDPOINT_ITERATIONS = 2
 
 
 class Midsurface(NamedTuple):
@@ -30,6 +32,7 @@ class Midsurface(NamedTuple):
     faces: np.ndarray  #: (m, 3) one open, edge-manifold, consistently oriented sheet
     thickness: np.ndarray  #: (n,) distance between the two sides at each sheet vertex
     source: np.ndarray  #: (n,) int, the input vertex each sheet vertex was moved from
+    side: np.ndarray  #: (F,) int8 per input face: 1 the kept side, -1 the other, 0 dropped
     relative_thickness: float  #: median thickness / width of the part (see thickness())
     layered_fraction: float  #: fraction of the input's area with a layer behind it
 
@@ -158,7 +161,8 @@ def midsurface(vertices: np.ndarray, faces: np.ndarray) -> Midsurface:
         ``vertices (n, 3)``, ``faces (m, 3)``: a single open, edge-manifold sheet with
         no bowtie vertices, consistently oriented; ``thickness (n,)``: the distance
         between the two sides at each vertex; ``source (n,)``: the input vertex each
-        sheet vertex comes from; and the part's ``relative_thickness`` and
+        sheet vertex comes from; ``side (F,)``: per input face, 1 on the kept side, -1
+        on the other, 0 dropped (rim, caps, walls); and the part's ``relative_thickness`` and
         ``layered_fraction`` (:func:`pipeline.mesh.thickness.thickness`).
 
     Raises
@@ -212,8 +216,10 @@ def midsurface(vertices: np.ndarray, faces: np.ndarray) -> Midsurface:
         raise ValueError("faces index vertices that do not exist")
     # repeated corners and duplicated faces say nothing about the shape
     repeated = (f[:, 0] == f[:, 1]) | (f[:, 1] == f[:, 2]) | (f[:, 2] == f[:, 0])
+    input_face = np.flatnonzero(~repeated)
     f = f[~repeated]
     _, first = np.unique(np.sort(f, axis=1), axis=0, return_index=True)
+    input_face = input_face[np.sort(first)]
     f = f[np.sort(first)]
     if len(f) == 0:
         raise ValueError("no faces with three distinct corners")
@@ -290,12 +296,28 @@ def midsurface(vertices: np.ndarray, faces: np.ndarray) -> Midsurface:
         sheet_f = sheet_f[:, [0, 2, 1]]
     used = np.unique(sheet_f)
     p = v[used]
-    other_f = f[other]
-    _, nearest, bary = gpytoolbox.squared_distance(p, v, other_f, use_cpp=True)
-    nearest = np.asarray(nearest, dtype=np.int64).reshape(-1)
-    closest = np.einsum("ik,ikj->ij", np.asarray(bary, dtype=np.float64), v[other_f[nearest]])
-    mid = 0.5 * (p + closest)
-    gap = np.linalg.norm(p - closest, axis=1)
+    other_f, kept_f = f[other], f[kept]
+
+    def closest(points, side_faces):
+        _, nearest, bary = gpytoolbox.squared_distance(points, v, side_faces, use_cpp=True)
+        nearest = np.asarray(nearest, dtype=np.int64).reshape(-1)
+        return np.einsum("ik,ikj->ij", np.asarray(bary, dtype=np.float64), v[side_faces[nearest]])
+
+    q = closest(p, other_f)
+    span = np.linalg.norm(q - p, axis=1)
+    # The middle lies on the segment from p to its closest point q: there the distance
+    # to the other side is exactly (1 - s)|pq|, and to p's own side c s |pq|, c = 1
+    # for parallel sides, < 1 where they are not (a lens, a crease). Solving
+    # c s = 1 - s with c measured at the current s puts the point at equal distances
+    # without letting it slide along the sheet.
+    frac = np.full(len(p), 0.5)
+    for _ in range(MIDPOINT_ITERATIONS):
+        mid = p + frac[:, None] * (q - p)
+        own = np.linalg.norm(closest(mid, kept_f) - mid, axis=1)
+        c = np.clip(own / np.maximum(frac * span, np.finfo(float).tiny), 0.0, 1.0)
+        frac = np.where(span > 0, 1.0 / (1.0 + c), 0.5)
+    mid = p + frac[:, None] * (q - p)
+    gap = (1.0 - frac) * span + np.linalg.norm(closest(mid, kept_f) - mid, axis=1)
 
     local = np.searchsorted(used, sheet_f)
     old = topology.face_normals(v, sheet_f)
@@ -312,5 +334,8 @@ def midsurface(vertices: np.ndarray, faces: np.ndarray) -> Midsurface:
     piece_area = np.bincount(piece, weights=np.linalg.norm(topology.face_normals(mid, local), axis=1))
     local = local[piece == int(np.argmax(piece_area))]
     keep_v = np.unique(local)
+    side_of_input = np.zeros(len(faces), dtype=np.int8)
+    side_of_input[input_face[kept]] = 1
+    side_of_input[input_face[other]] = -1
     return Midsurface(mid[keep_v], np.searchsorted(keep_v, local), gap[keep_v], used[keep_v],
-                      m.relative_thickness, m.layered_fraction)
+                      side_of_input, m.relative_thickness, m.layered_fraction)

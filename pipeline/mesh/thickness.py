@@ -99,6 +99,7 @@ def thickness(vertices: np.ndarray, faces: np.ndarray) -> Thickness:
     they are wide, not a thin part. Ray casting uses gpytoolbox (Embree). Rays start a
     hair (1e-9 of the bounding-box diagonal) off the face, so a face never hits itself;
     zero-area faces get no thickness.
+    Embree's single-precision hit distance is recomputed in double on the hit face's plane.
     """
     import gpytoolbox
 
@@ -131,7 +132,10 @@ def thickness(vertices: np.ndarray, faces: np.ndarray) -> Thickness:
     hit &= cos >= np.cos(np.radians(PARALLEL_DEGREES))
     # a closed component is material inside: only look inward, never across the air
     hit &= np.concatenate([inward >= 0, inward <= 0])
-    dist = np.where(hit, ts + eps, np.inf).reshape(2, nf)
+    # Embree works in single precision: redo the hit in double, on the hit face's plane
+    o, d, j = np.tile(centroid, (2, 1))[hit], dirs[hit], ids[hit]
+    ts[hit] = np.einsum("ij,ij->i", v[f[j, 0]] - o, n[j]) / np.einsum("ij,ij->i", d, n[j])
+    dist = np.where(hit, ts, np.inf).reshape(2, nf)
     back = dist[1] < dist[0]  # ties (both equal) go to +normal, deterministically
     face_thickness = np.where(back, dist[1], dist[0])
     opposite = np.where(back, ids[nf:], ids[:nf])
