@@ -2,11 +2,13 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import math
+from dataclasses import dataclass, field
 
 import numpy as np
 
 from . import kernels
+from .stable_step import StableStep, rest_angles, scheme_limit
 from .effects import Effects
 from .model import Control, Model, State
 
@@ -22,35 +24,156 @@ class Diverged(RuntimeError):
                          + (why or f"potential energy {energy:.3g}, max speed {speed:.3g}"))
 
 
+#: the substep keeps ``h_sub omega_max`` under this fraction of the scheme's limit
+SAFETY = 0.9
+#: a substep that still diverges is halved at most this many times, then Diverged
+MAX_HALVINGS = 6
+
+
 @dataclass
 class SemiImplicit:
     """The paper's scheme (Eq. 7-8) with damping factor eta; with ``eta = 1/2`` and a
-    velocity factor ``d < 1`` it is the explicit damping of Eq. 9."""
+    velocity factor ``d < 1`` it is the explicit damping of Eq. 9.
+
+    Substeps: the user's ``h`` is the step of the step counter, of the recorded times, of
+    A(t) and of the connection springs' break steps; the kernel integrates with
+    ``h / k``, ``k >= 1`` the smallest integer that puts ``h / k * omega_max`` under
+    :data:`SAFETY` times the scheme's limit (:func:`pipeline.sim.stable_step.scheme_limit`), with
+    ``omega_max`` estimated from the model at the start of each :meth:`advance` call (one
+    per recorded frame; :mod:`pipeline.sim.stable_step`). Where ``h`` is stable, ``k = 1`` and the
+    kernel runs exactly as without substeps. A call that still diverges is rolled back
+    to its start (state and the effects' arrays) and retried with the substep halved,
+    up to :data:`MAX_HALVINGS` times. The choice depends only on the state at the
+    start of the call, so a resumed run chooses as an uninterrupted one does.
+    ``substep = False`` runs at ``h`` with no estimate and no rollback (as the paper)."""
 
     eta: float
     d: float = 1.0
     speed_limit: float = 1.0  #: a vertex faster than this (mesh units per unit time) has diverged
+    substep: bool = True
+    safety: float = SAFETY
+    max_halvings: int = MAX_HALVINGS
+    _estimator: object = field(default=None, repr=False, compare=False)
+    _frame: dict = field(default_factory=dict, repr=False, compare=False)
 
     def diagnostics(self) -> dict:
-        return {}
+        """Per frame (the :meth:`advance` call that ended at it): ``substeps`` (kernel
+        steps per user step, 0 before the first call), ``stable_step`` (the largest step
+        the estimate allows, safety included; from the Gershgorin bound alone when that
+        already allows ``h``, so then a lower bound; nan before the first call),
+        ``rollbacks`` (halvings after a divergence)."""
+        if not self.substep:
+            return {}
+        return {"substeps": self._frame.get("substeps", 0),
+                "stable_step": self._frame.get("stable_step", math.nan),
+                "rollbacks": self._frame.get("rollbacks", 0)}
+
+    def limit(self) -> float:
+        """The largest ``h_sub * omega_max`` allowed: the scheme's limit times the safety."""
+        return self.safety * scheme_limit(self.eta, self.d)
+
+    def stable_step(self, model: Model, state: State, control: Control, h: float,
+                    effects: Effects = NO_EFFECTS) -> tuple[int, float]:
+        """``(k, h_max)``: the substeps per step of ``h`` and the largest stable step
+        estimated at ``state`` (rest lengths and angles of its time, intact connection
+        springs). Lanczos tightens the Gershgorin bound only when that bound alone does
+        not allow ``h`` (it costs twice the bound)."""
+        if self._estimator is None or self._estimator[0] is not model:
+            self._estimator = (model, StableStep.build(model))
+        t = state.step * h
+        cos0, sin0 = rest_angles(model, control, effects, t)
+        args = (model, state.positions, control.growth_at(t), cos0, sin0, effects.connections)
+        limit = self.limit()
+        estimator = self._estimator[1]
+        est = estimator.estimate(*args, tighten=False)
+        if h * est.omega > limit:
+            est = estimator.estimate(*args)
+        omega = est.omega
+        if not math.isfinite(omega):
+            return 1, math.nan
+        if omega == 0.0:
+            return 1, math.inf
+        h_max = limit / omega
+        return max(1, math.ceil(h / h_max * (1.0 - 1e-12))), h_max
 
     def advance(self, model: Model, state: State, control: Control, n_steps: int, h: float,
                 effects: Effects = NO_EFFECTS) -> None:
-        """Advance ``n_steps`` steps; raises :class:`Diverged` (with ``state`` at the step
-        that failed) when the divergence guard trips."""
+        """Advance ``n_steps`` steps of ``h``; raises :class:`Diverged` (with ``state`` at
+        the step that failed) when the divergence guard trips at every substep tried."""
         if n_steps <= 0:
             return
+        if not self.substep:
+            energy, taken = self._kernel(model, state, control, n_steps, h, 1, effects)
+            state.potential_energy = energy
+            state.step += taken
+            if taken < n_steps or not np.isfinite(energy):
+                raise Diverged(state.step, energy, state.max_speed())
+            return
+        k, h_max = self.stable_step(model, state, control, h, effects)
+        self._frame = {"substeps": k, "stable_step": h_max, "rollbacks": 0}
+        saved = _Snapshot.take(state, effects)
+        for attempt in range(self.max_halvings + 1):
+            energy, taken = self._kernel(model, state, control, n_steps * k, h / k, k, effects)
+            if taken == n_steps * k and np.isfinite(energy):
+                state.potential_energy = energy
+                state.step += n_steps
+                self._frame["substeps"] = k
+                return
+            if attempt == self.max_halvings:
+                break
+            saved.restore(state, effects)
+            k *= 2
+            self._frame["rollbacks"] += 1
+        state.potential_energy = energy
+        state.step += -(-taken // k)
+        why = (f"potential energy {energy:.3g}, max speed {state.max_speed():.3g}, with "
+               f"{k} substeps per step after {self.max_halvings} halvings")
+        raise Diverged(state.step, energy, state.max_speed(), why)
+
+    def _kernel(self, model, state, control, n, h_sub, k, effects) -> tuple[float, int]:
+        """``n`` kernel steps of ``h_sub = h / k`` from the user's step ``state.step``;
+        connection springs that break get their step in the user's units."""
+        conn = effects.connections
+        intact = conn.alive.copy() if conn is not None and k > 1 else None
         energy, taken = kernels.advance(
             state.positions, state.velocities, state.forces, state.scratch,
             model.vertex_inv_mass, model.edge_indices, model.edge_rest_length,
             model.edge_growth, model.edge_stiffness, model.hinge_indices,
             model.hinge_rest_cos, model.hinge_rest_sin, model.hinge_stiffness,
-            control.schedule_code, control.ramp_time, state.step, n_steps, h, self.eta, self.d,
-            effects.bundle(), self.speed_limit)
-        state.potential_energy = energy
-        state.step += taken
-        if taken < n_steps or not np.isfinite(energy):
-            raise Diverged(state.step, energy, state.max_speed())
+            control.schedule_code, control.ramp_time, state.step * k, n, h_sub, self.eta,
+            self.d, effects.bundle(), self.speed_limit)
+        if intact is not None:
+            broke = intact & ~conn.alive
+            conn.broken_step[broke] = -(-conn.broken_step[broke] // k)  # substep -> step
+        return energy, taken
+
+
+@dataclass
+class _Snapshot:
+    """What one :meth:`SemiImplicit.advance` call changes: the state and every array of
+    the effects' bundle (as a checkpoint saves them), to roll a diverged call back."""
+
+    positions: np.ndarray
+    velocities: np.ndarray
+    forces: np.ndarray
+    step: int
+    potential_energy: float
+    arrays: list
+
+    @classmethod
+    def take(cls, state: State, effects: Effects) -> _Snapshot:
+        return cls(state.positions.copy(), state.velocities.copy(), state.forces.copy(),
+                   state.step, state.potential_energy,
+                   [(a, a.copy()) for a in effects.bundle()
+                    if isinstance(a, np.ndarray) and a.size and a.flags.writeable])
+
+    def restore(self, state: State, effects: Effects) -> None:
+        state.positions[...] = self.positions
+        state.velocities[...] = self.velocities
+        state.forces[...] = self.forces
+        state.step, state.potential_energy = self.step, self.potential_energy
+        for a, saved in self.arrays:
+            a[...] = saved
 
 
 def make_integrator(name: str, eta: float, damping: float, speed_limit: float = 1.0,
