@@ -24,7 +24,7 @@ from .expr import check_curve
 class Key:
     """One config key: its type, default and allowed values."""
 
-    kind: type
+    kind: type  #: bool, int, float, str, or list (a list of strings)
     default: Any
     doc: str
     choices: tuple = ()
@@ -50,6 +50,10 @@ SCHEMA: dict[str, Any] = {
         "name": Key(str, "", "scene name (default: the config file's name)"),
         "mesh": Key(str, "", "input mesh (OBJ/PLY/STL/OFF/GLB), relative to the config file"),
         "description": Key(str, "", "free text, shown by `bloom inspect`"),
+        "petals": Key(list, [], "glob patterns over the mesh's part names (e.g. [\"Circle.0*\"]): a "
+                      "matching part is a petal whatever its shape says"),
+        "exclude": Key(list, [], "glob patterns over part names: a matching part is never a petal "
+                       "(wins over scene.petals)"),
     },
     "remesh": {
         "target_edge": Key(float, 0.0, "target edge length in the input's units; 0 keeps the "
@@ -176,7 +180,8 @@ KEYS: dict[str, Key] = _flatten(SCHEMA)
 
 
 def _type_name(kind: type) -> str:
-    return {int: "an integer", float: "a number", bool: "true or false", str: "a string"}[kind]
+    return {int: "an integer", float: "a number", bool: "true or false", str: "a string",
+            list: "a list of strings"}[kind]
 
 
 def _coerce(dotted: str, key: Key, value: Any, where: str) -> Any:
@@ -194,6 +199,14 @@ def _coerce(dotted: str, key: Key, value: Any, where: str) -> Any:
                 raise BloomError(f"{dotted}: must be finite, got {value}", where=where)
     elif key.kind is str:
         ok = isinstance(value, str)
+    elif key.kind is list:
+        ok = isinstance(value, list)
+        bad = [item for item in value if not isinstance(item, str)] if ok else []
+        if bad:
+            raise BloomError(f"{dotted}: expected a list of strings, got {bad[0]!r} in it",
+                             where=where)
+        if ok:
+            value = list(value)
     if not ok:
         raise BloomError(f"{dotted}: expected {_type_name(key.kind)}, got {value!r}", where=where)
     if key.choices and value not in key.choices:
@@ -306,7 +319,8 @@ def parse_override(text: str) -> tuple[str, Any]:
 def load_config(path: str | Path | None = None, overrides: tuple[str, ...] | list[str] = ()) -> Config:
     """Read and check a scene file (or the defaults when ``path`` is None), then apply
     ``--set`` overrides. Raises :class:`BloomError` naming the file and key on any problem."""
-    values = {dotted: key.default for dotted, key in KEYS.items()}
+    values = {dotted: list(key.default) if key.kind is list else key.default
+              for dotted, key in KEYS.items()}
     cfg_path = None
     if path is not None:
         cfg_path = Path(path)
