@@ -1,5 +1,7 @@
 """Named parts of a mesh file (read_parts) and which of them are petals (classify, select)."""
 
+import json
+import struct
 from pathlib import Path
 
 import numpy as np
@@ -70,6 +72,57 @@ def test_glb_nodes_are_parts_in_node_order_placed_by_their_transforms(tmp_path):
         assert len(part.vertices) == 8 and len(part.faces) == 12
         assert np.allclose(np.sort(part.vertices, axis=0), np.sort(placed[part.name], axis=0), atol=1e-6)
     assert mesh_file.up == "+y" and mesh_file.meters_per_unit == 1.0
+
+
+def _edit_glb(data: bytes, edit) -> bytes:
+    """Apply ``edit`` to a GLB's JSON chunk; the binary chunk is kept as it is."""
+    n = struct.unpack("<I", data[12:16])[0]
+    header = json.loads(data[20:20 + n])
+    edit(header)
+    text = json.dumps(header).encode()
+    text += b" " * (-len(text) % 4)
+    rest = data[20 + n:]
+    return b"glTF" + struct.pack("<II", 2, 20 + len(text) + len(rest)) + \
+        struct.pack("<I", len(text)) + b"JSON" + text + rest
+
+
+def test_glb_names_fall_back_to_the_mesh_and_primitives_and_children_join_their_node(tmp_path):
+    box = trimesh.creation.box()
+    scene = trimesh.Scene()
+    scene.add_geometry(box.copy(), geom_name="body", node_name="parent",
+                       transform=trimesh.transformations.translation_matrix([0, 5, 0]))
+    scene.add_geometry(box.copy(), geom_name="second", node_name="child", parent_node_name="parent",
+                       transform=trimesh.transformations.translation_matrix([3, 0, 0]))
+    scene.add_geometry(box.copy(), geom_name="Leaf mesh", node_name="nameless")
+
+    def edit(h):
+        names = [n.get("name") for n in h["nodes"]]
+        parent, child = h["nodes"][names.index("parent")], h["nodes"][names.index("child")]
+        del h["nodes"][names.index("nameless")]["name"]
+        # the child's mesh becomes a second primitive of the parent's mesh
+        h["meshes"][parent["mesh"]]["primitives"] += h["meshes"][child["mesh"]]["primitives"]
+        del child["mesh"]
+
+    path = tmp_path / "edited.glb"
+    path.write_bytes(_edit_glb(scene.export(file_type="glb"), edit))
+    parts = {p.name: p for p in read_parts(path).parts}
+    assert sorted(parts) == ["Leaf mesh", "parent"]
+    assert len(parts["parent"].faces) == 24  # two primitives, one part
+    assert np.allclose(parts["parent"].vertices.mean(axis=0), [0, 5, 0])
+    assert np.allclose(parts["Leaf mesh"].vertices.mean(axis=0), 0)
+
+
+def test_glb_child_nodes_are_placed_by_their_parents(tmp_path):
+    box = trimesh.creation.box()
+    scene = trimesh.Scene()
+    scene.add_geometry(box.copy(), geom_name="a", node_name="parent",
+                       transform=trimesh.transformations.rotation_matrix(np.pi / 2, [0, 0, 1]))
+    scene.add_geometry(box.copy(), geom_name="b", node_name="child", parent_node_name="parent",
+                       transform=trimesh.transformations.translation_matrix([3, 0, 0]))
+    path = tmp_path / "nested.glb"
+    path.write_bytes(scene.export(file_type="glb"))
+    parts = {p.name: p for p in read_parts(path).parts}
+    assert np.allclose(parts["child"].vertices.mean(axis=0), [0, 3, 0])
 
 
 def test_stl_is_one_nameless_part(tmp_path):

@@ -21,11 +21,19 @@ whose centroids lie at similar distances (spread under ``RING_SPREAD``) from the
 through their mean along the normal of their plane, at azimuths all around it. That
 line is the flower's axis; where the petals come nearest it is the base; up is where
 their centroids are. A part that is itself a ring (petals joined in one mesh: round
-in plan) stands for the ring when there is none. Around that frame: a narrow or solid
-part on the axis reaching further below the base than above it is the stem; above
-it, the pistil; a compact one at the base, the receptacle; off the axis above the base
-and within the ring, a stamen; another sheet level with the ring, a petal; a smaller
-sheet at the base, a sepal; a sheet off the ring, a leaf.
+in plan) stands for the ring when there is none and the file has other parts.
+Around that frame: a narrow or solid part on the axis reaching further below the base
+than above it is the stem; above it, the pistil; a compact one at the base, the
+receptacle; off the axis above the base and within the ring, a stamen; another sheet
+level with the ring, a petal; a smaller sheet at the base, a sepal; a sheet off the
+ring, a leaf.
+
+A part made of 2 to ``MAX_PIECES`` alike sheets or shells (five petals in one OBJ
+group) is judged piece by piece, and gets its pieces' most common verdict.
+
+Assumed: one flower per file (a branch of many blossoms has many rings; only the
+largest is found). Where the petals lie flat (a daisy seen edge-on), up along the axis
+is a guess, so a stem and a pistil may swap.
 
 A name containing petal, stem, leaf, sepal, stamen (anther, filament), pistil or
 receptacle (one of them only) decides the kind instead; petals are still told thin or
@@ -53,7 +61,8 @@ LAYERED = 0.3  #: area fraction with a parallel layer behind it that makes a she
 THIN = 0.2  #: ... when that layer is nearer than this fraction of the width
 OPEN = 1.0  #: an open sheet's boundary is at least this times sqrt(area)
 COMPACT = 0.5  #: third / first principal extent of a blob
-MAJOR = 0.1  #: a connected piece with this fraction of its part's area counts
+MAJOR = 0.2  #: a connected piece with this fraction of its part's largest piece's area counts
+MAX_PIECES = 64  #: a part of more alike pieces than this is judged whole (time)
 ALIKE_AREA = 2.0  #: petals of one ring differ in area by less than this factor ...
 ALIKE_LENGTH = 1.5  #: ... and in length by less than this one
 RING_SPREAD = 0.35  #: std / mean of the petals' distances from the axis
@@ -141,27 +150,24 @@ def _measure(vertices: np.ndarray, faces: np.ndarray) -> _Shape:
 
 
 def _pieces(vertices: np.ndarray, faces: np.ndarray) -> list[_Shape]:
-    """The part's major connected pieces, if it is several alike sheets or shells (five
-    petals in one group); else ``[]``."""
+    """The part's connected pieces, if it is 2 to ``MAX_PIECES`` alike sheets or shells
+    (five petals in one group) and perhaps a few crumbs; else ``[]`` (judged whole)."""
     f = np.asarray(faces, dtype=np.int64)
-    label = topology.components(whole_faces := _welded_faces(vertices, f), len(vertices))
+    welded = _welded_faces(vertices, f)
+    label = topology.components(welded, len(vertices))[welded[:, 0]]
     count = int(label.max()) + 1 if len(label) else 0
     if count < 2:
         return []
-    face_label = label[whole_faces[:, 0]]
-    shapes = []
-    for c in range(count):
-        mine = f[face_label == c]
-        if len(mine):
-            shapes.append(_measure(vertices, mine))
-    total = sum(s.area for s in shapes)
-    major = [s for s in shapes if s.area >= MAJOR * total]
-    if len(major) < 2 or any(s.form not in ("sheet", "shell") for s in major):
+    tri = vertices[f]
+    face_area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
+    area = np.bincount(label, weights=face_area, minlength=count)
+    major = np.flatnonzero(area >= MAJOR * area.max())
+    if not 2 <= major.size <= MAX_PIECES or area[major].min() * ALIKE_AREA < area.max():
         return []
-    areas = np.array([s.area for s in major])
-    if areas.max() > ALIKE_AREA * areas.min():
+    shapes = [_measure(vertices, f[label == c]) for c in major]
+    if any(s.form not in ("sheet", "shell") for s in shapes):
         return []
-    return major
+    return shapes
 
 
 def _welded_faces(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
