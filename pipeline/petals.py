@@ -41,6 +41,10 @@ class Petals:
     edge_target: np.ndarray  #: (P,) remesh target edge in input units (0: not remeshed)
     dropped: list = field(default_factory=list)  #: descriptions of parts left out
     notes: list = field(default_factory=list)  #: one line per thing worth telling
+    #: petals that could not be made mirror-symmetric (symmetrize asked): a later stage can
+    #: turn on the center-plane constraint for them
+    unsymmetrized: list = field(default_factory=list)
+    min_angle: np.ndarray = None  #: (P,) smallest angle per petal, corners excepted (remesh.quality)
 
 
 def _submesh(faces: np.ndarray, idx: np.ndarray) -> np.ndarray:
@@ -80,6 +84,7 @@ def prepare(vertices: np.ndarray, faces: np.ndarray, *, where: str, target_edge:
     out_v, out_f, out_petal, planes, before, after, targets = [], [], [], [], [], [], []
     offset = 0
     notes = []
+    unsymmetrized, quality = [], []
     for p in range(int(petal.max()) + 1):
         idx = np.flatnonzero(petal == p)
         pts, lf = v[idx], _submesh(f, idx)
@@ -87,27 +92,15 @@ def prepare(vertices: np.ndarray, faces: np.ndarray, *, where: str, target_edge:
         before.append(err)
         h = (target_edge * scale if target_edge > 0 else
              remesh.target_for_vertices(pts, lf, petal_vertices) if petal_vertices > 0 else 0.0)
-        if symmetrize:
-            partner = symmetry.mirror_pairs(pts, plane, lf) if h == 0.0 else None
-            if partner is not None:
-                pts = symmetry.symmetrize(pts, plane, partner)
-            else:
-                redo = (lambda a, b, fixed, h=h: remesh.isotropic(a, b, h, fixed=fixed)) if h else None
-                try:
-                    # snap near-plane vertices so the cut makes no slivers; before a remesh
-                    # (which resamples the cut) far less, or the snap distorts the half
-                    snap = (SNAP_REMESHED if h else SNAP) * clean.mean_edge_length(pts, lf)
-                    pts, lf, _ = symmetry.mirrored_mesh(pts, lf, plane, snap=snap, remesh=redo)
-                except ValueError as exc:
-                    raise BloomError(f"petal {p}: cannot symmetrize ({exc}); set "
-                                     "remesh.symmetrize = false", where=where) from None
-                notes.append(f"petal {p}: cut along its center plane and mirrored"
-                             + (f", remeshed at edge {h / scale:.4g}" if h else ""))
-            err = symmetry.asymmetry(pts, plane)
-        elif h:
-            pts, lf, _ = remesh.isotropic(pts, lf, h)
-            err = symmetry.asymmetry(pts, plane)
-        after.append(err)
+        pts, lf, h, note, mirrored = _petal(pts, lf, plane, h, symmetrize, f"petal {p}", scale)
+        notes += note
+        if symmetrize and not mirrored:
+            unsymmetrized.append(p)
+        quality.append(remesh.quality(pts, lf))
+        if quality[-1] < remesh.MIN_ANGLE:
+            notes.append(f"petal {p}: warning: smallest angle {quality[-1]:.1f} deg is still below "
+                         f"{remesh.MIN_ANGLE:g} after remeshing")
+        after.append(symmetry.asymmetry(pts, plane) if symmetrize or h else err)
         targets.append(h)
         planes.append(plane)
         out_v.append(pts)
@@ -120,7 +113,95 @@ def prepare(vertices: np.ndarray, faces: np.ndarray, *, where: str, target_edge:
     planes[:, 3] *= again
     return Petals(v * again, f, np.concatenate(out_petal), planes, scale * again,
                   np.asarray(before) * again, np.asarray(after) * again, report,
-                  np.asarray(targets) / scale, dropped=dropped, notes=notes)
+                  np.asarray(targets) / scale, dropped=dropped, notes=notes,
+                  unsymmetrized=unsymmetrized, min_angle=np.asarray(quality))
+
+
+def _remesh_half(h: float):
+    """The remesh step of :func:`symmetry.mirrored_mesh`: isotropic at ``h``, then
+    :func:`remesh.improve` with the cut's vertices free to slide along it (they get
+    first coordinate 0 there, and sliding between two of them keeps it exactly 0)."""
+    def redo(v, f, fixed):
+        v, f, fixed = remesh.isotropic(v, f, h, fixed=fixed)
+        seam = topology.boundary_vertices(f, len(v)) & (v[:, 0] == 0.0) & ~fixed
+        v, f, fixed, _ = remesh.improve(v, f, fixed, seam)
+        return v, f, fixed
+    return redo
+
+
+def _fixed_quality(pts, lf, h, what, scale):
+    """The sheet itself if it meets :data:`remesh.MIN_ANGLE`, else remeshed at ``h``."""
+    worst = remesh.quality(pts, lf)
+    if worst >= remesh.MIN_ANGLE:
+        return pts, lf, []
+    # the user's triangles if moving vertices along the surface is enough
+    moved, _, _, _ = remesh.improve(pts, lf, moves_only=True)
+    if remesh.quality(moved, lf) >= remesh.MIN_ANGLE:
+        count = int(np.sum(np.any(moved != pts, axis=1)))
+        return moved, lf, [f"{what}: triangles below {remesh.MIN_ANGLE:g} deg (min {worst:.1f} "
+                           f"deg): moved {count} vertices along the surface, triangles kept"]
+    pts, lf, _ = remesh.isotropic(pts, lf, h)
+    pts, lf, _, _ = remesh.improve(pts, lf)
+    return pts, lf, [f"{what}: triangles below {remesh.MIN_ANGLE:g} deg (min {worst:.1f} deg): "
+                     f"remeshed at edge {h / scale:.4g}"]
+
+
+def _petal(pts, lf, plane, h, symmetrize, what, scale):
+    """One petal's sheet made symmetric (if asked) and of :data:`remesh.MIN_ANGLE` quality.
+
+    Returns ``(vertices, faces, h, notes, mirrored)``; ``h`` is the remesh target used
+    (0: the input's own triangles were kept)."""
+    own = clean.mean_edge_length(pts, lf)
+    if not symmetrize:
+        if h:
+            pts, lf, _ = remesh.isotropic(pts, lf, h)
+            pts, lf, _, _ = remesh.improve(pts, lf)
+            return pts, lf, h, [], False
+        out, out_f, note = _fixed_quality(pts, lf, own, what, scale)
+        return out, out_f, (own if len(out_f) != len(lf) or np.any(out_f != lf) else 0.0), note, False
+    if h == 0.0:
+        partner = symmetry.mirror_pairs(pts, plane, lf)
+        if partner is not None:
+            paired = symmetry.symmetrize(pts, plane, partner)
+            worst = remesh.quality(paired, lf)
+            if worst >= remesh.MIN_ANGLE:
+                return paired, lf, 0.0, [], True
+            # keep the user's (paired) triangles: move vertices in the tangent plane only,
+            # then average with the mirror image again (pairs stay pairs)
+            moved, _, _, _ = remesh.improve(paired, lf, moves_only=True)
+            changed = np.any(moved != paired, axis=1)
+            changed |= changed[partner]
+            moved[changed] = symmetry.symmetrize(moved, plane, partner)[changed]
+            if remesh.quality(moved, lf) >= remesh.MIN_ANGLE:
+                count = int(changed.sum())
+                return moved, lf, 0.0, [f"{what}: triangles below {remesh.MIN_ANGLE:g} deg (min "
+                                        f"{worst:.1f} deg): moved {count} vertices along the "
+                                        "surface, triangles kept"], True
+        else:
+            try:
+                # snap near-plane vertices so the cut makes few slivers; kept if it makes none
+                cut, cut_f, _ = symmetry.mirrored_mesh(pts, lf, plane, snap=SNAP * own)
+                worst = remesh.quality(cut, cut_f)
+                if worst >= remesh.MIN_ANGLE:
+                    return cut, cut_f, 0.0, [f"{what}: cut along its center plane and mirrored"], True
+            except ValueError:
+                worst = remesh.quality(pts, lf)
+    target = h or own
+    try:
+        # before a remesh (which resamples the cut) snap far less, or the snap distorts the half
+        out, out_f, _ = symmetry.mirrored_mesh(pts, lf, plane, snap=SNAP_REMESHED * own,
+                                               remesh=_remesh_half(target))
+    except ValueError as exc:
+        fixed, fixed_f, note = _fixed_quality(pts, lf, target, what, scale)
+        kept = len(fixed_f) == len(lf) and np.all(fixed_f == lf)
+        return fixed, fixed_f, (0.0 if kept else target), note + [
+            f"{what}: warning: cannot be mirrored ({exc}); left unsymmetrized"], False
+    if h:
+        return out, out_f, h, [f"{what}: cut along its center plane and mirrored, remeshed at "
+                               f"edge {h / scale:.4g}"], True
+    return out, out_f, target, [f"{what}: triangles below {remesh.MIN_ANGLE:g} deg (min "
+                                f"{worst:.1f} deg): cut along its center plane, remeshed at edge "
+                                f"{target / scale:.4g} and mirrored"], True
 
 
 def _open_parts(v: np.ndarray, f: np.ndarray, closed_parts: str, where: str):

@@ -18,6 +18,81 @@ from . import topology
 
 SPLIT, COLLAPSE = 4.0 / 3.0, 4.0 / 5.0
 
+#: The quality bound every petal leaves the remesh stage with: no triangle angle below
+#: MIN_ANGLE degrees, except a triangle's angle at a *corner*, a boundary vertex whose rim
+#: angle (the sum of its triangles' angles there: how wide the sheet opens at it) is
+#: below CORNER x MIN_ANGLE. At such a vertex (a petal's tip, a needle) the rim itself
+#: bounds what the triangles there can have; their other angles still count. Degenerate
+#: triangles measure 0 and inverted ones (see :func:`inverted_faces`) count as 0 too.
+#: 20 deg keeps the explicit step's stability limit (shortest altitude) and the hinges'
+#: normals usable; the Botsch-Kobbelt remesher reaches about 30 inside a sheet.
+MIN_ANGLE = 20.0
+CORNER = 2.0
+RIM_TURN = 10.0  #: degrees: :func:`improve` may remove a rim vertex where the rim turns less
+
+
+def triangle_angles(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """``(F, 3)`` angles in degrees at each face's corners (0 for a degenerate face).
+
+    atan2 of |cross| and dot, not arccos of a normalized dot: no division, so a
+    zero-length edge gives 0 rather than NaN, and slivers keep their precision."""
+    p = np.asarray(vertices, dtype=np.float64)[np.asarray(faces, dtype=np.int64)]
+    out = np.empty(p.shape[:2])
+    for k in range(3):
+        a, b = p[:, (k + 1) % 3] - p[:, k], p[:, (k + 2) % 3] - p[:, k]
+        out[:, k] = np.arctan2(np.linalg.norm(np.cross(a, b), axis=1), np.einsum("ij,ij->i", a, b))
+    return np.degrees(out)
+
+
+def inverted_faces(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """``(F,) bool``: faces wound against a neighbour (both run their shared edge the
+    same way) or folded over their neighbours: the face's normal points away from the
+    sum of its edge-neighbours' unit normals (the sheet's tangent plane there)."""
+    f = np.asarray(faces, dtype=np.int64)
+    he, _, _, _, a, b = topology.interior_pairs(f)
+    nf = len(f)
+    bad = np.zeros(nf, dtype=bool)
+    wrong = he[a, 0] == he[b, 0]
+    bad[a[wrong] % nf] = bad[b[wrong] % nf] = True
+    n = topology.face_normals(vertices, f)
+    length = np.linalg.norm(n, axis=1)
+    unit = n / np.where(length > 0.0, length, 1.0)[:, None]
+    around = np.zeros_like(unit)
+    np.add.at(around, a % nf, unit[b % nf])
+    np.add.at(around, b % nf, unit[a % nf])
+    lone = ~np.any(around != 0.0, axis=1)  # no neighbour (or all degenerate): nothing to fold over
+    return bad | (~lone & (np.einsum("ij,ij->i", unit, around) <= 0.0))
+
+
+def sharp_corners(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """``(V,) bool``: boundary vertices whose rim angle is below ``CORNER * MIN_ANGLE``."""
+    f = np.asarray(faces, dtype=np.int64)
+    rim = np.zeros(len(vertices))
+    np.add.at(rim, f.ravel(), triangle_angles(vertices, f).ravel())
+    return topology.boundary_vertices(f, len(vertices)) & (rim < CORNER * MIN_ANGLE)
+
+
+def corner_angles(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """``(F, 3) bool``: the face angles :data:`MIN_ANGLE` does not apply to (those at a
+    :func:`sharp_corners` vertex)."""
+    return sharp_corners(vertices, faces)[np.asarray(faces, dtype=np.int64)]
+
+
+def face_quality(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """``(F,)`` each face's smallest angle in degrees, corners excepted (see
+    :data:`MIN_ANGLE`); 0 for degenerate and inverted faces."""
+    angles = triangle_angles(vertices, faces)
+    angles[corner_angles(vertices, faces)] = 180.0
+    worst = angles.min(axis=1)
+    worst[inverted_faces(vertices, faces)] = 0.0
+    return worst
+
+
+def quality(vertices: np.ndarray, faces: np.ndarray) -> float:
+    """The mesh's smallest triangle angle in degrees away from corners, 0 if any face
+    is degenerate or inverted: a mesh meets the bound when ``quality >= MIN_ANGLE``."""
+    return float(face_quality(vertices, faces).min()) if len(faces) else 0.0
+
 
 def target_for_vertices(vertices: np.ndarray, faces: np.ndarray, count: int) -> float:
     """Edge length that gives about ``count`` vertices on this sheet.
@@ -256,3 +331,200 @@ def isotropic(vertices: np.ndarray, faces: np.ndarray, h: float, *,
         if split == 0:
             break
     return np.ascontiguousarray(v), delaunay_flips(v, f), fixed
+
+
+def _worst(v: np.ndarray, faces: np.ndarray, sharp: np.ndarray, normals: np.ndarray | None = None) -> float:
+    """Smallest angle of ``faces`` away from ``sharp`` vertices; -1 if one of them turned
+    against ``normals`` (its normal before a change) or has no area."""
+    if len(faces) == 0:
+        return 180.0
+    n = topology.face_normals(v, faces)
+    if normals is not None and np.any(np.einsum("ij,ij->i", n, normals) <= 0.0):
+        return -1.0
+    if not np.all(np.any(n != 0.0, axis=1)):
+        return -1.0
+    angles = triangle_angles(v, faces)
+    angles[sharp[faces]] = 180.0
+    return float(angles.min())
+
+
+class _Improver:
+    """The state of :func:`improve`: positions, faces and which vertex may do what."""
+
+    def __init__(self, v, f, fixed, slide):
+        self.v, self.f, self.fixed, self.slide = v, f, fixed, slide
+
+    def refresh(self, flip: bool = True) -> None:
+        if flip:
+            self.f = delaunay_flips(self.v, self.f)
+        edges, _, count = topology.unique_edges(self.f)
+        self.rim_edges = {tuple(e) for e in edges[count == 1].tolist()}
+        self.boundary = topology.boundary_vertices(self.f, len(self.v))
+        self.sharp = sharp_corners(self.v, self.f)
+        rim = np.zeros(len(self.v))
+        np.add.at(rim, self.f.ravel(), triangle_angles(self.v, self.f).ravel())
+        # a rim vertex where the rim runs straight on (within RIM_TURN) may go: the
+        # outline moves by a sliver at most
+        self.straight = self.boundary & ~self.fixed & (np.abs(rim - 180.0) < RIM_TURN)
+        self.incident = [[] for _ in range(len(self.v))]
+        for i, tri in enumerate(self.f.tolist()):
+            for a in tri:
+                self.incident[a].append(i)
+
+    def region(self, vertices) -> np.ndarray:
+        return self.f[sorted({t for i in vertices for t in self.incident[i]})]
+
+    def attempt(self, change, around: list[int]) -> bool:
+        """Make a topological ``change`` (a function of the arrays returning them changed,
+        or None), move the vertices around it to their best places, and keep it only if
+        the smallest angle there went up; otherwise undo it."""
+        saved = (self.v, self.f, self.fixed, self.slide)
+        before = _worst(self.v, self.region([i for i in around if i < len(self.v)]), self.sharp)
+        changed = change(self.v.copy(), self.f.copy(), self.fixed.copy(), self.slide.copy())
+        if changed is None:
+            return False
+        self.v, self.f, self.fixed, self.slide = changed
+        self.refresh(flip=False)
+        near = [i for i in around if i < len(self.v) and self.incident[i]]
+        ring = sorted({x for t in self.region(near).tolist() for x in t})
+        for i in ring:
+            self.relocate(i)
+        if _worst(self.v, self.region(ring), self.sharp) > before + 1e-9 and not np.any(
+                inverted_faces(self.v, self.region(ring))):
+            return True
+        self.v, self.f, self.fixed, self.slide = saved
+        self.refresh(flip=False)
+        return False
+
+    def candidates(self, i: int, ring: np.ndarray) -> list[np.ndarray]:
+        v = self.v
+        if self.boundary[i]:
+            if not self.slide[i]:
+                return []
+            # along the rim only, towards either rim neighbour: a seam vertex stays exactly on
+            # the plane (its coordinate across the plane is 0 at both ends of the step)
+            others = sorted({int(x) for x in ring.ravel()} - {i})
+            along = [j for j in others if (min(i, j), max(i, j)) in self.rim_edges]
+            return [v[i] + t * (v[j] - v[i]) for j in along for t in (0.1, 0.2, 0.3, 0.4)]
+        normal = topology.face_normals(v, ring).sum(axis=0)
+        normal /= max(np.linalg.norm(normal), 1e-300)
+        others = sorted({int(x) for x in ring.ravel()} - {i})
+        targets = [v[others].mean(axis=0)]
+        for tri in ring.tolist():  # the apex that makes each face equilateral over its far edge
+            a, b = (x for x in tri[tri.index(i) + 1:] + tri[:tri.index(i)])
+            e = v[b] - v[a]
+            side = np.cross(normal, e)
+            targets.append(0.5 * (v[a] + v[b]) + np.sqrt(3.0) / 2.0 * side / max(
+                np.linalg.norm(side), 1e-300) * np.linalg.norm(e))
+        out = []
+        for target in targets:
+            d = target - v[i]
+            d -= normal * (normal @ d)  # in the tangent plane
+            out += [v[i] + t * d for t in (1.0, 0.5, 0.25)]
+        return out
+
+    def relocate(self, i: int) -> bool:
+        if self.fixed[i]:
+            return False
+        ring = self.f[self.incident[i]]
+        normals = topology.face_normals(self.v, ring)
+        best, best_pos = _worst(self.v, ring, self.sharp), None
+        keep = self.v[i].copy()
+        for pos in self.candidates(i, ring):
+            self.v[i] = pos
+            score = _worst(self.v, ring, self.sharp, normals)
+            if score > best + 1e-9:
+                best, best_pos = score, pos
+        self.v[i] = keep if best_pos is None else best_pos
+        return best_pos is not None
+
+    def collapse(self, a: int, b: int) -> bool:
+        """Merge ``b`` into ``a`` (which keeps its place)."""
+        if self.fixed[b] or (self.boundary[b] and not (self.slide[b] or self.straight[b])):
+            return False
+        if self.boundary[a] and self.boundary[b] and (min(a, b), max(a, b)) not in self.rim_edges:
+            return False
+        fa, fb = self.incident[a], self.incident[b]
+        shared = [t for t in fb if t in fa]
+        ring_a = {x for t in fa for x in self.f[t].tolist()} - {a}
+        ring_b = {x for t in fb for x in self.f[t].tolist()} - {b}
+        opposite = {x for t in shared for x in self.f[t].tolist()} - {a, b}
+        if ring_a & ring_b != opposite:  # link condition
+            return False
+
+        def change(v, f, fixed, slide):
+            f[f == b] = a
+            return v, np.delete(f, shared, axis=0), fixed, slide
+
+        return self.attempt(change, sorted(ring_a | ring_b | {a}))
+
+    def split(self, a: int, b: int) -> bool:
+        """Split edge ``a-b`` at its midpoint."""
+        faces = [t for t in self.incident[a] if t in self.incident[b]]
+        rim = len(faces) == 1
+        m = len(self.v)
+
+        def change(v, f, fixed, slide):
+            new = []
+            for t in faces:
+                tri = f[t].tolist()
+                k = tri.index(a)
+                _, y, z = tri[k:] + tri[:k]  # rotated to start at a, winding kept
+                new += [(a, m, z), (m, b, z)] if y == b else [(a, y, m), (m, y, b)]
+            f = np.vstack([np.delete(f, faces, axis=0), np.asarray(new, dtype=np.int64)])
+            return (np.vstack([v, 0.5 * (v[a] + v[b])]), f, np.r_[fixed, False],
+                    np.r_[slide, rim and bool(slide[a] and slide[b])])
+
+        around = sorted({x for t in faces for x in self.f[t].tolist()})
+        return self.attempt(change, [*around, m])
+
+
+def improve(vertices: np.ndarray, faces: np.ndarray, fixed: np.ndarray | None = None,
+            slide: np.ndarray | None = None, passes: int = 30, moves_only: bool = False):
+    """Raise a sheet's smallest angle towards :data:`MIN_ANGLE` by local changes.
+
+    Delaunay flips; then, for each face below the bound, worst first: move one of its
+    vertices in the tangent plane (a boundary vertex only if ``slide`` allows it, and
+    then only along the rim), else collapse its shortest edge, else split its longest,
+    each only where it raises the smallest angle of the faces it touches (so this
+    ends). ``fixed`` vertices never move nor go; with ``moves_only`` the faces are kept
+    as they are (no flips, collapses or splits: a mirror-paired mesh stays paired).
+    Returns ``(vertices, faces, fixed,
+    slide)`` with unused vertices dropped.
+    """
+    v = np.array(vertices, dtype=np.float64)
+    work = _Improver(v, np.array(faces, dtype=np.int64),
+                     np.zeros(len(v), dtype=bool) if fixed is None else np.array(fixed, dtype=bool),
+                     np.zeros(len(v), dtype=bool) if slide is None else np.array(slide, dtype=bool))
+    for _ in range(passes):
+        work.refresh(flip=not moves_only)
+        q = face_quality(work.v, work.f)
+        bad = np.flatnonzero(q < MIN_ANGLE)
+        if len(bad) == 0:
+            break
+        changed = False
+        for t in bad[np.argsort(q[bad], kind="stable")].tolist():
+            tri = work.f[t].tolist()
+            if any([work.relocate(i) for i in tri]):
+                changed = True
+                continue
+            if moves_only:
+                continue
+            p = work.v[tri]
+            length = np.linalg.norm(p - np.roll(p, -1, axis=0), axis=1)  # edge k: tri[k]-tri[k+1]
+            k = int(np.argmin(length))
+            a, b = tri[k], tri[(k + 1) % 3]
+            if work.collapse(a, b) or work.collapse(b, a):
+                changed = True
+                break
+            k = int(np.argmax(length))
+            if work.split(tri[k], tri[(k + 1) % 3]):
+                changed = True
+                break
+        if not changed:
+            break
+    f = work.f
+    used = np.zeros(len(work.v), dtype=bool)
+    used[f.ravel()] = True
+    remap = np.cumsum(used) - 1
+    return work.v[used], remap[f], work.fixed[used], work.slide[used]

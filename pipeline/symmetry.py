@@ -204,12 +204,18 @@ def mirrored_mesh(vertices: np.ndarray, faces: np.ndarray, plane: np.ndarray, *,
     R, origin = plane_frame(plane)
     local = (np.asarray(vertices, dtype=np.float64) - origin) @ R.T
     close = np.abs(local[:, 0]) < snap
-    # never snap both ends of an edge that crosses the plane: that would shorten it to
-    # its length along the plane (or merge its ends); keep the end nearer the plane
+    # never snap both ends of an edge that crosses the plane steeply (more across it than
+    # along it): that would shorten it to its length along the plane (or merge its ends);
+    # keep the end nearer the plane. An edge lying in the plane up to rounding (a midrib
+    # at u = +-1e-16) is snapped whole: leaving one end off by 1e-16 would make a crossing
+    # vertex on top of it for every edge from it to the other side.
     edges, _, _ = topology.unique_edges(faces)
     u = local[:, 0]
+    du2 = (u[edges[:, 0]] - u[edges[:, 1]]) ** 2
+    steep = 2.0 * du2 > np.sum((local[edges[:, 0]] - local[edges[:, 1]]) ** 2, axis=1)
     for _ in range(len(edges)):
-        both = close[edges[:, 0]] & close[edges[:, 1]] & (u[edges[:, 0]] * u[edges[:, 1]] < 0)
+        both = (close[edges[:, 0]] & close[edges[:, 1]] & (u[edges[:, 0]] * u[edges[:, 1]] < 0)
+                & steep)
         if not both.any():
             break
         e = edges[np.flatnonzero(both)[0]]

@@ -24,7 +24,10 @@ def command(mesh: str | None, config_path, overrides, out, overwrite) -> None:
     two-layer petals, remeshes each petal to remesh.target_edge or
     remesh.petal_vertices (boundary included), with remesh.symmetrize makes each petal
     mirror-symmetric about its center plane, and scales the mesh so its mean edge is 1
-    (the scale is recorded; the mesh is never rotated).
+    (the scale is recorded; the mesh is never rotated). A petal whose triangles have an
+    angle under 20 deg (pipeline.remesh.MIN_ANGLE; sharp rim corners excepted) is remeshed
+    at its own mean edge; a petal that cannot be mirrored is kept as it is and listed in
+    the attribute unsymmetrized.
     """
     from pipeline import artifact
     from pipeline.meshfile import read_mesh
@@ -44,7 +47,10 @@ def command(mesh: str | None, config_path, overrides, out, overwrite) -> None:
     for line in result.dropped:
         log.warning("%s: left out %s (remesh.closed_parts = \"drop\")", mesh_path, line)
     for line in result.notes:
-        log.info("%s", line)
+        if ": warning: " in line:
+            log.warning("%s: %s", mesh_path, line.replace(": warning: ", ": ", 1))
+        else:
+            log.info("%s", line)
     log.info("%s: %d vertices, %d faces, %d petal(s); welded %d, dropped %d degenerate and "
              "%d duplicate faces, flipped %d; scale %.6g; asymmetry %s -> %s",
              mesh_path, len(result.vertices), len(result.faces), len(result.plane),
@@ -61,6 +67,9 @@ def command(mesh: str | None, config_path, overrides, out, overwrite) -> None:
         "edge_target": result.edge_target,
         "dropped_parts": json.dumps(result.dropped),
         "notes": json.dumps(result.notes),
+        # petals remesh.symmetrize could not mirror (a later stage may constrain them instead)
+        "unsymmetrized": np.asarray(result.unsymmetrized, dtype=np.int64),
+        "min_angle": result.min_angle,
     }
     with artifact.writing(out, stage="remesh", config_json=cfg.to_json(),
                           inputs=input_hashes(cfg, mesh_path), attrs=attrs) as h5:
