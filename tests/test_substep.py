@@ -142,7 +142,7 @@ def test_substeps_are_bit_identical_on_rerun():
 class Optimistic(SemiImplicit):
     """An estimate far too optimistic: one substep whatever h."""
 
-    def stable_step(self, model, state, control, h, effects=fx.Effects()):
+    def stable_step(self, model, state, control, h, effects=None):
         return 1, 100.0
 
 
@@ -162,6 +162,15 @@ def test_rollback_gives_up_after_the_halvings():
         grow(2.5, integrator=Optimistic(0.1, max_halvings=0))
     with pytest.raises(Diverged, match="64 substeps per step after 6 halvings"):
         grow(1e4, steps=20, frames=2, integrator=Optimistic(0.1))
+    with pytest.raises(Diverged, match="8 substeps per step after 3 halvings"):
+        grow(1e4, steps=20, frames=2, integrator=Optimistic(0.1, max_substeps=8))
+
+
+def test_substeps_are_capped():
+    """An estimate past the cap is clamped to it (h = 1e4 needs ~10^4 substeps)."""
+    integ = SemiImplicit(0.1, max_substeps=16, max_halvings=0)
+    with pytest.raises(Diverged, match="16 substeps per step after 0 halvings"):
+        grow(1e4, steps=20, frames=2, integrator=integ)
 
 
 def bud_effects(names, stiffness=1e-5):
@@ -208,7 +217,7 @@ def test_connection_springs_break_at_the_user_step_their_substep_falls_in(bud, m
     the same run at k = 1 breaks them at nearby steps (within a few percent of the run)."""
 
     class Three(SemiImplicit):
-        def stable_step(self, model, state, control, h, effects=fx.Effects()):
+        def stable_step(self, model, state, control, h, effects=None):
             return 3, 1.0
 
     names = ("connections",)

@@ -8,9 +8,9 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from . import kernels
-from .stable_step import StableStep, rest_angles, scheme_limit
 from .effects import Effects
 from .model import Control, Model, State
+from .stable_step import StableStep, rest_angles, scheme_limit
 
 NO_EFFECTS = Effects()
 
@@ -28,6 +28,10 @@ class Diverged(RuntimeError):
 SAFETY = 0.9
 #: a substep that still diverges is halved at most this many times, then Diverged
 MAX_HALVINGS = 6
+#: never more substeps per step than this (a mesh that needs more, e.g. a collapsing
+#: triangle, would otherwise run for ever): the estimate is clamped to it, and a
+#: divergence at it is final
+MAX_SUBSTEPS = 256
 
 
 @dataclass
@@ -38,14 +42,22 @@ class SemiImplicit:
     Substeps: the user's ``h`` is the step of the step counter, of the recorded times, of
     A(t) and of the connection springs' break steps; the kernel integrates with
     ``h / k``, ``k >= 1`` the smallest integer that puts ``h / k * omega_max`` under
-    :data:`SAFETY` times the scheme's limit (:func:`pipeline.sim.stable_step.scheme_limit`), with
-    ``omega_max`` estimated from the model at the start of each :meth:`advance` call (one
-    per recorded frame; :mod:`pipeline.sim.stable_step`). Where ``h`` is stable, ``k = 1`` and the
-    kernel runs exactly as without substeps. A call that still diverges is rolled back
-    to its start (state and the effects' arrays) and retried with the substep halved,
-    up to :data:`MAX_HALVINGS` times. The choice depends only on the state at the
-    start of the call, so a resumed run chooses as an uninterrupted one does.
-    ``substep = False`` runs at ``h`` with no estimate and no rollback (as the paper)."""
+    :data:`SAFETY` times the scheme's limit
+    (:func:`pipeline.sim.stable_step.scheme_limit`), with ``omega_max`` estimated from the
+    model at the start of each :meth:`advance` call (one per recorded frame;
+    :mod:`pipeline.sim.stable_step`). Where ``h`` is stable, ``k = 1`` and the kernel runs
+    exactly as without substeps. A call that still diverges is rolled back to its start
+    (state and the effects' arrays) and retried with the substep halved, up to
+    :data:`MAX_HALVINGS` times (and :data:`MAX_SUBSTEPS` substeps). The choice depends
+    only on the state at the start of the call, so a resumed run chooses as an
+    uninterrupted one does. ``substep = False`` runs at ``h`` with no estimate and no
+    rollback (as the paper).
+
+    Effects under substeps: collisions work in distances (the push-back offset, the
+    margin, the grid's slack), not in steps, and each substep resolves its contacts (the
+    ``contacts`` diagnostic counts kernel steps' contacts, so ``k`` times as many for a
+    contact that persists); connection springs are tested every substep and a break at
+    substep ``s`` is recorded at the user's step ``ceil(s / k)``."""
 
     eta: float
     d: float = 1.0
@@ -53,6 +65,7 @@ class SemiImplicit:
     substep: bool = True
     safety: float = SAFETY
     max_halvings: int = MAX_HALVINGS
+    max_substeps: int = MAX_SUBSTEPS
     _estimator: object = field(default=None, repr=False, compare=False)
     _frame: dict = field(default_factory=dict, repr=False, compare=False)
 
@@ -94,7 +107,7 @@ class SemiImplicit:
         if omega == 0.0:
             return 1, math.inf
         h_max = limit / omega
-        return max(1, math.ceil(h / h_max * (1.0 - 1e-12))), h_max
+        return min(self.max_substeps, max(1, math.ceil(h / h_max * (1.0 - 1e-12)))), h_max
 
     def advance(self, model: Model, state: State, control: Control, n_steps: int, h: float,
                 effects: Effects = NO_EFFECTS) -> None:
@@ -119,7 +132,7 @@ class SemiImplicit:
                 state.step += n_steps
                 self._frame["substeps"] = k
                 return
-            if attempt == self.max_halvings:
+            if attempt == self.max_halvings or 2 * k > self.max_substeps:
                 break
             saved.restore(state, effects)
             k *= 2
@@ -127,7 +140,7 @@ class SemiImplicit:
         state.potential_energy = energy
         state.step += -(-taken // k)
         why = (f"potential energy {energy:.3g}, max speed {state.max_speed():.3g}, with "
-               f"{k} substeps per step after {self.max_halvings} halvings")
+               f"{k} substeps per step after {self._frame['rollbacks']} halvings")
         raise Diverged(state.step, energy, state.max_speed(), why)
 
     def _kernel(self, model, state, control, n, h_sub, k, effects) -> tuple[float, int]:
