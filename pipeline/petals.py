@@ -25,6 +25,10 @@ from .errors import BloomError
 #: cut, with and without a remesh after (remeshed souki202: 0.05 gives min angle 6.0
 #: deg, 0.1 gives 1.5, 0.2 gives 0.35)
 SNAP, SNAP_REMESHED = 0.2, 0.05
+#: a sharp rim corner (the tip) this close to the plane (in mean edges) goes onto it before
+#: a remesh (souki202's needle tips, 0.15 off the plane, made a 142 deg notch between two
+#: tips whose one triangle cannot have both other angles at 20 deg)
+SNAP_CORNER = 0.5
 LAYERED = 0.5  #: a sheet this much of whose area has a second layer behind it is a slab
 
 
@@ -190,7 +194,8 @@ def _petal(pts, lf, plane, h, symmetrize, what, scale):
     try:
         # before a remesh (which resamples the cut) snap far less, or the snap distorts the half
         out, out_f, _ = symmetry.mirrored_mesh(pts, lf, plane, snap=SNAP_REMESHED * own,
-                                               remesh=_remesh_half(target))
+                                               remesh=_remesh_half(target),
+                                               snap_corners=SNAP_CORNER * own)
     except ValueError as exc:
         fixed, fixed_f, note = _fixed_quality(pts, lf, target, what, scale)
         kept = len(fixed_f) == len(lf) and np.all(fixed_f == lf)

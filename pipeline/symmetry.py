@@ -190,20 +190,28 @@ def closest_points(vertices: np.ndarray, faces: np.ndarray, points: np.ndarray,
 
 
 def mirrored_mesh(vertices: np.ndarray, faces: np.ndarray, plane: np.ndarray, *,
-                  snap: float, remesh: Callable | None = None):
+                  snap: float, remesh: Callable | None = None, snap_corners: float = 0.0):
     """A mirror-symmetric petal made from both halves of a petal about ``plane``.
 
     Vertices closer than ``snap`` to the plane are moved onto it, so the cut makes no
-    slivers (before a remesh, which resamples the cut, a small snap distorts least).
+    slivers (before a remesh, which resamples the cut, a small snap distorts least), and
+    so are sharp rim corners closer than ``snap_corners``.
     The half on the normal's side is cut off, each of its vertices is moved halfway
     to the mirror image of the other half, ``remesh(v, f, fixed)`` (if given)
-    remeshes it with the ends of the cut fixed, and it is stitched to its mirror image
+    remeshes it with the ends of the cut fixed (``v`` in the plane's frame: its first
+    coordinate is the distance to the plane, exactly 0 along the cut), and it is stitched to its mirror image
     along the cut. Returns ``(vertices, faces, partner)``: ``partner`` maps every vertex
     to its mirror image (itself on the plane).
     """
     R, origin = plane_frame(plane)
     local = (np.asarray(vertices, dtype=np.float64) - origin) @ R.T
     close = np.abs(local[:, 0]) < snap
+    if snap_corners > 0.0:
+        # a sharp rim corner near the plane is the petal's tip (or its base): left off the
+        # plane, the mirrored petal gets two tips a sliver apart, with a notch between
+        from .remesh import corner_vertices
+
+        close |= corner_vertices(vertices, faces) & (np.abs(local[:, 0]) < snap_corners)
     # never snap both ends of an edge that crosses the plane steeply (more across it than
     # along it): that would shorten it to its length along the plane (or merge its ends);
     # keep the end nearer the plane. An edge lying in the plane up to rounding (a midrib

@@ -1,0 +1,145 @@
+"""The remesh stage's quality bound: after remesh and symmetrize every petal has no
+degenerate and no inverted triangle and no angle under remesh.MIN_ANGLE away from sharp
+rim corners, is mirror-symmetric (or reported unsymmetrized), and is never refused."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from pipeline import asset, remesh, stability, symmetry
+from pipeline.meshfile import read_mesh
+from pipeline.petals import prepare
+from tests.conftest import SHARED
+
+EXTERNAL = SHARED / "external-meshes"
+needs_shared = pytest.mark.skipif(not EXTERNAL.exists(), reason="../shared/external-meshes absent")
+
+
+def hexagon(center=(0.0, 0.0)):
+    """Six triangles around a centre vertex: equilateral when the centre is at the origin."""
+    ring = [(np.cos(a), np.sin(a), 0.0) for a in np.radians(np.arange(0, 360, 60))]
+    v = np.vstack([[*center, 0.0], ring])
+    f = np.array([(0, 1 + k, 1 + (k + 1) % 6) for k in range(6)])
+    return v, f
+
+
+# --- the measure, by hand ----------------------------------------------------------------
+
+def test_one_equilateral_triangle_measures_60_degrees():
+    v = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.5, np.sqrt(3.0) / 2.0, 0.0]])
+    assert remesh.quality(v, np.array([[0, 1, 2]])) == pytest.approx(60.0)
+    assert remesh.quality(*hexagon()) == pytest.approx(60.0)
+
+
+def test_a_sliver_is_detected():
+    v, f = hexagon(center=(0.0, -0.84))  # the centre almost on the rim edge below it
+    assert remesh.quality(v, f) < 5.0 < remesh.MIN_ANGLE
+    v[0, 1] = -np.sqrt(3.0) / 2.0  # exactly on it: two faces of zero area
+    assert remesh.quality(v, f) == 0.0
+
+
+def test_a_flipped_and_a_folded_triangle_are_detected():
+    v, f = hexagon()
+    flipped = f.copy()
+    flipped[2] = flipped[2, [0, 2, 1]]
+    assert remesh.inverted_faces(v, flipped).tolist() == [False, True, True, True, False, False]
+    assert remesh.quality(v, flipped) == 0.0
+    folded = v.copy()
+    folded[0] = [0.0, -1.2, 0.0]  # the centre pushed out past a rim edge: its face turns over
+    assert remesh.inverted_faces(folded, f).any() and remesh.quality(folded, f) == 0.0
+
+
+def test_a_sharp_rim_corner_is_excepted_and_only_there():
+    # a thin isosceles triangle between two fat ones: its 10 deg tip is a corner of the rim
+    tip = np.radians(10.0)
+    v = np.array([[0, 0, 0], [np.cos(tip / 2), np.sin(tip / 2), 0], [np.cos(tip / 2), -np.sin(tip / 2), 0],
+                  [1.2, 0.0, 0.0]], dtype=float)
+    f = np.array([[0, 2, 1], [1, 2, 3]])
+    assert remesh.corner_angles(v, f)[0].tolist() == [True, False, False]
+    assert remesh.quality(v, f) == pytest.approx(
+        min(remesh.triangle_angles(v, f)[0, 1:].min(), remesh.triangle_angles(v, f)[1].min()))
+    assert remesh.triangle_angles(v, f).min() < 11.0 < remesh.quality(v, f)
+
+
+def test_the_measure_does_not_depend_on_the_units():
+    v, f, _ = stability.MESHES["asymmetric bud6"]()
+    assert remesh.quality(v, f) == pytest.approx(remesh.quality(4.5e-3 * v, f), abs=1e-9)
+
+
+# --- every generator and real mesh -------------------------------------------------------
+
+def check(result):
+    """The bound, per petal; returns the smallest angle."""
+    worst = []
+    for p in range(int(result.petal.max()) + 1):
+        idx = np.flatnonzero(result.petal == p)
+        faces = np.searchsorted(idx, result.faces[np.isin(result.faces[:, 0], idx)])
+        v = result.vertices[idx]
+        assert not remesh.inverted_faces(v, faces).any(), p
+        worst.append(remesh.quality(v, faces))
+        assert worst[-1] >= remesh.MIN_ANGLE, (p, worst[-1], result.notes)
+        if p not in result.unsymmetrized:  # mean edge is 1: relative to it
+            assert result.asymmetry_after[p] < 1e-9, (p, result.asymmetry_after[p])
+    np.testing.assert_allclose(result.min_angle, worst, rtol=0, atol=1e-9)  # before the last rescale
+    return min(worst)
+
+
+GENERATORS = ["petal", "bud6", "quad petal", "quad bud6", "jittered", "asymmetric bud6", "quad bud12",
+              "bud5 5000", "three-vertex base", "centimetres", "skinny", "duplicates"]
+
+
+@pytest.mark.parametrize("name", GENERATORS)
+def test_every_generator_meets_the_bound_symmetric_and_unrefused(name):
+    v, f, _ = stability.MESHES[name]()
+    check(prepare(v, f, where=name))
+
+
+@needs_shared
+@pytest.mark.parametrize("name", ["chianti_petal1", "chianti_flower5", "souki202_petal"])
+def test_real_meshes_meet_the_bound(name):
+    v, f = read_mesh(EXTERNAL / f"{name}.obj")
+    check(prepare(v, f, where=name))
+
+
+def test_quad_petals_are_cut_remeshed_and_mirrored_and_say_so():
+    v, f, _ = stability.MESHES["quad petal"]()
+    result = prepare(v, f, where="quad.obj")
+    assert len(result.notes) == 1 and "triangles below 20 deg (min 10.8 deg): cut along its center " \
+        "plane, remeshed at edge" in result.notes[0], result.notes
+    assert result.edge_target[0] > 0
+
+
+def test_a_passing_mirror_paired_petal_is_left_as_it_is():
+    v, f, _ = asset.bud(1, 320, 0)
+    assert remesh.quality(v, f) >= remesh.MIN_ANGLE
+    result = prepare(v, f, where="petal.obj")
+    assert result.notes == [] and result.edge_target[0] == 0
+    np.testing.assert_array_equal(result.faces, f)
+    plane = result.plane[0]
+    partner = symmetry.mirror_pairs(v * result.scale, plane, f)
+    expect = symmetry.symmetrize(v * result.scale, plane, partner)
+    np.testing.assert_allclose(result.vertices, expect, rtol=0, atol=1e-12)
+
+
+def test_a_petal_that_cannot_be_mirrored_is_kept_fixed_and_listed(monkeypatch):
+    def refuse(*args, **kwargs):
+        raise ValueError("the petal lies on one side of its center plane")
+
+    monkeypatch.setattr(symmetry, "mirrored_mesh", refuse)
+    v, f, _ = stability.MESHES["quad bud6"]()
+    result = prepare(v, f, where="quad.obj")
+    assert result.unsymmetrized == list(range(6))
+    assert sum("warning: cannot be mirrored" in n for n in result.notes) == 6
+    check(result)
+
+
+def test_remesh_is_reproducible_and_unit_free():
+    v, f, _ = stability.MESHES["asymmetric bud6"]()
+    a = prepare(v, f, where="m")
+    b = prepare(v.copy(), f.copy(), where="m")
+    assert a.vertices.tobytes() == b.vertices.tobytes() and a.faces.tobytes() == b.faces.tobytes()
+    cm = prepare(100.0 * v, f, where="cm")
+    np.testing.assert_array_equal(cm.faces, a.faces)
+    np.testing.assert_allclose(cm.vertices, a.vertices, rtol=0, atol=1e-9)
+    assert cm.scale == pytest.approx(a.scale / 100.0)
