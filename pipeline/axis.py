@@ -3,11 +3,18 @@
 Per petal (a connected component):
 
 - center plane: the petal's mirror plane (:func:`symmetry.mirror_plane`);
-- base: the end attached to the receptacle. With several petals, the center planes
-  all contain the flower's axis; their least-squares intersection gives it, and each
-  petal's base is the end nearer that axis. A lone petal's base is its narrow end.
-  The fixed base vertices are the boundary vertices within ``base_fraction`` of the
-  petal's length from that end;
+- the flower's axis: given (``flower_axis``, a direction), or with several petals the
+  least-squares intersection of their center planes (they all contain it). A given
+  direction is taken through the point closest (least squares) to all center planes
+  within the plane across it; where the planes do not fix that point (one petal, or
+  petals sharing one plane), the petals' mean centroid fixes it (a lone petal: its
+  base's centroid). The axis points from the receptacle toward the tips: a given
+  direction as given; a found one by the petals (their tips rise along it) or, where
+  they do not tell (a flat open flower), by ``up``;
+- base: the end attached to the receptacle: with several petals (and an axis), the end
+  nearer the flower's axis; a lone petal's, its narrow end, or with a given axis its
+  end lowest along it. The fixed base vertices are the boundary vertices within
+  ``base_fraction`` of the petal's length from that end;
 - tip: the far end of the axis: of the axis vertices, the one farthest from the base
   along the mesh;
 - s: distance from the base along the mesh, over the tip's (0 at the base, 1 at the
@@ -22,7 +29,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.sparse.csgraph import dijkstra
+from scipy.sparse.csgraph import connected_components, dijkstra
 
 from . import symmetry, topology
 
@@ -118,6 +125,101 @@ def flower_axis(planes: np.ndarray) -> np.ndarray | None:
     return np.r_[point, direction]
 
 
+_axis_from_planes = flower_axis  # find_axes's own argument is named flower_axis
+
+#: the directions a key may name
+DIRECTIONS = {"+x": (1.0, 0.0, 0.0), "-x": (-1.0, 0.0, 0.0), "+y": (0.0, 1.0, 0.0),
+              "-y": (0.0, -1.0, 0.0), "+z": (0.0, 0.0, 1.0), "-z": (0.0, 0.0, -1.0)}
+
+
+def parse_direction(text: str) -> np.ndarray | None:
+    """``"auto"`` -> None; ``"+x"`` ... ``"-z"`` or ``"x,y,z"`` (three finite numbers, not
+    all zero) -> the unit vector. Raises ``ValueError`` with a reason otherwise."""
+    word = str(text).strip().lower()
+    if word == "auto":
+        return None
+    if word in DIRECTIONS:
+        return np.array(DIRECTIONS[word])
+    parts = word.split(",")
+    try:
+        vec = np.array([float(part) for part in parts]) if len(parts) == 3 else None
+    except ValueError:
+        vec = None
+    if vec is None or not np.all(np.isfinite(vec)) or not np.any(vec):
+        raise ValueError(f"expected auto, {', '.join(DIRECTIONS)} or a vector \"x,y,z\" (three "
+                         f"finite numbers, not all zero); got {text!r}")
+    return vec / np.linalg.norm(vec)
+
+
+class BadPetal(ValueError):
+    """A petal that has no sound axis: refused (one line naming the petal and, where one
+    would help, the key)."""
+
+    def __init__(self, petal: int, reason: str, key: str | None = None):
+        self.petal, self.key = petal, key
+        super().__init__(f"petal {petal}: {reason}")
+
+
+def check_axes(axes: PetalAxes, petal: np.ndarray) -> None:
+    """Raise :class:`BadPetal` for the first petal whose axes are not sound: a value not
+    finite, x outside [-1, 1], s outside [0, 1], fewer than 3 base vertices, or no tip
+    (a tip that is not one of its vertices, or is a base vertex)."""
+    petal = np.asarray(petal)
+    count = len(axes.tip)
+    if not np.all(np.isfinite(axes.plane)):
+        p = int(np.flatnonzero(~np.all(np.isfinite(axes.plane), axis=1))[0])
+        raise BadPetal(p, "its center plane is not finite")
+    for p in range(count):
+        mine = petal == p
+        x, s = axes.x[mine], axes.s[mine]
+        if not (np.all(np.isfinite(x)) and np.all(np.isfinite(s))):
+            raise BadPetal(p, f"its x or s is not finite at {int((~np.isfinite(x + s)).sum())} "
+                           "vertices")
+        if x.size and (x.min() < -1.0 or x.max() > 1.0):
+            raise BadPetal(p, f"x in [{x.min():.3g}, {x.max():.3g}], outside [-1, 1]")
+        if s.size and (s.min() < 0.0 or s.max() > 1.0):
+            raise BadPetal(p, f"s in [{s.min():.3g}, {s.max():.3g}], outside [0, 1]")
+        held = int(axes.base[mine].sum())
+        if held < 3:
+            raise BadPetal(p, f"{held} base vertices (at least 3 hold a petal)",
+                           "axis.base_fraction")
+        tip = int(axes.tip[p])
+        if not (0 <= tip < len(petal)) or petal[tip] != p or axes.base[tip]:
+            raise BadPetal(p, "no tip beyond its base", "axis.base_fraction")
+
+
+def _sound_plane(plane: np.ndarray) -> bool:
+    n = plane[:3]
+    return bool(np.all(np.isfinite(plane)) and np.linalg.norm(n) > 1e-9)
+
+
+def _unit_plane(plane: np.ndarray) -> np.ndarray:
+    """The plane with a unit normal (left as is, bit for bit, when it already has one)."""
+    norm = np.linalg.norm(plane[:3])
+    return plane if abs(norm - 1.0) <= 1e-9 else plane / norm
+
+
+def _given_axis_point(planes: np.ndarray, direction: np.ndarray, centroid: np.ndarray):
+    """The point of the line along ``direction`` closest (least squares) to all center
+    planes, in the plane across ``direction`` through ``centroid``; along a direction
+    the planes do not fix (their normals, projected across ``direction``, do not span
+    it), ``centroid``'s coordinate is kept."""
+    # an orthonormal basis across the direction
+    helper = np.eye(3)[int(np.argmin(np.abs(direction)))]
+    b1 = np.cross(direction, helper)
+    b1 /= np.linalg.norm(b1)
+    b2 = np.cross(direction, b1)
+    basis = np.stack([b1, b2], axis=1)  # (3, 2)
+    m = planes[:, :3] @ basis  # (P, 2): residual n.(c + B y) - d = m y - r
+    r = planes[:, 3] - planes[:, :3] @ centroid
+    w, vecs = np.linalg.eigh(m.T @ m)
+    fixed = w >= 0.05 * len(planes)  # unit normals: each fixed direction gets ~P/2
+    y = np.zeros(2)
+    for k in np.flatnonzero(fixed):
+        y += vecs[:, k] * (vecs[:, k] @ (m.T @ r)) / w[k]
+    return centroid + basis @ y
+
+
 def _distance_to_line(points: np.ndarray, line: np.ndarray) -> np.ndarray:
     p, d = line[:3], line[3:]
     r = points - p
@@ -144,23 +246,58 @@ def _end_width(points: np.ndarray, proj: np.ndarray, plane: np.ndarray, low_end:
 
 def find_axes(vertices: np.ndarray, faces: np.ndarray, petal: np.ndarray, *,
               base_mode: str = "auto", base_fraction: float = 0.04,
-              planes: np.ndarray | None = None) -> PetalAxes:
+              planes: np.ndarray | None = None, flower_axis=None,
+              up: np.ndarray | None = None) -> PetalAxes:
     """Axes of every petal of a cleaned mesh (see the module docstring).
 
     ``base_mode``: auto, narrow, wide, or a direction (+x ... -z) the base end lies
-    towards. ``planes``: the petals' center planes if known (remesh records them).
+    towards (it wins over the flower's axis for choosing the base end). ``planes``: the
+    petals' center planes if known (remesh records them); a plane that is not finite or
+    has no normal is found again from the petal. ``flower_axis``: None or "auto" (found
+    from the center planes), or the direction of the flower's axis (a vector or a key
+    value, see :func:`parse_direction`), pointing from the receptacle toward the tips.
+    ``up``: the scene's up direction, which orients a found axis where the petals do not.
+
+    Raises :class:`BadPetal` (a petal with no sound axis) or :class:`WeakBase`.
     """
     v = np.asarray(vertices, dtype=np.float64)
+    petal = np.asarray(petal)
     nv = len(v)
     count = int(petal.max()) + 1
+    if isinstance(flower_axis, str):
+        given = parse_direction(flower_axis)
+    elif flower_axis is None:
+        given = None
+    else:
+        given = np.asarray(flower_axis, dtype=np.float64).reshape(3)
+        if not np.all(np.isfinite(given)) or not np.any(given):
+            raise ValueError(f"flower_axis: not a direction: {flower_axis!r}")
+        given = given / np.linalg.norm(given)
     edges, _, _ = topology.unique_edges(faces)
     boundary = topology.boundary_vertices(faces, nv)
     graph = topology.edge_graph(v, edges)
 
+    sizes = np.bincount(petal, minlength=count)
+    if np.any(sizes < 3):
+        p = int(np.flatnonzero(sizes < 3)[0])
+        raise BadPetal(p, f"{sizes[p]} vertices: no petal to hold (at least 3, and some beyond "
+                       "its base)")
     if planes is None:
         planes = np.array([symmetry.mirror_plane(v[petal == p])[0] for p in range(count)])
     planes = np.array(planes, dtype=np.float64)
-    axis_line = flower_axis(planes) if base_mode == "auto" else None
+    for p in range(count):  # a plane of no normal (or not finite): found again from the petal
+        if not _sound_plane(planes[p]):
+            planes[p] = symmetry.mirror_plane(v[petal == p])[0]
+            if not _sound_plane(planes[p]):
+                raise BadPetal(p, "no center plane: its vertices do not span a sheet")
+        planes[p] = _unit_plane(planes[p])
+    if given is not None:
+        centroid = np.mean([v[petal == p].mean(axis=0) for p in range(count)], axis=0)
+        axis_line = np.r_[_given_axis_point(planes, given, centroid), given]
+    else:
+        axis_line = _axis_from_planes(planes) if base_mode == "auto" else None
+    # with one petal, no line tells its base: the end lowest along a given axis does
+    lowest = given is not None and count == 1
 
     base = np.zeros(nv, dtype=bool)
     widened = []
@@ -171,8 +308,20 @@ def find_axes(vertices: np.ndarray, faces: np.ndarray, petal: np.ndarray, *,
     for p in range(count):
         idx = np.flatnonzero(petal == p)
         pts = v[idx]
+        sub = graph[idx][:, idx].tocsr()
+        pieces = connected_components(sub, directed=False)[0]
+        if pieces > 1:  # distances along the mesh would be infinite between the pieces
+            raise BadPetal(p, f"in {pieces} pieces (not connected along the mesh): a petal is "
+                           "one connected sheet")
         direction, proj = _petal_ends(pts, planes[p])
-        if axis_line is not None:
+        if not np.all(np.isfinite(direction)) or np.ptp(proj) <= 0.0:
+            raise BadPetal(p, "no length in its center plane: its vertices do not span a sheet")
+        if base_mode == "auto" and lowest:
+            span = proj.max() - proj.min()
+            low_end = pts[proj <= proj.min() + 0.15 * span].mean(axis=0) @ given
+            high_end = pts[proj >= proj.max() - 0.15 * span].mean(axis=0) @ given
+            base_low = low_end <= high_end
+        elif base_mode == "auto" and axis_line is not None:
             lo = _distance_to_line(pts[[np.argmin(proj)]], axis_line)[0]
             hi = _distance_to_line(pts[[np.argmax(proj)]], axis_line)[0]
             base_low = lo <= hi
@@ -193,14 +342,13 @@ def find_axes(vertices: np.ndarray, faces: np.ndarray, petal: np.ndarray, *,
         if mine_base.sum() < 3:  # a petal held by fewer than 3 vertices can spin
             order = np.argsort(np.where(bnd, proj, np.inf), kind="stable")
             mine_base[order[:3]] = True
-        sub = graph[idx][:, idx].tocsr()
         # held on a line, it could spin about it: widen the base, within a quarter of the
         # petal (or base_fraction: the fixed part should stay a base, not become the petal)
         reach = proj.min() + max(BASE_REACH, base_fraction) * span
-        count = int(mine_base.sum())
+        held = int(mine_base.sum())
         if not _widen_base(mine_base, bnd, proj, pts, sub, reach):
             raise WeakBase(p, int(mine_base.sum()), base_width(pts[mine_base], pts))
-        if mine_base.sum() > count:
+        if mine_base.sum() > held:
             widened.append(p)
         base[idx] = mine_base
 
@@ -215,8 +363,14 @@ def find_axes(vertices: np.ndarray, faces: np.ndarray, petal: np.ndarray, *,
         mine_axis[local_edges[crossing].ravel()] = True
         if not mine_axis.any():
             mine_axis[np.argmin(np.abs(side))] = True
-        # the tip: the axis's far end
+        # the tip: the axis's far end (the petal's far end where the axis stays in the base)
         tip_local = int(np.flatnonzero(mine_axis)[np.argmax(dist_base[mine_axis])])
+        if not dist_base[tip_local] > 0.0:
+            tip_local = int(np.argmax(dist_base))
+            if not dist_base[tip_local] > 0.0:
+                raise BadPetal(p, f"all its {len(idx)} vertices are base vertices: no tip beyond "
+                               "its base (a petal of a few triangles; remesh it finer)",
+                               "remesh.petal_vertices")
         tips[p] = idx[tip_local]
         s[idx] = np.minimum(dist_base / dist_base[tip_local], 1.0)
 
@@ -244,5 +398,27 @@ def find_axes(vertices: np.ndarray, faces: np.ndarray, petal: np.ndarray, *,
             xs[ring] = sg
         x[idx] = xs
 
-    line = axis_line if axis_line is not None else np.full(6, np.nan)
-    return PetalAxes(base, on_axis, tips, planes, x, s, line, tuple(widened))
+    if axis_line is None:
+        line = np.full(6, np.nan)
+    else:
+        line = axis_line.copy()
+        if given is None:
+            line[3:] = _oriented(line[3:], v, base, tips, petal, up)
+        elif count == 1:  # a lone petal: the axis passes through its base
+            line[:3] = v[base].mean(axis=0)
+    axes = PetalAxes(base, on_axis, tips, planes, x, s, line, tuple(widened))
+    check_axes(axes, petal)
+    return axes
+
+
+def _oriented(direction: np.ndarray, v: np.ndarray, base: np.ndarray, tips: np.ndarray,
+              petal: np.ndarray, up: np.ndarray | None) -> np.ndarray:
+    """A found axis direction pointed from the receptacle toward the tips: by the petals
+    when their tips rise along it by a tenth of their base-to-tip chords; else by ``up``."""
+    chords = np.array([v[t] - v[base & (petal == p)].mean(axis=0) for p, t in enumerate(tips)])
+    rise = float((chords @ direction).sum())
+    if abs(rise) >= 0.1 * float(np.linalg.norm(chords, axis=1).sum()):
+        return direction if rise > 0 else -direction
+    if up is not None and abs(float(np.asarray(up) @ direction)) > 1e-9:
+        return direction if float(np.asarray(up) @ direction) > 0 else -direction
+    return direction

@@ -42,6 +42,13 @@ def _check_color(value: str) -> None:
         raise ValueError(f"{value!r} is not a colour name or #rrggbb")
 
 
+def _check_direction(value: str) -> None:
+    from .axis import parse_direction
+
+    parse_direction(value)
+
+
+DIRECTIONS = ("+x", "-x", "+y", "-y", "+z", "-z")
 SCHEDULES = ("linear", "smoothstep", "smootherstep")
 INTEGRATORS = ("semi-implicit", "explicit-damping", "quasi-static")
 
@@ -54,6 +61,9 @@ SCHEMA: dict[str, Any] = {
                       "matching part is a petal whatever its shape says"),
         "exclude": Key(list, [], "glob patterns over part names: a matching part is never a petal "
                        "(wins over scene.petals)"),
+        "up": Key(str, "auto", "the scene's up direction (+x ... -z): orients the flower's axis "
+                  "where its petals do not (a flat open flower); recorded in the artifacts. auto: "
+                  "the file's own (glTF: +y), else +z", choices=("auto",) + DIRECTIONS),
     },
     "remesh": {
         "target_edge": Key(float, 0.0, "target edge length in the input's units; 0 keeps the "
@@ -75,6 +85,11 @@ SCHEMA: dict[str, Any] = {
         "base_fraction": Key(float, 0.04, "boundary vertices this close to the base end, as a "
                              "fraction of the petal's length, are fixed", low=0.0, high=0.5,
                              low_open=True),
+        "flower_axis": Key(str, "auto", "direction of the flower's axis, from the receptacle "
+                           "toward the tips: auto (where the petals' center planes meet), +x, -x, "
+                           "+y, -y, +z, -z, or a vector \"x,y,z\"; given, it passes through the "
+                           "point closest to the center planes, and a lone petal's base is its "
+                           "end lowest along it", check=_check_direction),
     },
     "growth": {
         "curve": Key(str, "0.2*x**2", "growth ratio alpha as an expression of the cross-section "

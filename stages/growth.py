@@ -35,6 +35,20 @@ def command(axis_h5: str, config_path, overrides, out, overwrite) -> None:
                                                   if wrinkles else 1.0))
         except ValueError as exc:
             raise BloomError(f"growth.curve: {exc}", where=where) from None
+        # no NaN leaves this stage: alpha and the rest angles finite, or refused naming the petal
+        petal = src["mesh/petal"]
+        bad = np.flatnonzero(~np.isfinite(g.alpha))
+        if len(bad):
+            e = int(bad[0])
+            why = (f"growth.curve is not finite at x = {g.edge_x[e]:.6g}" if np.isfinite(g.edge_x[e])
+                   else "its x is not finite (rerun bloom axis)")
+            raise BloomError(f"petal {int(petal[g.edges[e, 0]])}: alpha is not finite on {len(bad)} "
+                             f"edge(s): {why}; nothing written", where=axis_h5)
+        bad = np.flatnonzero(~np.isfinite(g.rest_angle))
+        if len(bad):
+            raise BloomError(f"petal {int(petal[g.hinges[bad[0], 0]])}: the rest angle is not finite "
+                             f"at {len(bad)} hinge(s): degenerate triangles; rerun bloom remesh; "
+                             "nothing written", where=axis_h5)
         stiff = rest_stiffness(v, g, src["mesh/petal"], src["axis/base"],
                                cfg["simulate.stretch_stiffness"], cfg["simulate.bending_stiffness"])
         bad = np.flatnonzero(~(stiff <= REST_STIFFNESS))
@@ -48,7 +62,8 @@ def command(axis_h5: str, config_path, overrides, out, overwrite) -> None:
         log.info("%d edges (%d on the boundary), %d hinges; alpha in [%.4g, %.4g]",
                  len(g.edges), int(g.boundary_edge.sum()), len(g.hinges),
                  g.alpha.min(), g.alpha.max())
-        attrs = {"scale": src.attrs["scale"], "flower_axis": src.attrs["flower_axis"]}
+        attrs = {"scale": src.attrs["scale"], "flower_axis": src.attrs["flower_axis"],
+                 "up": src.attrs.get("up", "+z")}
         with artifact.writing(out, stage="growth", config_json=cfg.to_json(),
                               inputs=input_hashes(cfg, axis_h5), attrs=attrs, previous=src) as h5:
             src.copy_to(h5, CARRIED)
