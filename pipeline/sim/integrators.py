@@ -73,12 +73,12 @@ class SemiImplicit:
         """Per frame (the :meth:`advance` call that ended at it): ``substeps`` (kernel
         steps per user step, 0 before the first call), ``stable_step`` (the largest step
         the estimate allows, safety included; from the Gershgorin bound alone when that
-        already allows ``h``, so then a lower bound; nan before the first call),
+        already allows ``h``, so then a lower bound; 0 before the first call),
         ``rollbacks`` (halvings after a divergence)."""
         if not self.substep:
             return {}
         return {"substeps": self._frame.get("substeps", 0),
-                "stable_step": self._frame.get("stable_step", math.nan),
+                "stable_step": self._frame.get("stable_step", 0.0),
                 "rollbacks": self._frame.get("rollbacks", 0)}
 
     def limit(self) -> float:
