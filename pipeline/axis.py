@@ -233,7 +233,10 @@ def _petal_ends(points: np.ndarray, plane: np.ndarray):
     flat = (points - c) - np.outer((points - c) @ n, n)
     _, _, vt = np.linalg.svd(flat, full_matrices=False)
     direction = vt[0] - n * (vt[0] @ n)
-    direction /= np.linalg.norm(direction)
+    norm = np.linalg.norm(direction)
+    if not norm > 1e-9:  # the points on a line along the normal: no length (the caller refuses)
+        return np.full(3, np.nan), np.zeros(len(points))
+    direction /= norm
     return direction, (points - c) @ direction
 
 

@@ -24,10 +24,11 @@ def command(remesh_h5: str, config_path, overrides, out, overwrite) -> None:
     out = artifact.check_output(out, "axis", overwrite)
     with artifact.Artifact(remesh_h5, needs="remesh", reader="axis") as src:
         v, f, petal = src["mesh/vertices"], src["mesh/faces"], src["mesh/petal"]
-        # the scene's up: the key, else the file's own (remesh records it), else +z
+        # the scene's up: the key, else the file's own (remesh records it; "" if the format
+        # has none), else +z
         up = cfg["scene.up"]
         if up == "auto":
-            up = str(src.attrs.get("file_up", "+z"))
+            up = str(src.attrs.get("file_up", "")) or "+z"
             if up not in DIRECTIONS:
                 raise BloomError(f"file_up: {up!r} is not one of {', '.join(DIRECTIONS)}; set "
                                  "scene.up", where=remesh_h5)
