@@ -109,6 +109,10 @@ SCHEMA: dict[str, Any] = {
         "integrator": Key(str, "semi-implicit", "semi-implicit (Eq. 7-8), explicit-damping "
                           "(Eq. 9, for comparison) or quasi-static (the path of equilibria "
                           "along the growth, by Newton's method)", choices=INTEGRATORS),
+        "substeps": Key(int, 0, "dynamic integrators: kernel steps per step of h; 0 chooses them "
+                        "per frame from the model's stable time step (and halves the substep "
+                        "after a divergence); N > 0 takes exactly N (1: the paper's scheme as "
+                        "printed)", low=0),
         "stages": Key(int, 20, "quasi-static: growth increments over the ramp (at least; "
                       "each is halved where Newton fails)", low=1),
         "tolerance": Key(float, 1e-6, "quasi-static: converged when a Newton step moves no "

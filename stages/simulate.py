@@ -49,7 +49,8 @@ def command(growth_h5: str, config_path, overrides, out, overwrite, progress, re
                                        src["axis/plane"])
         control = Control(cfg["growth.schedule"], cfg["growth.ramp"] * steps * h)
         integrator = make_integrator(sim["integrator"], sim["eta"], sim["damping"],
-                                     sim["speed_limit"], sim["stages"], sim["tolerance"])
+                                     sim["speed_limit"], sim["stages"], sim["tolerance"],
+                                     sim["substeps"])
         grown = model.edge_rest_length * (1.0 + np.maximum(model.edge_growth, 0.0))
         effects = fx.build(
             cfg.effects_enabled(), vertices=v, faces=src["mesh/faces"], petal=petal,
@@ -83,12 +84,20 @@ def command(growth_h5: str, config_path, overrides, out, overwrite, progress, re
                     ckpt.unlink(missing_ok=True)  # a failed run's checkpoint would fail again
                     raise
             except Diverged as exc:
+                if sim["substeps"]:  # a fixed substep: the step may simply be too large
+                    raise BloomError(
+                        f"simulate.h: the simulation {exc} (of {steps}, {sim['substeps']} "
+                        "substep(s) each); likely cause: the time step is too large for the "
+                        "stiffness; remedy: simulate.substeps = 0 (chosen from the stable "
+                        "step), a smaller simulate.h, or simulate.integrator = quasi-static",
+                        where=where) from None
                 raise BloomError(
-                    f"simulate.h: the simulation {exc} (of {steps}); likely cause: the time step "
-                    "is too large for the stiffness (or the mesh has very skinny triangles), "
-                    "or growth too fast for the steps; remedy: a smaller simulate.h, more "
-                    "simulate.steps, remeshing (remesh.petal_vertices), or "
-                    "simulate.integrator = quasi-static", where=where) from None
+                    f"simulate.steps: the simulation {exc} (of {steps}); the substep was "
+                    "already chosen from the stable step and halved after each divergence, "
+                    "so the motion itself runs away; likely cause: growth too fast for the "
+                    "steps, or vertices faster than simulate.speed_limit; remedy: more "
+                    "simulate.steps, or simulate.integrator = quasi-static",
+                    where=where) from None
             except NotConverged as exc:  # the cause, as the solver names it, picks the key
                 name = f"petal {int(petal[exc.vertex])}" if len(petal) else "the mesh"
                 if exc.cause == "weak":

@@ -249,7 +249,8 @@ def test_config_command_lists_keys_and_values(chain):
 def test_divergence_is_caught_early_named_and_leaves_no_file(chain, tmp_path):
     out = tmp_path / "sim.h5"
     r = CliRunner().invoke(cli, ["simulate", str(chain["growth"]), "--out", str(out),
-                                 "--set", "simulate.h=4", "--set", "simulate.steps=2000",
+                                 "--set", "simulate.h=4", "--set", "simulate.substeps=1",
+                                 "--set", "simulate.steps=2000",
                                  "--set", "simulate.frames=3"])
     assert r.exit_code == 1 and not out.exists()
     errors = [line for line in r.output.splitlines() if "error:" in line]

@@ -203,8 +203,9 @@ def test_fuzz_configs(tmp_path, chain):
 
 
 RUNTIME = [  # valid configs that fail while simulating
-    ("diverges", ["simulate.h=3.0"]),
-    ("diverges, checkpointing", ["simulate.h=3.0", "simulate.checkpoint_seconds=0.0001"]),
+    ("diverges", ["simulate.h=3.0", "simulate.substeps=1"]),
+    ("diverges, checkpointing", ["simulate.h=3.0", "simulate.substeps=1",
+                                 "simulate.checkpoint_seconds=0.0001"]),
     ("speed guard", ["simulate.speed_limit=1e-9"]),
     ("quasi-static without bending", ["simulate.integrator=quasi-static",
                                       "simulate.bending_stiffness=0"]),

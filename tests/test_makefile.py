@@ -200,7 +200,7 @@ def test_bloom_batch_reports_failures_and_sees_changed_inputs(tree):
     import h5py
 
     bloom = str(tree / ".venv" / "bin" / "bloom")
-    bad = TINY.format(mesh="petal.obj").replace("steps = 300", "steps = 300\nh = 3.0")
+    bad = TINY.format(mesh="petal.obj").replace("steps = 300", "steps = 300\nh = 3.0\nsubsteps = 1")
     (tree / "configs" / "bad.toml").write_text(bad)
     r = subprocess.run([bloom, "batch", "configs/one.toml", "configs/bad.toml", "--out-root", "b"],
                        cwd=tree, capture_output=True, text=True)
@@ -221,7 +221,7 @@ def test_bloom_batch_reports_failures_and_sees_changed_inputs(tree):
 
 
 def test_a_failing_stage_under_make_says_so_on_stderr(tree):
-    bad = TINY.format(mesh="petal.obj").replace("steps = 300", "steps = 300\nh = 3.0")
+    bad = TINY.format(mesh="petal.obj").replace("steps = 300", "steps = 300\nh = 3.0\nsubsteps = 1")
     (tree / "configs" / "bad.toml").write_text(bad)
     r = make(tree, "SCENES=bad")
     assert r.returncode != 0

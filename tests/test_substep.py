@@ -110,7 +110,7 @@ def grow(h, steps=1200, frames=5, integrator=None, vertices=150, effects=None, m
 
 def test_a_step_past_the_limit_diverges_without_substeps_and_finishes_with_them():
     with pytest.raises(Diverged):
-        grow(2.5, integrator=SemiImplicit(0.1, substep=False))
+        grow(2.5, integrator=SemiImplicit(0.1, substeps=1))
     rec, state, _, _ = grow(2.5)
     assert state.step == 1200 and np.all(np.isfinite(rec.positions))
     sub = np.asarray(rec.diagnostics["substeps"])
@@ -127,7 +127,7 @@ def test_a_step_past_the_limit_diverges_without_substeps_and_finishes_with_them(
 def test_where_h_is_stable_it_is_one_substep_and_bit_identical_to_no_substeps():
     rec, _, _, _ = grow(1.0)
     assert list(rec.diagnostics["substeps"]) == [0, 1, 1, 1, 1]
-    plain, _, _, _ = grow(1.0, integrator=SemiImplicit(0.1, substep=False))
+    plain, _, _, _ = grow(1.0, integrator=SemiImplicit(0.1, substeps=1))
     assert np.array_equal(rec.positions, plain.positions)
     assert rec.diagnostics["total_energy"] == plain.diagnostics["total_energy"]
 

@@ -50,8 +50,8 @@ class SemiImplicit:
     (state and the effects' arrays) and retried with the substep halved, up to
     :data:`MAX_HALVINGS` times (and :data:`MAX_SUBSTEPS` substeps). The choice depends
     only on the state at the start of the call, so a resumed run chooses as an
-    uninterrupted one does. ``substep = False`` runs at ``h`` with no estimate and no
-    rollback (as the paper).
+    uninterrupted one does. ``substeps = N > 0`` takes exactly ``N`` kernel steps per
+    step, with no estimate and no rollback (``N = 1`` is the paper's scheme as printed).
 
     Effects under substeps: collisions work in distances (the push-back offset, the
     margin, the grid's slack), not in steps, and each substep resolves its contacts (the
@@ -62,7 +62,7 @@ class SemiImplicit:
     eta: float
     d: float = 1.0
     speed_limit: float = 1.0  #: a vertex faster than this (mesh units per unit time) has diverged
-    substep: bool = True
+    substeps: int = 0  #: 0: chosen per frame from the stable-step estimate; N > 0: fixed
     safety: float = SAFETY
     max_halvings: int = MAX_HALVINGS
     max_substeps: int = MAX_SUBSTEPS
@@ -75,7 +75,7 @@ class SemiImplicit:
         the estimate allows, safety included; from the Gershgorin bound alone when that
         already allows ``h``, so then a lower bound; 0 before the first call),
         ``rollbacks`` (halvings after a divergence)."""
-        if not self.substep:
+        if self.substeps:
             return {}
         return {"substeps": self._frame.get("substeps", 0),
                 "stable_step": self._frame.get("stable_step", 0.0),
@@ -115,11 +115,12 @@ class SemiImplicit:
         the step that failed) when the divergence guard trips at every substep tried."""
         if n_steps <= 0:
             return
-        if not self.substep:
-            energy, taken = self._kernel(model, state, control, n_steps, h, 1, effects)
+        if self.substeps:
+            k = self.substeps
+            energy, taken = self._kernel(model, state, control, n_steps * k, h / k, k, effects)
             state.potential_energy = energy
-            state.step += taken
-            if taken < n_steps or not np.isfinite(energy):
+            state.step += -(-taken // k)
+            if taken < n_steps * k or not np.isfinite(energy):
                 raise Diverged(state.step, energy, state.max_speed())
             return
         k, h_max = self.stable_step(model, state, control, h, effects)
@@ -190,14 +191,14 @@ class _Snapshot:
 
 
 def make_integrator(name: str, eta: float, damping: float, speed_limit: float = 1.0,
-                    stages: int = 20, tolerance: float = 1e-6):
+                    stages: int = 20, tolerance: float = 1e-6, substeps: int = 0):
     """The integrator a scene asks for by ``simulate.integrator``."""
     if name == "quasi-static":
         from .quasistatic import QuasiStatic
 
         return QuasiStatic(stages=stages, tolerance=tolerance)
     if name == "semi-implicit":
-        return SemiImplicit(eta=eta, speed_limit=speed_limit)
+        return SemiImplicit(eta=eta, speed_limit=speed_limit, substeps=substeps)
     if name == "explicit-damping":
-        return SemiImplicit(eta=0.5, d=damping, speed_limit=speed_limit)
+        return SemiImplicit(eta=0.5, d=damping, speed_limit=speed_limit, substeps=substeps)
     raise ValueError(f"unknown integrator {name!r}")
