@@ -16,8 +16,13 @@ class CleanReport:
     welded: int = 0
     degenerate_faces: int = 0
     duplicate_faces: int = 0
+    #: of ``duplicate_faces``, those wound opposite to the copy kept (a stacked, flipped copy)
+    opposite_duplicate_faces: int = 0
     unreferenced: int = 0
     flipped_faces: int = 0
+    dust_pieces: int = 0  #: tiny connected pieces dropped (the remesh stage, per part)
+    dust_faces: int = 0  #: their faces
+    midsurfaces: int = 0  #: thick petals replaced by their mid-surface
     notes: list = field(default_factory=list)
 
 
@@ -83,7 +88,8 @@ def orient_consistently(faces: np.ndarray, vertex_count: int) -> tuple[np.ndarra
 
 def clean_mesh(vertices: np.ndarray, faces: np.ndarray, weld_tolerance: float = 1e-6):
     """Weld near-duplicate vertices (``weld_tolerance`` x bounding-box diagonal), drop
-    degenerate and duplicate faces and unused vertices, and orient faces consistently.
+    degenerate and duplicate faces (a stacked copy too, whichever way it is wound) and
+    unused vertices, and orient faces consistently.
 
     Returns ``(vertices, faces, CleanReport)``.
     """
@@ -111,8 +117,15 @@ def clean_mesh(vertices: np.ndarray, faces: np.ndarray, weld_tolerance: float = 
     report.degenerate_faces = int(bad.sum())
     f = f[~bad]
     key = np.sort(f, axis=1)
-    _, first = np.unique(key, axis=0, return_index=True)
+    _, first, inverse = np.unique(key, axis=0, return_index=True, return_inverse=True)
     report.duplicate_faces = len(f) - len(first)
+    if report.duplicate_faces:
+        # a copy runs the same way as the kept face if it is a rotation of it
+        kept = f[first[inverse.ravel()]]
+        same = np.zeros(len(f), dtype=bool)
+        for r in range(3):
+            same |= np.all(np.roll(f, r, axis=1) == kept, axis=1)
+        report.opposite_duplicate_faces = int((~same).sum())
     f = f[np.sort(first)]
     used = np.zeros(len(v), dtype=bool)
     used[f.ravel()] = True

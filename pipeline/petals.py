@@ -10,10 +10,16 @@ The remesh stage's work, as a library function the tests call directly:
 4. per petal: find the center plane; remesh to the target edge (boundary included);
    make the petal mirror-symmetric about its plane;
 5. scale again so the result's mean edge is exactly 1.
+
+:func:`prepare` takes one mesh; :func:`prepare_parts` (the stage's) takes a file's named
+parts: it classifies them, cleans each petal part on its own (dust dropped, a thick
+petal replaced by its mid-surface), reports every part that cannot be simulated in one
+error, and then runs steps 3 to 5 on the petal sheets.
 """
 
 from __future__ import annotations
 
+import fnmatch
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -29,6 +35,7 @@ SNAP, SNAP_REMESHED = 0.2, 0.05
 #: a remesh (souki202's needle tips, 0.15 off the plane, made a 142 deg notch between two
 #: tips whose one triangle cannot have both other angles at 20 deg)
 SNAP_CORNER = 0.5
+DUST = 0.01  #: connected pieces under this fraction of their part's area are dropped
 LAYERED = 0.5  #: a sheet this much of whose area has a second layer behind it is a slab
 
 
@@ -49,6 +56,10 @@ class Petals:
     #: turn on the center-plane constraint for them
     unsymmetrized: list = field(default_factory=list)
     min_angle: np.ndarray = None  #: (P,) smallest angle per petal, corners excepted (remesh.quality)
+    part: np.ndarray = None  #: (V,) the input part each vertex came from
+    thickness: np.ndarray = None  #: (V,) mid-surface thickness in output units (0: a sheet)
+    parts: list = field(default_factory=list)  #: per input part: {name, kind, reason, role}
+    kept_parts: dict = field(default_factory=dict)  #: input index -> (vertices, faces), not petals
 
 
 def _submesh(faces: np.ndarray, idx: np.ndarray) -> np.ndarray:
@@ -83,26 +94,41 @@ def prepare(vertices: np.ndarray, faces: np.ndarray, *, where: str, target_edge:
                              "petal cut open is not a sheet; delete one side (or the "
                              "Solidify/Extrude) and export the single surface", where=where)
 
+    return _build(v, f, petal, report, target_edge=target_edge, petal_vertices=petal_vertices,
+                  symmetrize=symmetrize, dropped=dropped)
+
+
+def _build(v, f, petal, report, *, target_edge, petal_vertices, symmetrize, dropped=(),
+           labels=None, part_of=None, thick=None, notes=None) -> Petals:
+    """Steps 3 to 5 (see the module notes) on clean petal sheets ``v, f`` labelled ``petal``.
+
+    ``labels[p]`` names petal ``p`` in the notes ("petal 3 (Cylinder04)"); ``part_of[p]`` is
+    the input part it came from; ``thick[p]`` is None for a sheet, else ``(points, thickness)``
+    of its mid-surface in input units (carried to the remeshed vertices by nearest point).
+    """
+    count = int(petal.max()) + 1
+    labels = labels or [f"petal {p}" for p in range(count)]
     scale = 1.0 / clean.mean_edge_length(v, f)
     v = v * scale
     out_v, out_f, out_petal, planes, before, after, targets = [], [], [], [], [], [], []
     offset = 0
-    notes = []
+    notes = list(notes or [])
+    out_part, out_thick = [], []
     unsymmetrized, quality = [], []
-    for p in range(int(petal.max()) + 1):
+    for p in range(count):
         idx = np.flatnonzero(petal == p)
         pts, lf = v[idx], _submesh(f, idx)
         plane, err = symmetry.mirror_plane(pts)
         before.append(err)
         h = (target_edge * scale if target_edge > 0 else
              remesh.target_for_vertices(pts, lf, petal_vertices) if petal_vertices > 0 else 0.0)
-        pts, lf, h, note, mirrored = _petal(pts, lf, plane, h, symmetrize, f"petal {p}", scale)
+        pts, lf, h, note, mirrored = _petal(pts, lf, plane, h, symmetrize, labels[p], scale)
         notes += note
         if symmetrize and not mirrored:
             unsymmetrized.append(p)
         quality.append(remesh.quality(pts, lf))
         if quality[-1] < remesh.MIN_ANGLE:
-            notes.append(f"petal {p}: warning: smallest angle {quality[-1]:.1f} deg is still below "
+            notes.append(f"{labels[p]}: warning: smallest angle {quality[-1]:.1f} deg is still below "
                          f"{remesh.MIN_ANGLE:g} after remeshing")
         after.append(symmetry.asymmetry(pts, plane) if symmetrize or h else err)
         targets.append(h)
@@ -110,6 +136,8 @@ def prepare(vertices: np.ndarray, faces: np.ndarray, *, where: str, target_edge:
         out_v.append(pts)
         out_f.append(lf + offset)
         out_petal.append(np.full(len(pts), p, dtype=np.int64))
+        out_part.append(np.full(len(pts), part_of[p] if part_of is not None else 0, dtype=np.int64))
+        out_thick.append(_carried_thickness(pts, thick[p] if thick is not None else None, scale))
         offset += len(pts)
     v, f = np.vstack(out_v), np.vstack(out_f)
     again = 1.0 / clean.mean_edge_length(v, f)
@@ -117,8 +145,197 @@ def prepare(vertices: np.ndarray, faces: np.ndarray, *, where: str, target_edge:
     planes[:, 3] *= again
     return Petals(v * again, f, np.concatenate(out_petal), planes, scale * again,
                   np.asarray(before) * again, np.asarray(after) * again, report,
-                  np.asarray(targets) / scale, dropped=dropped, notes=notes,
-                  unsymmetrized=unsymmetrized, min_angle=np.asarray(quality))
+                  np.asarray(targets) / scale, dropped=list(dropped), notes=notes,
+                  unsymmetrized=unsymmetrized, min_angle=np.asarray(quality),
+                  part=np.concatenate(out_part), thickness=np.concatenate(out_thick) * again)
+
+
+def _carried_thickness(pts: np.ndarray, thick, scale: float) -> np.ndarray:
+    """(len(pts),) thickness at a petal's (scaled) vertices: 0 for a sheet, else that of the
+    nearest mid-surface vertex, in the same scaled units."""
+    if thick is None:
+        return np.zeros(len(pts))
+    from scipy.spatial import cKDTree
+
+    points, value = thick
+    _, nearest = cKDTree(np.asarray(points) * scale).query(pts)
+    return np.asarray(value, dtype=np.float64)[nearest] * scale
+
+
+def _one_line(text: str) -> str:
+    return " ".join(str(text).split())
+
+
+def _pieces(v: np.ndarray, f: np.ndarray) -> list[tuple[np.ndarray, np.ndarray]]:
+    """A clean mesh's connected pieces, each ``(vertices, faces)``, in order of first vertex."""
+    label = topology.components(f, len(v))
+    out = []
+    for p in range(int(label.max()) + 1):
+        idx = np.flatnonzero(label == p)
+        out.append((v[idx], _submesh(f, idx)))
+    return out
+
+
+def _area(v: np.ndarray, f: np.ndarray) -> float:
+    return 0.5 * float(np.linalg.norm(topology.face_normals(v, f), axis=1).sum())
+
+
+def _is_closed(v: np.ndarray, f: np.ndarray) -> bool:
+    return not topology.boundary_vertices(f, len(v)).any()
+
+
+def _thick_sheets(v, f, pieces):
+    """Mid-surfaces of a thick petal part: one per closed piece (several solidified petals in
+    one group), else one of the whole part (two separate open sides). Returns ``[(vertices, faces,
+    thickness)]``; raises ValueError with midsurface's reason."""
+    if len(pieces) == 1 or not any(_is_closed(pv, pf) for pv, pf in pieces):
+        return [_mid(v, f)]
+    made, failed = [], []
+    for k, (pv, pf) in enumerate(pieces):
+        try:
+            made.append(_mid(pv, pf))
+        except ValueError as exc:
+            failed.append(f"piece {k + 1} of {len(pieces)}: {exc}")
+    if failed:
+        raise ValueError("; ".join(failed))
+    return made
+
+
+def _mid(v, f):
+    from .mesh.midsurface import midsurface
+
+    m = midsurface(v, f)
+    sv, sf, _ = clean.clean_mesh(m.vertices, m.faces)
+    # clean_mesh keeps the order of the vertices it keeps: match the thickness by position
+    from scipy.spatial import cKDTree
+
+    _, nearest = cKDTree(m.vertices).query(sv)
+    return sv, sf, np.asarray(m.thickness)[nearest]
+
+
+@dataclass
+class _Judged:
+    name: str
+    vertices: np.ndarray
+    faces: np.ndarray
+
+
+def _unique_faces(faces: np.ndarray) -> np.ndarray:
+    """Faces without repeats of the same three vertices (whichever way wound), first kept."""
+    f = np.asarray(faces, dtype=np.int64)
+    _, first = np.unique(np.sort(f, axis=1), axis=0, return_index=True)
+    return f if len(first) == len(f) else f[np.sort(first)]
+
+
+def prepare_parts(mesh_file, *, where: str, target_edge: float = 0.0, petal_vertices: int = 0,
+                  symmetrize: bool = True, closed_parts: str = "refuse", petals_globs=(),
+                  exclude_globs=(), dust: float = DUST) -> Petals:
+    """The remesh stage on a file's named parts (:func:`pipeline.meshfile.read_parts`).
+
+    Each part is classified (:func:`pipeline.mesh.classify.classify`) and chosen by the
+    scene's globs (:func:`~pipeline.mesh.classify.select`). A chosen part is cleaned on its
+    own, loses its dust (connected pieces under ``dust`` of its area), and gives one sheet
+    per connected piece; a thick petal (or a closed or two-layer piece) becomes its
+    mid-surface. The sheets then go through steps 3 to 5 of :func:`prepare`. Parts that
+    are not petals are returned untouched in ``kept_parts``.
+
+    Raises one :class:`BloomError` naming every petal part that cannot be simulated (and,
+    when no petal is left, what every part is).
+    """
+    from .mesh.classify import classify, select
+
+    parts = list(mesh_file.parts)
+    # judged without stacked duplicate faces (a face written twice, either way round, would
+    # close a sheet into a "solid"); the parts themselves are kept as read
+    verdicts = classify([_Judged(p.name, p.vertices, _unique_faces(p.faces)) for p in parts])
+    names = [p.name for p in parts]
+    chosen = select(names, verdicts, petals_globs, exclude_globs)
+    excluded = [not c and any(fnmatch.fnmatchcase(n, g) for g in exclude_globs)
+                for n, c in zip(names, chosen, strict=True)]
+    total = clean.CleanReport()
+    sheets = []  # (vertices, faces, part index, thickness or None)
+    problems, failing, dropped, notes, info = [], [], [], [], []
+    for i, (part, verdict) in enumerate(zip(parts, verdicts, strict=True)):
+        role = "petal" if chosen[i] else "excluded" if excluded[i] else "kept"
+        info.append({"name": part.name, "kind": verdict.kind, "reason": _one_line(verdict.reason),
+                     "role": role})
+        if not chosen[i]:
+            continue
+        label = f"{part.name}"
+        v, f, report = clean.clean_mesh(part.vertices, part.faces)
+        for key in ("welded", "degenerate_faces", "duplicate_faces", "opposite_duplicate_faces",
+                    "unreferenced", "flipped_faces"):
+            setattr(total, key, getattr(total, key) + getattr(report, key))
+        if len(f) == 0:
+            problems.append(f"{label}: no triangles left after removing degenerate faces")
+            failing.append(part.name)
+            continue
+        _, _, count = topology.unique_edges(f)
+        if np.any(count > 2):
+            problems.append(f"{label}: {int(np.sum(count > 2))} non-manifold edges (an edge shared "
+                            "by 3+ faces, after dropping duplicate faces)")
+            failing.append(part.name)
+            continue
+        pieces = _pieces(v, f)
+        areas = np.array([_area(pv, pf) for pv, pf in pieces])
+        small = areas < dust * areas.sum()
+        if small.any() and not small.all():
+            total.dust_pieces += int(small.sum())
+            total.dust_faces += int(sum(len(pieces[k][1]) for k in np.flatnonzero(small)))
+            notes.append(f"{label}: dropped {int(small.sum())} piece(s) of dust (under {dust:.0%} "
+                         "of its area)")
+            pieces = [pc for pc, s in zip(pieces, small, strict=True) if not s]
+            keep = np.concatenate([pv for pv, _ in pieces])
+            v, f = keep, np.vstack([pf + o for (_, pf), o in
+                                    zip(pieces, np.cumsum([0] + [len(pv) for pv, _ in pieces[:-1]]),
+                                        strict=True)])
+        # told by the cleaned geometry: a closed or two-layer piece, or (a thick petal's two
+        # separate sides) a part of several pieces that is two layers; a stacked duplicate
+        # that made the verdict "thick" is gone by now
+        thick = any(_is_closed(pv, pf) or clean.layered_fraction(pv, pf)[0] > LAYERED
+                    for pv, pf in pieces)
+        if not thick and verdict.kind == "thick petal" and len(pieces) > 1:
+            thick = clean.layered_fraction(v, f)[0] > LAYERED
+        if not thick:
+            sheets += [(pv, pf, i, None) for pv, pf in pieces]
+            continue
+        try:
+            made = _thick_sheets(v, f, pieces)
+        except (ValueError, RuntimeError, np.linalg.LinAlgError) as exc:
+            if closed_parts == "drop" and all(_is_closed(pv, pf) for pv, pf in pieces):
+                dropped.append(f"{part.name} (closed, {len(v)} vertices: {_one_line(exc)})")
+                info[-1]["role"] = "kept"  # carried forward untouched, as a part that is not a petal
+                continue
+            problems.append(f"{label}: cannot become a sheet: {_one_line(exc)}")
+            failing.append(part.name)
+            continue
+        total.midsurfaces += len(made)
+        notes.append(f"{label}: a thick petal: simulated as its mid-surface "
+                     + ", ".join(f"(thickness {np.median(t):.3g})" for _, _, t in made))
+        sheets += [(sv, sf, i, (sv, t)) for sv, sf, t in made]
+    if problems and sheets:
+        raise BloomError(f"{len(problems)} petal part(s) cannot be simulated: " + "; ".join(problems)
+                         + "; fix them, or leave them out with scene.exclude = ["
+                         + ", ".join(f'"{name}"' for name in failing) + "]", where=where)
+    if not sheets:
+        others = [f"{d['name']}: {d['kind']} (not a petal{', excluded' if d['role'] == 'excluded' else ''}: "
+                  f"{d['reason']})" for d in info if d["role"] != "petal"]
+        hint = ("; name the petals with scene.petals = [\"glob\"]" if not problems else
+                "; repair the part(s) named and export again, or name the petals with scene.petals")
+        raise BloomError("no petals: " + "; ".join(problems + others) + hint, where=where)
+    offsets = np.cumsum([0] + [len(sv) for sv, _, _, _ in sheets])
+    v = np.vstack([sv for sv, _, _, _ in sheets])
+    f = np.vstack([sf + o for (_, sf, _, _), o in zip(sheets, offsets, strict=False)])
+    petal = np.concatenate([np.full(len(sv), k, dtype=np.int64) for k, (sv, _, _, _) in enumerate(sheets)])
+    labels = [f"petal {k} ({names[i]})" for k, (_, _, i, _) in enumerate(sheets)]
+    result = _build(v, f, petal, total, target_edge=target_edge, petal_vertices=petal_vertices,
+                    symmetrize=symmetrize, dropped=dropped, labels=labels,
+                    part_of=[i for _, _, i, _ in sheets], thick=[t for _, _, _, t in sheets],
+                    notes=notes)
+    result.parts = info
+    result.kept_parts = {i: (np.asarray(p.vertices), np.asarray(p.faces))
+                         for i, p in enumerate(parts) if info[i]["role"] != "petal"}
+    return result
 
 
 def _remesh_half(h: float):

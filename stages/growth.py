@@ -9,7 +9,8 @@ from pipeline.errors import BloomError
 
 from .common import config_options, input_hashes, load, log, output_options
 
-CARRIED = ("mesh/vertices", "mesh/faces", "mesh/petal", "axis/base", "axis/on_axis",
+CARRIED = ("mesh/vertices", "mesh/faces", "mesh/petal", "mesh/part_names", "mesh/part", "mesh/thickness",
+           "axis/base", "axis/on_axis",
            "axis/tip", "axis/plane", "axis/x", "axis/s")
 
 

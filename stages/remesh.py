@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 
 import click
+import h5py
 import numpy as np
 
 from pipeline.errors import BloomError
@@ -19,9 +20,13 @@ from .common import config_options, input_hashes, load, log, output_options
 def command(mesh: str | None, config_path, overrides, out, overwrite) -> None:
     """Clean MESH (default: the config's scene.mesh) and write remesh.h5.
 
-    Welds duplicate vertices, drops degenerate and duplicate faces, orients faces
-    consistently, labels each connected component as a petal, refuses closed and
-    two-layer petals, remeshes each petal to remesh.target_edge or
+    Reads the file's named parts and classifies each (petal, thick petal, stem, leaf,
+    sepal, stamen, pistil, receptacle, other; scene.petals and scene.exclude override),
+    logging one line per part. Per petal part: welds duplicate vertices, drops degenerate
+    and duplicate faces and dust, orients faces consistently, takes a thick petal's
+    mid-surface, and labels each connected piece as a petal; every part that cannot be
+    simulated is named in one error line. Other parts are stored untouched under
+    input/parts. Remeshes each petal to remesh.target_edge or
     remesh.petal_vertices (boundary included), with remesh.symmetrize makes each petal
     mirror-symmetric about its center plane, and scales the mesh so its mean edge is 1
     (the scale is recorded; the mesh is never rotated). A petal whose triangles have an
@@ -30,8 +35,8 @@ def command(mesh: str | None, config_path, overrides, out, overwrite) -> None:
     the attribute unsymmetrized.
     """
     from pipeline import artifact
-    from pipeline.meshfile import read_mesh
-    from pipeline.petals import prepare
+    from pipeline.meshfile import read_parts
+    from pipeline.petals import prepare_parts
 
     cfg = load(config_path, overrides)
     where = str(cfg.path) if cfg.path else "defaults"
@@ -39,11 +44,20 @@ def command(mesh: str | None, config_path, overrides, out, overwrite) -> None:
     if mesh_path is None:
         raise BloomError("scene.mesh: no input mesh (give MESH or set scene.mesh)", where=where)
     out = artifact.check_output(out, "remesh", overwrite)
-    v_in, f_in = read_mesh(mesh_path)
-    result = prepare(v_in, f_in, where=str(mesh_path), target_edge=cfg["remesh.target_edge"],
-                     petal_vertices=cfg["remesh.petal_vertices"],
-                     symmetrize=cfg["remesh.symmetrize"], closed_parts=cfg["remesh.closed_parts"])
+    mesh_file = read_parts(mesh_path)
+    result = prepare_parts(mesh_file, where=str(mesh_path), target_edge=cfg["remesh.target_edge"],
+                           petal_vertices=cfg["remesh.petal_vertices"],
+                           symmetrize=cfg["remesh.symmetrize"],
+                           closed_parts=cfg["remesh.closed_parts"],
+                           petals_globs=cfg["scene.petals"], exclude_globs=cfg["scene.exclude"])
     report = result.report
+    for i, part in enumerate(result.parts):
+        done = {"petal": "simulated", "kept": "kept as it is (carried forward)",
+                "excluded": "excluded by scene.exclude (carried forward)"}[part["role"]]
+        if part["role"] == "petal":
+            count = len(np.unique(result.petal[result.part == i]))
+            done = f"simulated as {count} petal sheet(s)" if count else "left out"
+        log.info("%s: part %r: %s (%s): %s", mesh_path, part["name"], part["kind"], part["reason"], done)
     for line in result.dropped:
         log.warning("%s: left out %s (remesh.closed_parts = \"drop\")", mesh_path, line)
     for line in result.notes:
@@ -70,7 +84,11 @@ def command(mesh: str | None, config_path, overrides, out, overwrite) -> None:
         # petals remesh.symmetrize could not mirror (a later stage may constrain them instead)
         "unsymmetrized": np.asarray(result.unsymmetrized, dtype=np.int64),
         "min_angle": result.min_angle,
+        "parts": json.dumps(result.parts),
+        "file_up": mesh_file.up or "",
     }
+    if mesh_file.meters_per_unit is not None:
+        attrs["meters_per_unit"] = float(mesh_file.meters_per_unit)
     with artifact.writing(out, stage="remesh", config_json=cfg.to_json(),
                           inputs=input_hashes(cfg, mesh_path), attrs=attrs) as h5:
         artifact.put(h5, "mesh/vertices", result.vertices, "(V, 3) positions, mean edge 1")
@@ -79,4 +97,15 @@ def command(mesh: str | None, config_path, overrides, out, overwrite) -> None:
         artifact.put(h5, "mesh/petal", result.petal, "(V,) petal id (connected component)")
         artifact.put(h5, "mesh/plane", result.plane,
                      "(P, 4) center plane of each petal: unit normal, offset")
+        names = np.array([p.name for p in mesh_file.parts], dtype=object)
+        h5.create_dataset("mesh/part_names", data=names, dtype=h5py.string_dtype("utf-8"))
+        h5["mesh/part_names"].attrs["doc"] = "(N,) the input's part names, in file order"
+        artifact.put(h5, "mesh/part", result.part.astype(np.int64),
+                     "(V,) the input part (index into mesh/part_names) each vertex came from")
+        artifact.put(h5, "mesh/thickness", result.thickness,
+                     "(V,) thickness of a thick petal (its mid-surface's), output units; 0 for sheets")
+        for i, (pv, pf) in sorted(result.kept_parts.items()):
+            artifact.put(h5, f"input/parts/{i}/vertices", pv.astype(np.float64),
+                         f"(n, 3) part {mesh_file.parts[i].name!r} as read, input units (not scaled)")
+            artifact.put(h5, f"input/parts/{i}/faces", pf.astype(np.int64), "(m, 3) its triangles")
     log.info("wrote %s", out)

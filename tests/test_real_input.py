@@ -1,0 +1,251 @@
+"""The remesh stage on real input: named parts, classification, thick petals, repairs."""
+
+from __future__ import annotations
+
+import json
+
+import h5py
+import numpy as np
+import pytest
+import trimesh
+from click.testing import CliRunner
+
+from pipeline import asset, topology
+from stages.cli import cli
+from tests.conftest import SHARED
+
+EXTERNAL = SHARED / "external-meshes"
+needs_shared = pytest.mark.skipif(not EXTERNAL.exists(), reason="../shared/external-meshes absent")
+
+
+def run(*args):
+    r = CliRunner().invoke(cli, [str(a) for a in args])
+    return r.exit_code, r.output
+
+
+def write_parts(path, parts, header=""):
+    """An OBJ with one ``o`` group per ``(name, vertices, faces)``."""
+    lines = [f"# {line}" for line in header.splitlines()]
+    offset = 0
+    for name, v, f in parts:
+        lines.append(f"o {name}")
+        lines += [f"v {x:.9f} {y:.9f} {z:.9f}" for x, y, z in v]
+        lines += [f"f {a + 1} {b + 1} {c + 1}" for a, b, c in np.asarray(f) + offset]
+        offset += len(v)
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+def bud_petals(count=5):
+    """The procedural bud's petals, each ``(vertices, faces)``."""
+    v, f, petal = asset.bud(count, 600, 0)
+    out = []
+    for p in range(count):
+        idx = np.flatnonzero(petal == p)
+        keep = np.isin(f[:, 0], idx)
+        out.append((v[idx], np.searchsorted(idx, f[keep])))
+    return out
+
+
+def flower_parts():
+    """Five named petals, a stem below the base, a receptacle and five stamens."""
+    petals = bud_petals()
+    allv = np.vstack([v for v, _ in petals])
+    length = float(np.ptp(allv[:, 2]))
+    parts = [(f"Circle.00{k}", v, f) for k, (v, f) in enumerate(petals)]
+    stem = trimesh.creation.cylinder(radius=0.03 * length, height=length, sections=16)
+    parts.append(("Cylinder", stem.vertices + [0, 0, allv[:, 2].min() - 0.5 * length], stem.faces))
+    ball = trimesh.creation.icosphere(2, radius=0.08 * length)
+    parts.append(("Sphere", ball.vertices + [0, 0, allv[:, 2].min()], ball.faces))
+    ring = float(np.median(np.linalg.norm(allv[:, :2], axis=1)))
+    for k in range(5):
+        a = 2 * np.pi * (k + 0.5) / 5
+        stamen = trimesh.creation.cylinder(radius=0.008 * length, height=0.4 * length, sections=8)
+        centre = [0.3 * ring * np.cos(a), 0.3 * ring * np.sin(a), allv[:, 2].min() + 0.25 * length]
+        parts.append((f"Cylinder.{k + 1:03d}", stamen.vertices + centre, stamen.faces))
+    return parts
+
+
+def test_named_parts_are_classified_and_only_petals_simulated(tmp_path):
+    parts = flower_parts()
+    mesh = write_parts(tmp_path / "flower.obj", parts)
+    out = tmp_path / "remesh.h5"
+    code, text = run("remesh", mesh, "--out", out)  # the log is on stderr, in the output
+    assert code == 0, text
+    with h5py.File(out) as h:
+        names = [n.decode() if isinstance(n, bytes) else n for n in h["mesh/part_names"][()]]
+        assert names == [name for name, _, _ in parts]
+        info = json.loads(h.attrs["parts"])
+        petal, part = h["mesh/petal"][()], h["mesh/part"][()]
+        assert petal.max() + 1 == 5
+        assert sorted(set(part.tolist())) == [0, 1, 2, 3, 4]
+        assert np.all(h["mesh/thickness"][()] == 0)
+        assert h.attrs["file_up"] == ""
+        kinds = {d["name"]: d["kind"] for d in info}
+        roles = {d["name"]: d["role"] for d in info}
+        for k in range(5):
+            assert kinds[f"Circle.00{k}"] == "petal" and roles[f"Circle.00{k}"] == "petal"
+        assert kinds["Cylinder"] == "stem", info
+        assert kinds["Sphere"] == "receptacle", info
+        assert all(kinds[f"Cylinder.{k:03d}"] == "stamen" for k in range(1, 6)), info
+        for i, (name, v, f) in enumerate(parts):
+            if i < 5:
+                assert f"input/parts/{i}" not in h
+                continue
+            assert roles[name] == "kept"
+            assert np.array_equal(h[f"input/parts/{i}/faces"][()], f)
+            assert np.allclose(h[f"input/parts/{i}/vertices"][()], v, atol=1e-8)  # input units
+    logged = text
+    for name, _, _ in parts:
+        assert f"part {name!r}: " in logged
+    assert "'Sphere': receptacle" in logged and "kept as it is" in logged
+    # carried forward through axis and growth
+    assert run("axis", out, "--out", tmp_path / "axis.h5")[0] == 0
+    assert run("growth", tmp_path / "axis.h5", "--out", tmp_path / "growth.h5")[0] == 0
+    with h5py.File(tmp_path / "growth.h5") as h:
+        assert len(h["mesh/part_names"]) == len(parts)
+        assert np.array_equal(h["mesh/part"][()], part)
+        assert "mesh/thickness" in h
+
+
+def test_exclude_leaves_a_petal_out(tmp_path):
+    mesh = write_parts(tmp_path / "flower.obj", flower_parts())
+    code, text = run("remesh", mesh, "--out", tmp_path / "r.h5", "--set", 'scene.exclude=["Circle.004"]')
+    assert code == 0, text
+    with h5py.File(tmp_path / "r.h5") as h:
+        assert h["mesh/petal"][()].max() + 1 == 4
+        roles = {d["name"]: d["role"] for d in json.loads(h.attrs["parts"])}
+        assert roles["Circle.004"] == "excluded" and "input/parts/4/vertices" in h
+
+
+def solidify(v, f, t):
+    """A closed shell: the sheet offset by +-t/2 along its vertex normals, rims joined.
+    Returns ``(vertices, faces, top, bottom)`` (the two layers as trimesh meshes)."""
+    n = trimesh.Trimesh(v, f, process=False).vertex_normals
+    top, bottom = v + 0.5 * t * n, v - 0.5 * t * n
+    nv = len(v)
+    faces = [f, f[:, ::-1] + nv]
+    he = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
+    _, he_edge, count = topology.unique_edges(f)
+    rim = he[count[he_edge] == 1]
+    a, b = rim[:, 0], rim[:, 1]
+    faces.append(np.stack([b, a, a + nv], axis=1))
+    faces.append(np.stack([b, a + nv, b + nv], axis=1))
+    return (np.vstack([top, bottom]), np.vstack(faces),
+            trimesh.Trimesh(top, f, process=False), trimesh.Trimesh(bottom, f, process=False))
+
+
+def test_solidified_petals_become_their_mid_surfaces(tmp_path):
+    import gpytoolbox
+
+    petals = bud_petals()
+    length = float(np.ptp(petals[0][0], axis=0).max())
+    t = 0.03 * length
+    parts, layers = [], []
+    for k, (v, f) in enumerate(petals):
+        sv, sf, top, bottom = solidify(v, f, t)
+        parts.append((f"Cylinder{k:02d}", sv, sf))
+        layers.append((top, bottom))
+    mesh = write_parts(tmp_path / "thick.obj", parts)
+    code, text = run("remesh", mesh, "--out", tmp_path / "r.h5")
+    assert code == 0, text
+    with h5py.File(tmp_path / "r.h5") as h:
+        v, petal, part = h["mesh/vertices"][()], h["mesh/petal"][()], h["mesh/part"][()]
+        thick, scale = h["mesh/thickness"][()], h.attrs["scale"]
+        kinds = [d["kind"] for d in json.loads(h.attrs["parts"])]
+        assert json.loads(h.attrs["clean"])["midsurfaces"] == 5
+    assert kinds == ["thick petal"] * 5
+    assert petal.max() + 1 == 5
+    assert np.all(np.abs(thick / scale - t) < 0.1 * t), (thick.min() / scale / t, thick.max() / scale / t)
+    for p in range(5):
+        pts = v[petal == p] / scale
+        top, bottom = layers[int(part[petal == p][0])]
+        for layer in (top, bottom):
+            d = np.sqrt(gpytoolbox.squared_distance(pts, layer.vertices, layer.faces, use_cpp=True)[0])
+            assert np.all(np.abs(d - 0.5 * t) < 0.1 * t), (p, d.min() / t, d.max() / t)
+
+
+def test_stacked_flipped_duplicate_faces_are_dropped_and_counted(tmp_path):
+    petals = bud_petals()
+    v, f = petals[2]
+    parts = [(f"Circle.00{k}", pv, pf) for k, (pv, pf) in enumerate(petals)]
+    parts[2] = ("Circle.002", v, np.vstack([f, f[:, ::-1]]))
+    mesh = write_parts(tmp_path / "stacked.obj", parts)
+    code, text = run("remesh", mesh, "--out", tmp_path / "r.h5")
+    assert code == 0, text
+    with h5py.File(tmp_path / "r.h5") as h:
+        report = json.loads(h.attrs["clean"])
+        assert h["mesh/petal"][()].max() + 1 == 5
+    assert report["duplicate_faces"] == len(f) and report["opposite_duplicate_faces"] == len(f)
+
+
+def fin(v, f):
+    """A sheet with one non-manifold edge: a third face on an interior edge."""
+    _, he_edge, count = topology.unique_edges(f)
+    he = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
+    a, b = he[np.flatnonzero(count[he_edge] == 2)[0]]
+    tip = 0.5 * (v[a] + v[b]) + 0.01 * np.cross(v[b] - v[a], [0, 0, 1.0])
+    return np.vstack([v, tip]), np.vstack([f, [[a, b, len(v)]]])
+
+
+def test_two_bad_petal_parts_are_named_in_one_line(tmp_path):
+    petals = bud_petals()
+    parts = [(f"petal_{k}", pv, pf) for k, (pv, pf) in enumerate(petals)]
+    parts[1] = ("petal_1", *fin(*petals[1]))
+    parts[3] = ("petal_3", *fin(*petals[3]))
+    mesh = write_parts(tmp_path / "bad.obj", parts)
+    code, out = run("remesh", mesh, "--out", tmp_path / "r.h5")
+    assert code == 1
+    assert out.startswith(f"bloom remesh: error: {mesh}: "), out
+    assert out.strip().count("\n") == 0 and "Traceback" not in out
+    assert "petal_1: 1 non-manifold edges" in out and "petal_3: 1 non-manifold edges" in out, out
+    assert 'scene.exclude = ["petal_1", "petal_3"]' in out, out
+    assert not (tmp_path / "r.h5").exists()
+
+
+def test_no_petals_lists_every_part(tmp_path):
+    parts = [p for p in flower_parts() if not p[0].startswith("Circle")]
+    mesh = write_parts(tmp_path / "stem.obj", parts)
+    code, out = run("remesh", mesh, "--out", tmp_path / "r.h5")
+    assert code == 1 and out.strip().count("\n") == 0, out
+    assert "no petals: " in out and all(f"{name}: " in out for name, _, _ in parts), out
+
+
+def test_uv_seam_duplicates_are_welded_at_centimetre_scale(tmp_path):
+    parts = []
+    seams = 0
+    for k, (v, f) in enumerate(bud_petals()):
+        v = v * 0.01  # small coordinates: the weld tolerance must follow the part's size
+        # a seam across the petal: faces above it use their own copies of its vertices
+        c = v[f].mean(axis=1)[:, 2]
+        cut = np.median(c)
+        upper = c > cut
+        shared = np.intersect1d(np.unique(f[upper]), np.unique(f[~upper]))
+        copy = np.arange(len(v))
+        copy[shared] = len(v) + np.arange(len(shared))
+        f = np.where(upper[:, None], copy[f], f)
+        parts.append((f"Plane.{k:03d}", np.vstack([v, v[shared]]), f))
+        seams += len(shared)
+    mesh = write_parts(tmp_path / "seam.obj", parts,
+                       header="This file uses centimeters as units for non-parametric coordinates.")
+    code, text = run("remesh", mesh, "--out", tmp_path / "r.h5")
+    assert code == 0, text
+    with h5py.File(tmp_path / "r.h5") as h:
+        assert h["mesh/petal"][()].max() + 1 == 5
+        assert json.loads(h.attrs["clean"])["welded"] == seams
+        assert h.attrs["meters_per_unit"] == 0.01
+
+
+@needs_shared
+@pytest.mark.parametrize("name, petals", [
+    ("hallgeirl_petals", 14), ("ssajeev_daisy", 11), ("pchinyun_petal", 1), ("ericrius1_petal", 1),
+    ("dimontel_petal", 1), ("chianti_flower5", 5)])
+def test_external_meshes(tmp_path, name, petals):
+    code, out = run("remesh", EXTERNAL / f"{name}.obj", "--out", tmp_path / "r.h5")
+    assert code == 0, out
+    with h5py.File(tmp_path / "r.h5") as h:
+        assert h["mesh/petal"][()].max() + 1 == petals
+        names = list(h["mesh/part_names"].asstr()[()])
+        info = json.loads(h.attrs["parts"])
+        assert [d["name"] for d in info] == names
+        assert h["mesh/part"].shape == h["mesh/petal"].shape
