@@ -230,20 +230,3 @@ def test_connection_springs_break_at_the_user_step_their_substep_falls_in(bud, m
     assert both.sum() >= 0.8 * (~a.alive).sum()
     assert np.all((b.broken_step[~b.alive] >= 1) & (b.broken_step[~b.alive] <= 3000))
     assert np.abs(a.broken_step[both] - b.broken_step[both]).max() < 150
-
-
-def test_a_hold_frame_that_creates_energy_is_redone_finer(monkeypatch):
-    """At h = 1.95 one substep is past the limit (h omega ~ 1.55 > 1.49) without the speed
-    guard tripping: energy is pumped in. In the hold, each frame that ends with more
-    energy than it began with is rolled back and redone with twice the substeps."""
-    from pipeline.sim import run as runner
-
-    rec, _, _, _ = grow(1.95, steps=12000, frames=13, integrator=Optimistic(0.1))
-    energy = np.asarray(rec.diagnostics["total_energy"])
-    hold = slice(10, 13)  # growth reaches 1 at 7200 of 12000 steps: frames 8 on
-    assert list(rec.diagnostics["substeps"][hold]) == [2, 2, 2]
-    assert list(rec.diagnostics["rollbacks"][hold]) == [1, 1, 1]
-    assert energy[-1] < 0.01 and np.all(np.diff(energy[hold]) <= 0.0)  # measured 0.0023
-    monkeypatch.setattr(runner, "HOLD_FRAME_RISE", np.inf)
-    pumped, _, _, _ = grow(1.95, steps=12000, frames=13, integrator=Optimistic(0.1))
-    assert min(pumped.diagnostics["total_energy"][hold]) > 0.1  # measured 0.20-0.35

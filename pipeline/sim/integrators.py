@@ -67,8 +67,6 @@ class SemiImplicit:
     max_halvings: int = MAX_HALVINGS
     max_substeps: int = MAX_SUBSTEPS
     _estimator: object = field(default=None, repr=False, compare=False)
-    _floor: int = field(default=1, repr=False, compare=False)  #: at least this many substeps
-    _redone: int = field(default=0, repr=False, compare=False)  #: this frame's refinements
     _frame: dict = field(default_factory=dict, repr=False, compare=False)
 
     def diagnostics(self) -> dict:
@@ -126,8 +124,7 @@ class SemiImplicit:
                 raise Diverged(state.step, energy, state.max_speed())
             return
         k, h_max = self.stable_step(model, state, control, h, effects)
-        k = min(self.max_substeps, max(k, self._floor))
-        self._frame = {"substeps": k, "stable_step": h_max, "rollbacks": self._redone}
+        self._frame = {"substeps": k, "stable_step": h_max, "rollbacks": 0}
         saved = _Snapshot.take(state, effects)
         for attempt in range(self.max_halvings + 1):
             energy, taken = self._kernel(model, state, control, n_steps * k, h / k, k, effects)
@@ -146,24 +143,6 @@ class SemiImplicit:
         why = (f"potential energy {energy:.3g}, max speed {state.max_speed():.3g}, with "
                f"{k} substeps per step after {self._frame['rollbacks']} halvings")
         raise Diverged(state.step, energy, state.max_speed(), why)
-
-    def snapshot(self, state: State, effects: Effects = NO_EFFECTS):
-        """What :meth:`advance` changes, to roll a frame back (``.restore(state, effects)``)."""
-        return _Snapshot.take(state, effects)
-
-    def refine(self) -> bool:
-        """Ask the next :meth:`advance` for twice the substeps the last one took (a frame
-        that created energy is redone finer); False when the substep is fixed or at its
-        cap. The next frame chooses afresh (:meth:`relax`)."""
-        last = self._frame.get("substeps", 0)
-        if self.substeps or not last or 2 * last > self.max_substeps:
-            return False
-        self._floor = 2 * last
-        self._redone += 1
-        return True
-
-    def relax(self) -> None:
-        self._floor, self._redone = 1, 0
 
     def _kernel(self, model, state, control, n, h_sub, k, effects) -> tuple[float, int]:
         """``n`` kernel steps of ``h_sub = h / k`` from the user's step ``state.step``;

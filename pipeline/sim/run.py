@@ -18,12 +18,6 @@ from .model import Control, Model, State
 #: this fraction of its value when the hold began is an instability (a time step at the
 #: scheme's limit grows energy slowly, below the speed limit)
 HOLD_ENERGY_RISE = 0.5
-#: a frame of the hold whose total energy ends this much above where it began created
-#: energy; an integrator that can (:meth:`SemiImplicit.refine`) redoes it with twice the
-#: substeps, up to this many times (a stiffness that rises within the frame, e.g. a rim
-#: folding over, outruns the substep chosen at its start)
-HOLD_FRAME_RISE = 0.1
-FRAME_RETRIES = 4
 
 
 def frame_steps(steps: int, frames: int) -> np.ndarray:
@@ -92,7 +86,7 @@ def run(model: Model, state: State, control: Control, integrator, *, steps: int,
             continue
         n = int(target - state.step)
         t0 = time.perf_counter()
-        _advance_frame(integrator, model, state, control, n, h, effects)
+        integrator.advance(model, state, control, n, h, effects)
         wall += time.perf_counter() - t0
         record(rec, model, state, control, h, petals, effects, integrator)
         _guard_hold_energy(rec, state)
@@ -101,29 +95,6 @@ def run(model: Model, state: State, control: Control, integrator, *, steps: int,
         if checkpoint is not None and target < targets[-1]:
             checkpoint(rec, state)
     return rec, wall
-
-
-def _advance_frame(integrator, model: Model, state: State, control: Control, n: int, h: float,
-                   effects: Effects) -> None:
-    """One frame's steps; in the hold, a frame that created energy is redone finer where
-    the integrator can refine (see :data:`HOLD_FRAME_RISE`). Depends only on the state
-    at the frame's start, so a resumed run redoes exactly what an uninterrupted one did."""
-    hold = control.growth_at(state.step * h) >= 1.0
-    refinable = hold and hasattr(integrator, "refine")
-    before = state.kinetic_energy(model) + state.potential_energy
-    saved = integrator.snapshot(state, effects) if refinable else None
-    try:
-        for _ in range(FRAME_RETRIES + 1):
-            integrator.advance(model, state, control, n, h, effects)
-            after = state.kinetic_energy(model) + state.potential_energy
-            if not refinable or after <= before + HOLD_FRAME_RISE * abs(before):
-                return
-            if not integrator.refine():
-                return
-            saved.restore(state, effects)
-    finally:
-        if refinable:
-            integrator.relax()
 
 
 def _guard_hold_energy(rec: Recording, state: State) -> None:
