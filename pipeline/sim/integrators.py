@@ -32,6 +32,11 @@ MAX_HALVINGS = 6
 #: triangle, would otherwise run for ever): the estimate is clamped to it, and a
 #: divergence at it is final
 MAX_SUBSTEPS = 256
+#: the substep is re-chosen at least every this many steps: a frame of a large, slow
+#: mesh spans thousands of steps, and a triangle that flattens within it stiffens its
+#: hinges (omega_max rises) long before the frame ends. The default scenes' frames are
+#: shorter, so they still choose once per frame.
+CHUNK = 256
 
 
 @dataclass
@@ -45,8 +50,8 @@ class SemiImplicit:
     :data:`SAFETY` times the scheme's limit
     (:func:`pipeline.sim.stable_step.scheme_limit`), with ``omega_max`` estimated from the
     model at the start of each :meth:`advance` call (one per recorded frame;
-    :mod:`pipeline.sim.stable_step`). Where ``h`` is stable, ``k = 1`` and the kernel runs
-    exactly as without substeps. A call that still diverges is rolled back to its start
+    :mod:`pipeline.sim.stable_step`) and again every :data:`CHUNK` steps within it. Where ``h`` is stable, ``k = 1`` and the kernel runs
+    exactly as without substeps. A chunk that still diverges is rolled back to its start
     (state and the effects' arrays) and retried with the substep halved, up to
     :data:`MAX_HALVINGS` times (and :data:`MAX_SUBSTEPS` substeps). The choice depends
     only on the state at the start of the call, so a resumed run chooses as an
@@ -66,13 +71,15 @@ class SemiImplicit:
     safety: float = SAFETY
     max_halvings: int = MAX_HALVINGS
     max_substeps: int = MAX_SUBSTEPS
+    chunk: int = CHUNK
     _estimator: object = field(default=None, repr=False, compare=False)
     _frame: dict = field(default_factory=dict, repr=False, compare=False)
 
     def diagnostics(self) -> dict:
         """Per frame (the :meth:`advance` call that ended at it): ``substeps`` (kernel
-        steps per user step, 0 before the first call), ``stable_step`` (the largest step
-        the estimate allows, safety included; from the Gershgorin bound alone when that
+        steps per user step, the most any chunk of the frame took; 0 before the first
+        call), ``stable_step`` (the largest step the estimate allows, safety included,
+        the smallest of the frame's chunks; from the Gershgorin bound alone when that
         already allows ``h``, so then a lower bound; 0 before the first call),
         ``rollbacks`` (halvings after a divergence)."""
         if self.substeps:
@@ -123,25 +130,37 @@ class SemiImplicit:
             if taken < n_steps * k or not np.isfinite(energy):
                 raise Diverged(state.step, energy, state.max_speed())
             return
+        self._frame = {"substeps": 0, "stable_step": math.inf, "rollbacks": 0}
+        done = 0
+        while done < n_steps:
+            n = min(self.chunk, n_steps - done)
+            self._advance_chunk(model, state, control, n, h, effects)
+            done += n
+
+    def _advance_chunk(self, model, state, control, n_steps, h, effects) -> None:
+        """Up to :attr:`chunk` steps on a substep chosen at their start, rolled back and
+        halved while they diverge."""
         k, h_max = self.stable_step(model, state, control, h, effects)
-        self._frame = {"substeps": k, "stable_step": h_max, "rollbacks": 0}
+        frame = self._frame
+        frame["stable_step"] = min(frame["stable_step"], h_max)
         saved = _Snapshot.take(state, effects)
         for attempt in range(self.max_halvings + 1):
             energy, taken = self._kernel(model, state, control, n_steps * k, h / k, k, effects)
             if taken == n_steps * k and np.isfinite(energy):
                 state.potential_energy = energy
                 state.step += n_steps
-                self._frame["substeps"] = k
+                frame["substeps"] = max(frame["substeps"], k)
                 return
             if attempt == self.max_halvings or 2 * k > self.max_substeps:
                 break
             saved.restore(state, effects)
             k *= 2
-            self._frame["rollbacks"] += 1
+            frame["rollbacks"] += 1
         state.potential_energy = energy
         state.step += -(-taken // k)
+        frame["substeps"] = max(frame["substeps"], k)
         why = (f"potential energy {energy:.3g}, max speed {state.max_speed():.3g}, with "
-               f"{k} substeps per step after {self._frame['rollbacks']} halvings")
+               f"{k} substeps per step after {frame['rollbacks']} halvings")
         raise Diverged(state.step, energy, state.max_speed(), why)
 
     def _kernel(self, model, state, control, n, h_sub, k, effects) -> tuple[float, int]:
