@@ -130,6 +130,9 @@ def _build(v, f, petal, report, *, target_edge, petal_vertices, symmetrize, drop
         if quality[-1] < remesh.MIN_ANGLE:
             notes.append(f"{labels[p]}: warning: smallest angle {quality[-1]:.1f} deg is still below "
                          f"{remesh.MIN_ANGLE:g} after remeshing")
+        if remesh.edge_ratio(pts, lf) < remesh.MIN_EDGE:
+            notes.append(f"{labels[p]}: warning: shortest edge {remesh.edge_ratio(pts, lf):.2f} of "
+                         f"the mean is still below {remesh.MIN_EDGE:g} after remeshing")
         after.append(symmetry.asymmetry(pts, plane) if symmetrize or h else err)
         targets.append(h)
         planes.append(plane)
@@ -350,20 +353,30 @@ def _remesh_half(h: float):
     return redo
 
 
+def _shortfall(pts, lf) -> str:
+    """What of the quality bound a sheet misses, for the notes."""
+    worst, ratio = remesh.quality(pts, lf), remesh.edge_ratio(pts, lf)
+    why = []
+    if worst < remesh.MIN_ANGLE:
+        why.append(f"triangles below {remesh.MIN_ANGLE:g} deg (min {worst:.1f} deg)")
+    if ratio < remesh.MIN_EDGE:
+        why.append(f"edges below {remesh.MIN_EDGE:g} of the mean (shortest {ratio:.2f})")
+    return " and ".join(why)
+
+
 def _fixed_quality(pts, lf, h, what, scale):
     """The sheet itself if it meets :data:`remesh.MIN_ANGLE`, else remeshed at ``h``."""
-    worst = remesh.quality(pts, lf)
-    if worst >= remesh.MIN_ANGLE:
+    if remesh.meets_bound(pts, lf):
         return pts, lf, []
+    why = _shortfall(pts, lf)
     # the user's triangles if moving vertices along the surface is enough
     moved, _, _, _ = remesh.improve(pts, lf, moves_only=True)
-    if remesh.quality(moved, lf) >= remesh.MIN_ANGLE:
+    if remesh.meets_bound(moved, lf):
         count = int(np.sum(np.any(moved != pts, axis=1)))
-        return moved, lf, [f"{what}: triangles below {remesh.MIN_ANGLE:g} deg (min {worst:.1f} "
-                           f"deg): moved {count} vertices along the surface, triangles kept"]
+        return moved, lf, [f"{what}: {why}: moved {count} vertices along the surface, triangles kept"]
     pts, lf, _ = remesh.isotropic(pts, lf, h)
     pts, lf, _, _ = remesh.improve(pts, lf)
-    return pts, lf, [f"{what}: triangles below {remesh.MIN_ANGLE:g} deg (min {worst:.1f} deg): "
+    return pts, lf, [f"{what}: {why}: "
                      f"remeshed at edge {h / scale:.4g}"]
 
 
@@ -384,8 +397,8 @@ def _petal(pts, lf, plane, h, symmetrize, what, scale):
         partner = symmetry.mirror_pairs(pts, plane, lf)
         if partner is not None:
             paired = symmetry.symmetrize(pts, plane, partner)
-            worst = remesh.quality(paired, lf)
-            if worst >= remesh.MIN_ANGLE:
+            why = _shortfall(paired, lf)
+            if remesh.meets_bound(paired, lf):
                 return paired, lf, 0.0, [], True
             # keep the user's (paired) triangles: move vertices in the tangent plane only,
             # then average with the mirror image again (pairs stay pairs)
@@ -393,20 +406,19 @@ def _petal(pts, lf, plane, h, symmetrize, what, scale):
             changed = np.any(moved != paired, axis=1)
             changed |= changed[partner]
             moved[changed] = symmetry.symmetrize(moved, plane, partner)[changed]
-            if remesh.quality(moved, lf) >= remesh.MIN_ANGLE:
+            if remesh.meets_bound(moved, lf):
                 count = int(changed.sum())
-                return moved, lf, 0.0, [f"{what}: triangles below {remesh.MIN_ANGLE:g} deg (min "
-                                        f"{worst:.1f} deg): moved {count} vertices along the "
+                return moved, lf, 0.0, [f"{what}: {why}: moved {count} vertices along the "
                                         "surface, triangles kept"], True
         else:
             try:
                 # snap near-plane vertices so the cut makes few slivers; kept if it makes none
                 cut, cut_f, _ = symmetry.mirrored_mesh(pts, lf, plane, snap=SNAP * own)
-                worst = remesh.quality(cut, cut_f)
-                if worst >= remesh.MIN_ANGLE:
+                why = _shortfall(cut, cut_f)
+                if remesh.meets_bound(cut, cut_f):
                     return cut, cut_f, 0.0, [f"{what}: cut along its center plane and mirrored"], True
             except ValueError:
-                worst = remesh.quality(pts, lf)
+                why = _shortfall(pts, lf)
     target = h or own
     try:
         # before a remesh (which resamples the cut) snap far less, or the snap distorts the half
@@ -421,8 +433,8 @@ def _petal(pts, lf, plane, h, symmetrize, what, scale):
     if h:
         return out, out_f, h, [f"{what}: cut along its center plane and mirrored, remeshed at "
                                f"edge {h / scale:.4g}"], True
-    return out, out_f, target, [f"{what}: triangles below {remesh.MIN_ANGLE:g} deg (min "
-                                f"{worst:.1f} deg): cut along its center plane, remeshed at edge "
+    return out, out_f, target, [f"{what}: {why or 'not mirror-paired'}: cut along its center "
+                                f"plane, remeshed at edge "
                                 f"{target / scale:.4g} and mirrored"], True
 
 

@@ -28,6 +28,12 @@ SPLIT, COLLAPSE = 4.0 / 3.0, 4.0 / 5.0
 #: normals usable; the Botsch-Kobbelt remesher reaches about 30 inside a sheet.
 MIN_ANGLE = 20.0
 CORNER = 2.0
+#: ... and no edge shorter than MIN_EDGE times the sheet's mean edge. A cluster of tiny
+#: triangles with good angles (a tip that kept every point of a dense rim) is as bad for
+#: the simulator as a sliver: its hinges are 1/MIN_EDGE^2 as stiff, and under
+#: compression a tiny triangle flattens, its bending force becomes singular and the
+#: dynamic integrators gain energy.
+MIN_EDGE = 0.25
 RIM_TURN = 10.0  #: degrees: :func:`improve` may remove a rim vertex where the rim turns less
 
 
@@ -92,6 +98,21 @@ def quality(vertices: np.ndarray, faces: np.ndarray) -> float:
     """The mesh's smallest triangle angle in degrees away from corners, 0 if any face
     is degenerate or inverted: a mesh meets the bound when ``quality >= MIN_ANGLE``."""
     return float(face_quality(vertices, faces).min()) if len(faces) else 0.0
+
+
+def edge_ratio(vertices: np.ndarray, faces: np.ndarray) -> float:
+    """The sheet's shortest edge over its mean edge: it meets the bound when
+    ``edge_ratio >= MIN_EDGE``."""
+    edges, _, _ = topology.unique_edges(np.asarray(faces, dtype=np.int64))
+    if len(edges) == 0:
+        return 0.0
+    length = np.linalg.norm(vertices[edges[:, 0]] - vertices[edges[:, 1]], axis=1)
+    return float(length.min() / length.mean())
+
+
+def meets_bound(vertices: np.ndarray, faces: np.ndarray) -> bool:
+    """Whether a sheet meets both bounds: :data:`MIN_ANGLE` and :data:`MIN_EDGE`."""
+    return quality(vertices, faces) >= MIN_ANGLE and edge_ratio(vertices, faces) >= MIN_EDGE
 
 
 def target_for_vertices(vertices: np.ndarray, faces: np.ndarray, count: int) -> float:
@@ -211,8 +232,8 @@ def _collapse_short(v: np.ndarray, f: np.ndarray, fixed: np.ndarray, h: float):
         if len(shared) != 1:
             continue
         (o,) = [x for x in faces[shared[0]].tolist() if x not in (a, b)]
-        if boundary[o]:
-            continue
+        if boundary[o] and o not in (p, n):  # an ear (o next on the rim) may go: a tip's
+            continue  # last short edge is often one; any other rim vertex would pinch
         ring_a = {x for i in fa for x in faces[i].tolist()} - {a}
         ring_b = {x for i in fb for x in faces[i].tolist()} - {b}
         if ring_a & ring_b != {o}:  # link condition

@@ -283,8 +283,7 @@ CASES = [
     Case("dense 12 petals", "12 quad-grid petals, 2388 vertices; collisions on", "quad bud12",
          {"effects.collisions.enabled": True}, expect="bloom"),
     Case("5000+ vertices", "5 petals of random Delaunay triangles, 5518 vertices", "bud5 5000",
-         expect="bloom", known="total energy rises 57-65% in the hold (frames of up to 4x "
-         "their start energy, also at 0.6 of the stable step): stopped by the energy guard"),
+         expect="bloom"),
     Case("3-vertex base", "a lone petal whose base is one short edge (3 boundary vertices)",
          "three-vertex base", expect="bloom"),
     Case("centimetres", "the quad-grid bud in centimetres (petals 4.5 long)", "centimetres",
