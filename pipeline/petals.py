@@ -26,6 +26,7 @@ import numpy as np
 
 from . import clean, remesh, symmetry, topology
 from .errors import BloomError
+from .mesh import repair
 
 #: how close to the center plane (in mean edges) a vertex is snapped onto it before the
 #: cut, with and without a remesh after (remeshed souki202: 0.05 gives min angle 6.0
@@ -37,6 +38,9 @@ SNAP, SNAP_REMESHED = 0.2, 0.05
 SNAP_CORNER = 0.5
 DUST = 0.01  #: connected pieces under this fraction of their part's area are dropped
 LAYERED = 0.5  #: a sheet this much of whose area has a second layer behind it is a slab
+#: a mid-surface must cover at least this fraction of half its shell's area (a shell's
+#: two sides each have about half): less, and it is a few faces left over, not a petal
+MIN_MID_AREA = 0.25
 
 
 @dataclass
@@ -209,6 +213,11 @@ def _mid(v, f):
 
     m = midsurface(v, f)
     sv, sf, _ = clean.clean_mesh(m.vertices, m.faces)
+    kept = _area(sv, sf) / max(0.5 * _area(v, f), 1e-300) if len(sf) else 0.0
+    if kept < MIN_MID_AREA:
+        raise ValueError(f"its mid-surface covers only {kept:.0%} of one side ({len(sf)} faces); "
+                         "the part is not two parallel sides (a low-poly cage, a crumpled or "
+                         "self-intersecting shell?)")
     # clean_mesh keeps the order of the vertices it keeps: match the thickness by position
     from scipy.spatial import cKDTree
 
@@ -274,11 +283,15 @@ def prepare_parts(mesh_file, *, where: str, target_edge: float = 0.0, petal_vert
             failing.append(part.name)
             continue
         _, _, count = topology.unique_edges(f)
-        if np.any(count > 2):
-            problems.append(f"{label}: {int(np.sum(count > 2))} non-manifold edges (an edge shared "
-                            "by 3+ faces, after dropping duplicate faces)")
-            failing.append(part.name)
-            continue
+        if np.any(count > 2):  # a rib or fin on the sheet, sheets welded along a seam
+            bad = int(np.sum(count > 2))
+            f, gone = repair.resolve_nonmanifold_edges(v, f)
+            total.nonmanifold_edges += bad
+            total.nonmanifold_faces += gone
+            notes.append(f"{label}: {bad} non-manifold edges: kept the two faces the surface "
+                         f"goes on through at each, dropped {gone} face(s)")
+        v, f, copies = repair.split_fans(v, f)  # pieces touching at a vertex come apart
+        total.split_vertices += copies
         pieces = _pieces(v, f)
         areas = np.array([_area(pv, pf) for pv, pf in pieces])
         small = areas < dust * areas.sum()

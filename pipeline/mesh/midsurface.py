@@ -9,6 +9,7 @@ import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components
 
 from .. import clean, topology
+from .repair import corner_fans
 from .thickness import thickness as measure_thickness
 
 #: least fraction of the area with a parallel layer behind it for a part to be a shell
@@ -110,24 +111,7 @@ def _manifold_fans(faces: np.ndarray, vertex_count: int) -> np.ndarray:
         f = faces[idx]
         corner_vertex = f.T.ravel()  # corner k*nf' + i: vertex k of face i
         m = len(f)
-        # two corners at the same vertex are one fan if their faces share an edge there
-        he, _ = topology.half_edges(f)
-        _, he_edge, count = topology.unique_edges(f)
-        order = np.argsort(he_edge, kind="stable")
-        se = he_edge[order]
-        first = np.flatnonzero(np.r_[True, se[1:] != se[:-1]])
-        pair = count[se[first]] == 2
-        a, b = order[first[pair]], order[first[pair] + 1]
-        face_a, face_b = a % m, b % m
-        links = []
-        for end in (0, 1):
-            vert = he[a, end]
-            ka = np.argmax(f[face_a] == vert[:, None], axis=1)
-            kb = np.argmax(f[face_b] == vert[:, None], axis=1)
-            links.append(np.stack([ka * m + face_a, kb * m + face_b], axis=1))
-        link = np.concatenate(links)
-        g = sp.coo_matrix((np.ones(len(link)), (link[:, 0], link[:, 1])), shape=(3 * m, 3 * m))
-        _, fan = connected_components(g, directed=False)
+        fan = corner_fans(f)
         fans_per_vertex = np.zeros(vertex_count, dtype=np.int64)
         uniq = np.unique(np.stack([corner_vertex, fan], axis=1), axis=0)
         np.add.at(fans_per_vertex, uniq[:, 0], 1)

@@ -50,12 +50,14 @@ class SemiImplicit:
     :data:`SAFETY` times the scheme's limit
     (:func:`pipeline.sim.stable_step.scheme_limit`), with ``omega_max`` estimated from the
     model at the start of each :meth:`advance` call (one per recorded frame;
-    :mod:`pipeline.sim.stable_step`) and again every :data:`CHUNK` steps within it. Where ``h`` is stable, ``k = 1`` and the kernel runs
-    exactly as without substeps. A chunk that still diverges is rolled back to its start
-    (state and the effects' arrays) and retried with the substep halved, up to
-    :data:`MAX_HALVINGS` times (and :data:`MAX_SUBSTEPS` substeps). The choice depends
-    only on the state at the start of the call, so a resumed run chooses as an
-    uninterrupted one does. ``substeps = N > 0`` takes exactly ``N`` kernel steps per
+    :mod:`pipeline.sim.stable_step`) and again every :data:`CHUNK` steps within it.
+    Where ``h`` is stable, ``k = 1`` and the kernel runs exactly as without substeps.
+    A chunk that still diverges is rolled back to its start (state and the effects'
+    arrays) and retried with the substep halved, up to :data:`MAX_HALVINGS` times (and
+    :data:`MAX_SUBSTEPS` substeps). Each choice depends only on the state at the start
+    of its chunk, and chunks start at frames (where a checkpoint resumes), so a resumed
+    run chooses as an uninterrupted one does. ``substeps = N > 0`` takes exactly ``N``
+    kernel steps per
     step, with no estimate and no rollback (``N = 1`` is the paper's scheme as printed).
 
     Effects under substeps: collisions work in distances (the push-back offset, the
