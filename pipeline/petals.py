@@ -41,6 +41,8 @@ LAYERED = 0.5  #: a sheet this much of whose area has a second layer behind it i
 #: a mid-surface must cover at least this fraction of half its shell's area (a shell's
 #: two sides each have about half): less, and it is a few faces left over, not a petal
 MIN_MID_AREA = 0.25
+#: a folded or degenerate triangle under this fraction of the median area is refused
+FLAT_AREA = 0.01
 
 
 @dataclass
@@ -99,11 +101,12 @@ def prepare(vertices: np.ndarray, faces: np.ndarray, *, where: str, target_edge:
                              "Solidify/Extrude) and export the single surface", where=where)
 
     return _build(v, f, petal, report, target_edge=target_edge, petal_vertices=petal_vertices,
+                  where=where,
                   symmetrize=symmetrize, dropped=dropped)
 
 
 def _build(v, f, petal, report, *, target_edge, petal_vertices, symmetrize, dropped=(),
-           labels=None, part_of=None, thick=None, notes=None) -> Petals:
+           labels=None, part_of=None, thick=None, notes=None, where: str = "") -> Petals:
     """Steps 3 to 5 (see the module notes) on clean petal sheets ``v, f`` labelled ``petal``.
 
     ``labels[p]`` names petal ``p`` in the notes ("petal 3 (Cylinder04)"); ``part_of[p]`` is
@@ -118,7 +121,7 @@ def _build(v, f, petal, report, *, target_edge, petal_vertices, symmetrize, drop
     offset = 0
     notes = list(notes or [])
     out_part, out_thick = [], []
-    unsymmetrized, quality = [], []
+    unsymmetrized, quality, broken = [], [], []
     for p in range(count):
         idx = np.flatnonzero(petal == p)
         pts, lf = v[idx], _submesh(f, idx)
@@ -131,7 +134,16 @@ def _build(v, f, petal, report, *, target_edge, petal_vertices, symmetrize, drop
         if symmetrize and not mirrored:
             unsymmetrized.append(p)
         quality.append(remesh.quality(pts, lf))
-        if quality[-1] < remesh.MIN_ANGLE:
+        area = 0.5 * np.linalg.norm(np.cross(pts[lf[:, 1]] - pts[lf[:, 0]],
+                                             pts[lf[:, 2]] - pts[lf[:, 0]]), axis=1)
+        bad = remesh.face_quality(pts, lf) == 0.0  # inverted or degenerate
+        flat = int(np.sum(bad & (area < FLAT_AREA * np.median(area))))
+        if flat:  # its bending force is singular: the simulator gains energy from it
+            broken.append(f"{labels[p]}: {flat} folded triangle(s) of almost no area")
+        elif bad.any():
+            notes.append(f"{labels[p]}: warning: {int(bad.sum())} triangle(s) folded over "
+                         "their neighbours after remeshing")
+        elif quality[-1] < remesh.MIN_ANGLE:
             notes.append(f"{labels[p]}: warning: smallest angle {quality[-1]:.1f} deg is still below "
                          f"{remesh.MIN_ANGLE:g} after remeshing")
         if remesh.edge_ratio(pts, lf) < remesh.MIN_EDGE:
@@ -146,6 +158,11 @@ def _build(v, f, petal, report, *, target_edge, petal_vertices, symmetrize, drop
         out_part.append(np.full(len(pts), part_of[p] if part_of is not None else 0, dtype=np.int64))
         out_thick.append(_carried_thickness(pts, thick[p] if thick is not None else None, scale))
         offset += len(pts)
+    if broken:
+        raise BloomError(f"{len(broken)} petal(s) still fold after remeshing: " + "; ".join(broken)
+                         + "; the sheet folds over itself (a mid-surface of a crumpled shell, or "
+                         "a self-intersecting petal); repair it in the modelling tool, or leave "
+                         "it out with scene.exclude", where=where)
     v, f = np.vstack(out_v), np.vstack(out_f)
     again = 1.0 / clean.mean_edge_length(v, f)
     planes = np.array(planes)
@@ -345,6 +362,7 @@ def prepare_parts(mesh_file, *, where: str, target_edge: float = 0.0, petal_vert
     petal = np.concatenate([np.full(len(sv), k, dtype=np.int64) for k, (sv, _, _, _) in enumerate(sheets)])
     labels = [f"petal {k} ({names[i]})" for k, (_, _, i, _) in enumerate(sheets)]
     result = _build(v, f, petal, total, target_edge=target_edge, petal_vertices=petal_vertices,
+                    where=where,
                     symmetrize=symmetrize, dropped=dropped, labels=labels,
                     part_of=[i for _, _, i, _ in sheets], thick=[t for _, _, _, t in sheets],
                     notes=notes)
