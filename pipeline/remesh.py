@@ -7,8 +7,7 @@ inside (the growth is boundary-dominant), so the boundary is first brought to th
 target length here with the same rules the remesher uses inside: split edges longer
 than 4/3 h at their midpoint, collapse edges shorter than 4/5 h unless that would make
 a neighbouring boundary edge longer than 4/3 h, flip a face or break the mesh. Corner
-vertices (a sharp turn of the rim: a petal's tip, the ends of a cut) never move, except
-that two corners closer than MERGE h (a jagged rim) become one.
+vertices (a sharp turn of the rim: a petal's tip, the ends of a cut) never move.
 """
 
 from __future__ import annotations
@@ -18,10 +17,6 @@ import numpy as np
 from . import topology
 
 SPLIT, COLLAPSE = 4.0 / 3.0, 4.0 / 5.0
-#: two rim corners closer than MERGE h (a jagged rim, a notch) are merged into one,
-#: unless both were fixed by the caller (HARD: the ends of a cut)
-MERGE = 0.5
-CORNER_FIXED, HARD = 1, 2
 
 #: The quality bound every petal leaves the remesh stage with: no triangle angle below
 #: MIN_ANGLE degrees, except a triangle's angle at a *corner*, a boundary vertex whose rim
@@ -223,15 +218,12 @@ def _collapse_short(v: np.ndarray, f: np.ndarray, fixed: np.ndarray, h: float):
     for length, a, b in candidates:
         if length >= COLLAPSE * h:
             break
-        if a in touched or b in touched:
+        if a in touched or b in touched or (fixed[a] and fixed[b]):
             continue
-        if fixed[a] and fixed[b] and (length >= MERGE * h or min(fixed[a], fixed[b]) == HARD):
-            continue  # two corners: merged only when a sliver apart, and one may move
         p, n = prev[a], nxt[b]
         if p in (b, n):  # a loop of 3 or fewer edges stays
             continue
-        pos = (v[a] if fixed[a] >= fixed[b] and fixed[a] else v[b] if fixed[b]
-               else 0.5 * (v[a] + v[b]))
+        pos = v[a] if fixed[a] else v[b] if fixed[b] else 0.5 * (v[a] + v[b])
         if (np.linalg.norm(v[p] - pos) > SPLIT * h or np.linalg.norm(v[n] - pos) > SPLIT * h):
             continue
         fa = [i for i in vertex_faces[a] if alive[i]]
@@ -255,7 +247,7 @@ def _collapse_short(v: np.ndarray, f: np.ndarray, fixed: np.ndarray, h: float):
         if np.any(np.einsum("ij,ij->i", before, after) <= 0.0):
             continue
         v[a] = pos
-        fixed[a] = max(fixed[a], fixed[b])
+        fixed[a] = fixed[a] or fixed[b]
         faces[moved] = after_faces
         alive[shared[0]] = False
         for i in moved:
@@ -280,16 +272,13 @@ def resample_boundary(vertices: np.ndarray, faces: np.ndarray, h: float,
     """
     v = np.asarray(vertices, dtype=np.float64)
     f = np.asarray(faces, dtype=np.int64)
-    # levels: 0 free, CORNER_FIXED a corner found here, HARD fixed by the caller
-    level = np.where(corner_vertices(v, f), CORNER_FIXED, 0).astype(np.int8)
-    if fixed is not None:
-        level[np.asarray(fixed, dtype=bool)] = HARD
+    fixed = corner_vertices(v, f) | (np.zeros(len(v), dtype=bool) if fixed is None else fixed)
     for _ in range(passes):
-        v, f, level, split = _split_long(v, f, level, h)
-        v, f, level, collapsed = _collapse_short(v, f, level, h)
+        v, f, fixed, split = _split_long(v, f, fixed, h)
+        v, f, fixed, collapsed = _collapse_short(v, f, fixed, h)
         if split == 0 and collapsed == 0:
             break
-    return v, f, level > 0
+    return v, f, fixed
 
 
 def _angle_at(v: np.ndarray, apex: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:

@@ -88,26 +88,6 @@ def test_a_short_rim_edge_at_a_corner_is_collapsed():
     assert np.any(np.all(out_v == v[6], axis=1)) and remesh.quality(out_v, out_f) > 40.0
 
 
-def test_two_rim_corners_a_sliver_apart_are_merged_unless_both_fixed():
-    """A tooth on the rim: P and Q, 0.05 h apart, are both corners (the rim turns 90 deg
-    at each). They become one (P stays); two vertices the caller fixed (a cut's ends)
-    never do."""
-    x = np.arange(7.0)
-    v = np.array([(k, 0.0, 0.0) for k in x] + [(6.0, 0.5, 0.0), (6.05, 0.5, 0.0)]
-                 + [(k, 1.0, 0.0) for k in x[::-1]])  # bottom 0-6, P 7, Q 8, top 9 (x=6) - 15
-    f = [(k, k + 1, 14 - k) for k in range(5)] + [(k, 14 - k, 15 - k) for k in range(5)]
-    f = np.array(f + [(5, 6, 7), (5, 7, 10), (7, 8, 9), (7, 9, 10)])
-    corner = remesh.corner_vertices(v, f)
-    assert corner[7] and corner[8] and remesh.edge_ratio(v, f) < 0.1
-    out_v, out_f, _ = remesh.resample_boundary(v, f, 1.0)
-    assert remesh.edge_ratio(out_v, out_f) > 0.3
-    assert np.any(np.all(out_v == v[7], axis=1)) and not np.any(np.all(out_v == v[8], axis=1))
-    fixed = np.zeros(len(v), dtype=bool)
-    fixed[[7, 8]] = True
-    out_v, out_f, _ = remesh.resample_boundary(v, f, 1.0, fixed)
-    assert np.any(np.all(out_v == v[8], axis=1)) and remesh.edge_ratio(out_v, out_f) < 0.1
-
-
 def test_the_measure_does_not_depend_on_the_units():
     v, f, _ = stability.MESHES["asymmetric bud6"]()
     assert remesh.quality(v, f) == pytest.approx(remesh.quality(4.5e-3 * v, f), abs=1e-9)
