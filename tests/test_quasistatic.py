@@ -38,7 +38,6 @@ def test_hessian_matches_finite_differences_of_the_gradient(petal):
     """Away from equilibrium (growth 0.5, positions jittered), so that every term of the
     spring and hinge Hessians counts: each column against central differences of the
     gradient the solver uses (minus the kernels' forces)."""
-    import scipy.sparse as sp
 
     m = petal.model
     free = Model.build(petal.vertices, m.edge_indices, m.edge_growth, m.edge_stiffness,
@@ -47,12 +46,9 @@ def test_hessian_matches_finite_differences_of_the_gradient(petal):
     rng = np.random.default_rng(3)
     X = petal.vertices + rng.normal(scale=0.1, size=petal.vertices.shape)
     A = 0.5
-    hessian.hessian(X, free.edge_indices, free.edge_rest_length, free.edge_growth,
-                    free.edge_stiffness, free.hinge_indices, free.hinge_rest_cos,
-                    free.hinge_rest_sin, free.hinge_stiffness, A, system.data,
-                    system.edge_slots, system.hinge_slots, system.work)
+    system.blocks.assemble(free, X, A, free.hinge_rest_cos, free.hinge_rest_sin)
     n = 3 * free.vertex_count
-    H = sp.bsr_matrix((system.data.copy(), system.indices, system.indptr), shape=(n, n)).toarray()
+    H = system.blocks.matrix().toarray()
     assert np.abs(H - H.T).max() < 1e-14
     eps = 1e-6
     cols = rng.choice(n, 60, replace=False)
@@ -257,14 +253,8 @@ def test_a_petal_held_on_a_line_converges_where_its_hessian_is_singular():
     # the turn about the base line (the x axis) costs nothing: H r = 0 to rounding on
     # the free vertices (E(R X) = E(X) gives H r = w x g, and g = 0 where free)
     system = _System.build(model, fx.Effects())
-    hessian.hessian(X, model.edge_indices, model.edge_rest_length, model.edge_growth,
-                    model.edge_stiffness, model.hinge_indices, model.hinge_rest_cos,
-                    model.hinge_rest_sin, model.hinge_stiffness, 1.0, system.data,
-                    system.edge_slots, system.hinge_slots, system.work)
-    import scipy.sparse as sp
-
-    n = 3 * model.vertex_count
-    H = sp.bsr_matrix((system.data, system.indices, system.indptr), shape=(n, n))
+    system.blocks.assemble(model, X, 1.0, model.hinge_rest_cos, model.hinge_rest_sin)
+    H = system.blocks.matrix()
     turn = np.cross([1.0, 0.0, 0.0], X).ravel()
     assert np.abs(turn.reshape(-1, 3)[pinned]).max() == 0.0  # the fixed ones stay put
     free = np.repeat(~pinned, 3)

@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-import scipy.sparse as sp
 
 from pipeline import asset, clean
 from pipeline.axis import find_axes
@@ -45,7 +44,7 @@ def test_scheme_limit_is_where_the_amplification_matrix_reaches_one(eta, d, expe
 def dense_top_eigenvalue(est: stable_step.StableStep, n: int, conn=None, X=None) -> float:
     """The largest eigenvalue of D H D over the free vertices, dense (H as last assembled
     by ``est``; connection springs added)."""
-    H = sp.bsr_matrix((est.data, est.indices, est.indptr), shape=(3 * n, 3 * n)).toarray()
+    H = est.blocks.matrix().toarray()
     if conn is not None:
         blocks = np.zeros((len(conn.pairs), 3, 3))
         stable_step._connection_blocks(X, conn.pairs, conn.rest, conn.stiffness, conn.alive,

@@ -24,6 +24,7 @@ vertex pairs to their block, so assembly is one pass that allocates nothing.
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import numpy as np
 from numba import njit
@@ -242,6 +243,40 @@ def block_pattern(vertex_count: int, edges: np.ndarray, hinges: np.ndarray):
     edge_slots = np.searchsorted(key, er * n + ec).astype(np.int64)
     hinge_slots = np.searchsorted(key, hr * n + hc).astype(np.int64)
     return indptr, indices, np.ascontiguousarray(edge_slots), np.ascontiguousarray(hinge_slots)
+
+
+@dataclass
+class Blocks:
+    """One model's Hessian as 3x3 blocks: the pattern, each element's slots and the
+    arrays it is assembled into (built once; :meth:`assemble` allocates nothing). The
+    quasi-static solver and the stable-step estimate each hold one."""
+
+    indptr: np.ndarray
+    indices: np.ndarray
+    edge_slots: np.ndarray
+    hinge_slots: np.ndarray
+    data: np.ndarray  #: (nnz, 3, 3) the blocks, as last assembled
+    work: np.ndarray  #: scratch of :func:`bending_terms`
+
+    @classmethod
+    def build(cls, model) -> Blocks:
+        indptr, indices, eslots, hslots = block_pattern(
+            model.vertex_count, model.edge_indices, model.hinge_indices)
+        return cls(indptr, indices, eslots, hslots, np.zeros((len(indices), 3, 3)),
+                   np.zeros((7, 4, 3, 3)))
+
+    def assemble(self, model, X, A: float, cos0, sin0) -> None:
+        """The Hessian at ``X``, growth ``A`` and rest angles ``cos0, sin0`` into ``data``."""
+        hessian(X, model.edge_indices, model.edge_rest_length, model.edge_growth,
+                model.edge_stiffness, model.hinge_indices, cos0, sin0, model.hinge_stiffness,
+                A, self.data, self.edge_slots, self.hinge_slots, self.work)
+
+    def matrix(self):
+        """``data`` as a scipy BSR matrix (a view of the blocks, not a copy)."""
+        import scipy.sparse as sp
+
+        n = 3 * (len(self.indptr) - 1)
+        return sp.bsr_matrix((self.data, self.indices, self.indptr), shape=(n, n))
 
 
 @njit(cache=True)

@@ -159,12 +159,7 @@ class NotConverged(RuntimeError):
 class _System:
     """The block-sparse pattern and work arrays, built once per model."""
 
-    indptr: np.ndarray
-    indices: np.ndarray
-    edge_slots: np.ndarray
-    hinge_slots: np.ndarray
-    data: np.ndarray
-    work: np.ndarray
+    blocks: hessian.Blocks  #: the Hessian, assembled and constrained in place
     pinned: np.ndarray
     plane_row: np.ndarray
     normals: np.ndarray
@@ -176,8 +171,8 @@ class _System:
     @classmethod
     def build(cls, model: Model, effects: Effects) -> _System:
         n = model.vertex_count
-        indptr, indices, eslots, hslots = hessian.block_pattern(
-            n, model.edge_indices, model.hinge_indices)
+        blocks = hessian.Blocks.build(model)
+        indptr, indices = blocks.indptr, blocks.indices
         plane_row = np.full(n, -1, dtype=np.int64)
         normals = np.zeros((0, 3))
         if effects.center_plane is not None:
@@ -191,9 +186,7 @@ class _System:
         take = upper.data.astype(np.int64) - 1
         rows = np.repeat(np.arange(3 * n), np.diff(upper.indptr))  # column of each entry
         diagonal = np.flatnonzero(upper.indices == rows)
-        return cls(indptr, indices, eslots, hslots, np.zeros((len(indices), 3, 3)),
-                   np.zeros((7, 4, 3, 3)), model.pinned.copy(),
-                   plane_row, normals, upper, take, diagonal)
+        return cls(blocks, model.pinned.copy(), plane_row, normals, upper, take, diagonal)
 
     def factor(self, mu: float = 0.0):
         """LDL^T of ``H + mu I`` (H as last assembled). Returns ``(positive, down)``:
@@ -205,7 +198,7 @@ class _System:
         ``z^T L D L^T z = D_k``.
         """
         M = self.upper
-        M.data = self.data.ravel()[self.take]
+        M.data = self.blocks.data.ravel()[self.take]
         M.data[self.diagonal] += mu
         try:
             if self.solver is None:
@@ -398,10 +391,9 @@ class QuasiStatic:
     def _assemble(self, model, X, A, cos0, sin0) -> None:
         """The constrained Hessian at X into the system's blocks."""
         s = self._system
-        hessian.hessian(X, model.edge_indices, model.edge_rest_length, model.edge_growth,
-                        model.edge_stiffness, model.hinge_indices, cos0, sin0,
-                        model.hinge_stiffness, A, s.data, s.edge_slots, s.hinge_slots, s.work)
-        hessian.constrain(s.indptr, s.indices, s.data, s.pinned, s.plane_row, s.normals)
+        H = s.blocks
+        H.assemble(model, X, A, cos0, sin0)
+        hessian.constrain(H.indptr, H.indices, H.data, s.pinned, s.plane_row, s.normals)
 
     def _energy(self, model, X, A, cos0, sin0, scratch) -> float:
         return kernels.internal_forces(X, model.edge_indices, model.edge_rest_length,

@@ -236,36 +236,26 @@ class Estimate:
 class StableStep:
     """The Hessian's pattern and work arrays for one model, built once."""
 
-    indptr: np.ndarray
-    indices: np.ndarray
-    edge_slots: np.ndarray
-    hinge_slots: np.ndarray
-    data: np.ndarray
-    work: np.ndarray
+    blocks: hessian.Blocks  #: the Hessian, as last assembled by :meth:`estimate`
     scale: np.ndarray  #: (V,) 1/sqrt(mass), 0 on pinned vertices
     start: np.ndarray  #: (V, 3) the fixed Lanczos start vector
     steps: int = LANCZOS_STEPS
 
     @classmethod
     def build(cls, model, steps: int = LANCZOS_STEPS) -> StableStep:
-        indptr, indices, eslots, hslots = hessian.block_pattern(
-            model.vertex_count, model.edge_indices, model.hinge_indices)
         scale = np.sqrt(model.vertex_inv_mass)
         k = np.arange(3 * model.vertex_count, dtype=np.float64)
         start = (np.cos(2.399963229728653 * k) + 0.5 * np.cos(0.7548776662466927 * k * k))
         start = np.ascontiguousarray(start.reshape(-1, 3) * (scale > 0.0)[:, None])
-        return cls(indptr, indices, eslots, hslots, np.zeros((len(indices), 3, 3)),
-                   np.zeros((7, 4, 3, 3)), scale, start, steps)
+        return cls(hessian.Blocks.build(model), scale, start, steps)
 
     def estimate(self, model, positions, A: float, cos0, sin0, connections=None,
                  tighten: bool = True) -> Estimate:
         """omega_max^2 at ``positions``, growth ``A`` (rest lengths), rest angles
         ``cos0, sin0`` and the intact ``connections`` (an :class:`effects.Connections`)."""
         X = np.ascontiguousarray(positions, dtype=np.float64)
-        hessian.hessian(X, model.edge_indices, model.edge_rest_length, model.edge_growth,
-                        model.edge_stiffness, model.hinge_indices, cos0, sin0,
-                        model.hinge_stiffness, A, self.data, self.edge_slots,
-                        self.hinge_slots, self.work)
+        H = self.blocks
+        H.assemble(model, X, A, cos0, sin0)
         if connections is not None and len(connections.pairs):
             pairs = connections.pairs
             blocks = np.zeros((len(pairs), 3, 3))
@@ -273,7 +263,7 @@ class StableStep:
                                connections.alive, blocks)
         else:
             pairs, blocks = np.zeros((0, 2), dtype=np.int64), np.zeros((0, 3, 3))
-        hi, lo = gershgorin(self.indptr, self.indices, self.data, self.scale, pairs, blocks)
+        hi, lo = gershgorin(H.indptr, H.indices, H.data, self.scale, pairs, blocks)
         if not tighten or self.steps <= 0 or not math.isfinite(hi):
             return Estimate(hi, math.nan, hi)
         shift = max(0.0, -lo)
@@ -281,7 +271,7 @@ class StableStep:
         Q[0] = self.start
         alpha = np.zeros(self.steps)
         beta = np.zeros(self.steps)
-        m = lanczos(self.indptr, self.indices, self.data, self.scale, pairs, blocks, shift,
+        m = lanczos(H.indptr, H.indices, H.data, self.scale, pairs, blocks, shift,
                     Q, alpha, beta)
         if m == 0:
             return Estimate(hi, math.nan, hi)
