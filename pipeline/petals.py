@@ -133,10 +133,10 @@ def _build(v, f, petal, report, *, target_edge, petal_vertices, symmetrize, drop
         notes += note
         if symmetrize and not mirrored:
             unsymmetrized.append(p)
-        quality.append(remesh.quality(pts, lf))
-        area = 0.5 * np.linalg.norm(np.cross(pts[lf[:, 1]] - pts[lf[:, 0]],
-                                             pts[lf[:, 2]] - pts[lf[:, 0]]), axis=1)
-        bad = remesh.face_quality(pts, lf) == 0.0  # inverted or degenerate
+        face_quality = remesh.face_quality(pts, lf)
+        quality.append(float(face_quality.min()))  # remesh.quality
+        area = 0.5 * np.linalg.norm(topology.face_normals(pts, lf), axis=1)
+        bad = face_quality == 0.0  # inverted or degenerate
         flat = int(np.sum(bad & (area < FLAT_AREA * np.median(area))))
         if flat:  # its bending force is singular: the simulator gains energy from it
             broken.append(f"{labels[p]}: {flat} folded triangle(s) of almost no area")
@@ -146,8 +146,9 @@ def _build(v, f, petal, report, *, target_edge, petal_vertices, symmetrize, drop
         elif quality[-1] < remesh.MIN_ANGLE:
             notes.append(f"{labels[p]}: warning: smallest angle {quality[-1]:.1f} deg is still below "
                          f"{remesh.MIN_ANGLE:g} after remeshing")
-        if remesh.edge_ratio(pts, lf) < remesh.MIN_EDGE:
-            notes.append(f"{labels[p]}: warning: shortest edge {remesh.edge_ratio(pts, lf):.2f} of "
+        ratio = remesh.edge_ratio(pts, lf)
+        if ratio < remesh.MIN_EDGE:
+            notes.append(f"{labels[p]}: warning: shortest edge {ratio:.2f} of "
                          f"the mean is still below {remesh.MIN_EDGE:g} after remeshing")
         after.append(symmetry.asymmetry(pts, plane) if symmetrize or h else err)
         targets.append(h)
@@ -385,7 +386,8 @@ def _remesh_half(h: float):
 
 
 def _shortfall(pts, lf) -> str:
-    """What of the quality bound a sheet misses, for the notes."""
+    """What of the quality bound a sheet misses, for the notes ("" if it meets it:
+    :func:`remesh.meets_bound`)."""
     worst, ratio = remesh.quality(pts, lf), remesh.edge_ratio(pts, lf)
     why = []
     if worst < remesh.MIN_ANGLE:
@@ -397,9 +399,9 @@ def _shortfall(pts, lf) -> str:
 
 def _fixed_quality(pts, lf, h, what, scale):
     """The sheet itself if it meets :data:`remesh.MIN_ANGLE`, else remeshed at ``h``."""
-    if remesh.meets_bound(pts, lf):
-        return pts, lf, []
     why = _shortfall(pts, lf)
+    if not why:
+        return pts, lf, []
     # the user's triangles if moving vertices along the surface is enough
     moved, _, _, _ = remesh.improve(pts, lf, moves_only=True)
     if remesh.meets_bound(moved, lf):
@@ -429,7 +431,7 @@ def _petal(pts, lf, plane, h, symmetrize, what, scale):
         if partner is not None:
             paired = symmetry.symmetrize(pts, plane, partner)
             why = _shortfall(paired, lf)
-            if remesh.meets_bound(paired, lf):
+            if not why:
                 return paired, lf, 0.0, [], True
             # keep the user's (paired) triangles: move vertices in the tangent plane only,
             # then average with the mirror image again (pairs stay pairs)
@@ -446,7 +448,7 @@ def _petal(pts, lf, plane, h, symmetrize, what, scale):
                 # snap near-plane vertices so the cut makes few slivers; kept if it makes none
                 cut, cut_f, _ = symmetry.mirrored_mesh(pts, lf, plane, snap=SNAP * own)
                 why = _shortfall(cut, cut_f)
-                if remesh.meets_bound(cut, cut_f):
+                if not why:
                     return cut, cut_f, 0.0, [f"{what}: cut along its center plane and mirrored"], True
             except ValueError:
                 why = _shortfall(pts, lf)
