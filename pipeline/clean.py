@@ -26,6 +26,7 @@ class CleanReport:
     nonmanifold_edges: int = 0  #: edges of 3+ faces repaired (the remesh stage, per part)
     nonmanifold_faces: int = 0  #: faces dropped to repair them
     split_vertices: int = 0  #: vertex copies made where separate fans of faces met
+    zipped_vertices: int = 0  #: rim vertices merged to close a slit in a sheet
     notes: list = field(default_factory=list)
 
 

@@ -357,6 +357,12 @@ def prepare_parts(mesh_file, *, where: str, target_edge: float = 0.0, petal_vert
         hint = ("; name the petals with scene.petals = [\"glob\"]" if not problems else
                 "; repair the part(s) named and export again, or name the petals with scene.petals")
         raise BloomError("no petals: " + "; ".join(problems + others) + hint, where=where)
+    for k, (sv, sf, i, t) in enumerate(sheets):
+        sv, sf, zipped = repair.zip_slits(sv, sf)  # a sliver dropped in a mid-surface, a seam
+        if zipped:
+            total.zipped_vertices += zipped
+            notes.append(f"{names[i]}: closed a slit in its sheet ({zipped} rim vertex pair(s) merged)")
+            sheets[k] = (sv, sf, i, t)
     offsets = np.cumsum([0] + [len(sv) for sv, _, _, _ in sheets])
     v = np.vstack([sv for sv, _, _, _ in sheets])
     f = np.vstack([sf + o for (_, sf, _, _), o in zip(sheets, offsets, strict=False)])
@@ -385,6 +391,13 @@ def _remesh_half(h: float):
     return redo
 
 
+def _remeshed(pts, lf, h):
+    """A sheet remeshed at edge ``h`` and improved towards the quality bound."""
+    pts, lf, _ = remesh.isotropic(pts, lf, h)
+    pts, lf, _, _ = remesh.improve(pts, lf)
+    return pts, lf
+
+
 def _shortfall(pts, lf) -> str:
     """What of the quality bound a sheet misses, for the notes ("" if it meets it:
     :func:`remesh.meets_bound`)."""
@@ -407,8 +420,7 @@ def _fixed_quality(pts, lf, h, what, scale):
     if remesh.meets_bound(moved, lf):
         count = int(np.sum(np.any(moved != pts, axis=1)))
         return moved, lf, [f"{what}: {why}: moved {count} vertices along the surface, triangles kept"]
-    pts, lf, _ = remesh.isotropic(pts, lf, h)
-    pts, lf, _, _ = remesh.improve(pts, lf)
+    pts, lf = _remeshed(pts, lf, h)
     return pts, lf, [f"{what}: {why}: "
                      f"remeshed at edge {h / scale:.4g}"]
 
@@ -421,8 +433,7 @@ def _petal(pts, lf, plane, h, symmetrize, what, scale):
     own = clean.mean_edge_length(pts, lf)
     if not symmetrize:
         if h:
-            pts, lf, _ = remesh.isotropic(pts, lf, h)
-            pts, lf, _, _ = remesh.improve(pts, lf)
+            pts, lf = _remeshed(pts, lf, h)
             return pts, lf, h, [], False
         out, out_f, note = _fixed_quality(pts, lf, own, what, scale)
         return out, out_f, (own if len(out_f) != len(lf) or np.any(out_f != lf) else 0.0), note, False
@@ -463,6 +474,15 @@ def _petal(pts, lf, plane, h, symmetrize, what, scale):
         kept = len(fixed_f) == len(lf) and np.all(fixed_f == lf)
         return fixed, fixed_f, (0.0 if kept else target), note + [
             f"{what}: warning: cannot be mirrored ({exc}); left unsymmetrized"], False
+    missed = _shortfall(out, out_f)
+    if missed:
+        # the cut met the rim in a notch or a slit the mirrored remesh cannot mend; the
+        # simulator needs the bound more than it needs the symmetry
+        fixed, fixed_f = _remeshed(pts, lf, target)
+        if not _shortfall(fixed, fixed_f):
+            return fixed, fixed_f, target, [
+                f"{what}: warning: mirrored, it kept {missed}; remeshed at edge "
+                f"{target / scale:.4g}, unsymmetrized"], False
     if h:
         return out, out_f, h, [f"{what}: cut along its center plane and mirrored, remeshed at "
                                f"edge {h / scale:.4g}"], True

@@ -196,8 +196,15 @@ def _split_long(v: np.ndarray, f: np.ndarray, fixed: np.ndarray, h: float,
             np.r_[fixed, np.zeros(len(new_v), dtype=bool)], len(new_v))
 
 
-def _collapse_short(v: np.ndarray, f: np.ndarray, fixed: np.ndarray, h: float):
-    """Collapse boundary edges shorter than 4/5 h where that keeps the mesh sound."""
+def _collapse_short(v: np.ndarray, f: np.ndarray, fixed: np.ndarray, h: float,
+                    pinned: np.ndarray | None = None):
+    """Collapse boundary edges shorter than 4/5 h where that keeps the mesh sound.
+
+    An edge between two ``fixed`` vertices (two corners) stays, unless it is shorter than
+    :data:`MIN_EDGE` h: a notch in the outline below the mesh's resolution (a modelling
+    tool's sliver, a mid-surface's torn rim). Its ends merge at its middle, or at the
+    end that is ``pinned`` (a vertex the caller fixed; two pinned ends stay)."""
+    pinned = np.zeros(len(v), dtype=bool) if pinned is None else pinned.copy()
     v = v.copy()
     faces = f.copy()
     boundary = topology.boundary_vertices(f, len(v))
@@ -218,12 +225,17 @@ def _collapse_short(v: np.ndarray, f: np.ndarray, fixed: np.ndarray, h: float):
     for length, a, b in candidates:
         if length >= COLLAPSE * h:
             break
-        if a in touched or b in touched or (fixed[a] and fixed[b]):
+        notch = fixed[a] and fixed[b]
+        if a in touched or b in touched or (notch and (length >= MIN_EDGE * h
+                                                        or (pinned[a] and pinned[b]))):
             continue
         p, n = prev[a], nxt[b]
         if p in (b, n):  # a loop of 3 or fewer edges stays
             continue
-        pos = v[a] if fixed[a] else v[b] if fixed[b] else 0.5 * (v[a] + v[b])
+        if notch:
+            pos = v[a] if pinned[a] else v[b] if pinned[b] else 0.5 * (v[a] + v[b])
+        else:
+            pos = v[a] if fixed[a] else v[b] if fixed[b] else 0.5 * (v[a] + v[b])
         if (np.linalg.norm(v[p] - pos) > SPLIT * h or np.linalg.norm(v[n] - pos) > SPLIT * h):
             continue
         fa = [i for i in vertex_faces[a] if alive[i]]
@@ -248,6 +260,7 @@ def _collapse_short(v: np.ndarray, f: np.ndarray, fixed: np.ndarray, h: float):
             continue
         v[a] = pos
         fixed[a] = fixed[a] or fixed[b]
+        pinned[a] = pinned[a] or pinned[b]
         faces[moved] = after_faces
         alive[shared[0]] = False
         for i in moved:
@@ -260,7 +273,7 @@ def _collapse_short(v: np.ndarray, f: np.ndarray, fixed: np.ndarray, h: float):
     used = np.zeros(len(v), dtype=bool)
     used[faces.ravel()] = True
     remap = np.cumsum(used) - 1
-    return v[used], remap[faces], fixed[used], collapsed
+    return v[used], remap[faces], fixed[used], pinned[used], collapsed
 
 
 def resample_boundary(vertices: np.ndarray, faces: np.ndarray, h: float,
@@ -272,10 +285,12 @@ def resample_boundary(vertices: np.ndarray, faces: np.ndarray, h: float,
     """
     v = np.asarray(vertices, dtype=np.float64)
     f = np.asarray(faces, dtype=np.int64)
-    fixed = corner_vertices(v, f) | (np.zeros(len(v), dtype=bool) if fixed is None else fixed)
+    pinned = np.zeros(len(v), dtype=bool) if fixed is None else np.asarray(fixed, dtype=bool)
+    fixed = corner_vertices(v, f) | pinned
     for _ in range(passes):
         v, f, fixed, split = _split_long(v, f, fixed, h)
-        v, f, fixed, collapsed = _collapse_short(v, f, fixed, h)
+        pinned = np.r_[pinned, np.zeros(len(v) - len(pinned), dtype=bool)]
+        v, f, fixed, pinned, collapsed = _collapse_short(v, f, fixed, h, pinned)
         if split == 0 and collapsed == 0:
             break
     return v, f, fixed

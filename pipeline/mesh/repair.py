@@ -127,3 +127,59 @@ def resolve_nonmanifold_edges(vertices: np.ndarray, faces: np.ndarray) -> tuple[
         if not dropped_now:
             break
     return f[keep], int(np.sum(~keep))
+
+
+#: rim vertices closer than this times the sheet's mean edge, two steps apart along the
+#: rim, are the two lips of a slit
+ZIP = 0.05
+
+
+def zip_slits(vertices: np.ndarray, faces: np.ndarray, tolerance: float | None = None):
+    """Close slits: where the rim runs into the sheet and straight back out (a sliver
+    dropped between two sides of a mid-surface, an unwelded seam ending inside a
+    sheet), the two lips' rim vertices next to the slit's end are merged, and again,
+    until the lips part by more than ``tolerance`` (default :data:`ZIP` times the mean
+    edge). The slit's end becomes an inside vertex. A merge that would make an edge of
+    three faces is not made. Returns ``(vertices, faces, vertices merged)``; vertices
+    keep their order, merged ones are dropped."""
+    from .. import clean
+    from ..remesh import boundary_loops
+
+    v = np.asarray(vertices, dtype=np.float64)
+    f = np.asarray(faces, dtype=np.int64).copy()
+    if len(f) == 0:
+        return v, f, 0
+    tol = ZIP * clean.mean_edge_length(v, f) if tolerance is None else float(tolerance)
+    refused: set[tuple[int, int]] = set()
+    merged = 0
+    for _ in range(len(v)):
+        found = None
+        for loop in boundary_loops(f):
+            if len(loop) < 4:
+                continue
+            a, b = loop, np.roll(loop, -2)
+            gap = np.linalg.norm(v[a] - v[b], axis=1)
+            for k in np.argsort(gap, kind="stable").tolist():
+                if gap[k] >= tol:
+                    break
+                pair = (int(min(a[k], b[k])), int(max(a[k], b[k])))
+                if pair not in refused:
+                    found = pair
+                    break
+            if found:
+                break
+        if found is None:
+            break
+        keep, gone = found
+        g = np.where(f == gone, keep, f)
+        g = g[(g[:, 0] != g[:, 1]) & (g[:, 1] != g[:, 2]) & (g[:, 2] != g[:, 0])]
+        _, _, count = topology.unique_edges(g)
+        if np.any(count > 2) or len(g) == 0:
+            refused.add(found)
+            continue
+        f = g
+        merged += 1
+    used = np.zeros(len(v), dtype=bool)
+    used[f.ravel()] = True
+    remap = np.cumsum(used) - 1
+    return v[used], remap[f], merged
