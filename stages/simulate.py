@@ -139,7 +139,8 @@ def command(growth_h5: str, config_path, overrides, out, overwrite, progress, re
         with artifact.writing(out, stage="simulate", config_json=cfg.to_json(),
                               inputs=inputs, attrs=attrs, previous=src) as h5:
             src.copy_to(h5, ("mesh/faces", "mesh/petal", "axis/base", "axis/on_axis", "axis/x",
-                             "axis/s", "axis/tip", "axis/plane", "growth/hinges"))
+                             "axis/s", "axis/tip", "axis/plane", "growth/hinges", "input/asset",
+                             "bind"))
             artifact.put(h5, "frames/time", np.asarray(rec.time), "(T,) time of each frame")
             artifact.put(h5, "frames/positions", positions, "(T, V, 3) vertex positions")
             for name, values in diag.items():
