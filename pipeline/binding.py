@@ -221,3 +221,26 @@ def read_bindings(src) -> dict[int, Binding]:
         return {}
     return {int(k): Binding(g["face"][()], g["bary"][()], g["offset"][()])
             for k, g in f[BIND_GROUP].items()}
+
+
+def thickness(points: np.ndarray, triangles: np.ndarray, offset_normal: np.ndarray,
+              inside: np.ndarray) -> np.ndarray:
+    """``(k,)`` a thick part's thickness at its points on the sheet's positive side that are
+    bound ``inside`` a sheet triangle (not past its rim): each one's distance to the
+    nearest point of the part's negative side (its triangles with every corner on that
+    side, by the sign of ``offset_normal``). Empty when the part has no two sides."""
+    P = np.asarray(points, dtype=np.float64)
+    T = np.asarray(triangles, dtype=np.int64)
+    up = np.asarray(offset_normal) > 0.0
+    down_faces = np.all(~up[T], axis=1)
+    mine = np.flatnonzero(up & inside)
+    if len(mine) == 0 or not down_faces.any():
+        return np.zeros(0)
+    face, bary = closest_points(P[mine], P, T, down_faces)
+    return np.linalg.norm(np.einsum("ij,ijk->ik", bary, P[T[face]]) - P[mine], axis=1)
+
+
+def interior(b: Binding, margin: float = 1e-6) -> np.ndarray:
+    """``(n,) bool``: points bound inside their triangle (their offset is along the normal
+    only), not clamped to the sheet's rim."""
+    return np.all(b.bary > margin, axis=1)

@@ -165,8 +165,13 @@ SCHEMA: dict[str, Any] = {
         },
     },
     "export": {
+        "mesh": Key(str, "input", "what the export gives back: input (the user's own parts, "
+                    "names, polygons, UVs, normals and materials, the petals deformed by the "
+                    "simulated sheet through their binding, the other parts in place) or "
+                    "sheet (the simulated sheet, one mesh per petal)", choices=("input", "sheet")),
         "meters_per_unit": Key(float, 1.0, "USD metersPerUnit: how many meters one unit of the "
-                               "input mesh is (Blender, Houdini scale by it)", low=0.0,
+                               "input mesh is (Blender, Houdini scale by it), where the input "
+                               "file does not say (glTF: metres; a Maya OBJ's unit comment)", low=0.0,
                                low_open=True),
     },
     "render": {
