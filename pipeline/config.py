@@ -33,6 +33,7 @@ class Key:
     low_open: bool = False
     high_open: bool = False
     check: Callable[[Any], None] | None = None  # raises ValueError with a reason
+    items: type = str  #: a list's items: str, or list (pairs of numbers)
 
 
 def _check_color(value: str) -> None:
@@ -40,6 +41,25 @@ def _check_color(value: str) -> None:
 
     if not is_color_like(value):
         raise ValueError(f"{value!r} is not a colour name or #rrggbb")
+
+
+def _check_keys(value: list) -> None:
+    """growth.keys: [[frame, A], ...], frames increasing, A in [0, 1] and never falling."""
+    for k, item in enumerate(value):
+        if (not isinstance(item, list) or len(item) != 2
+                or not all(isinstance(x, (int, float)) and not isinstance(x, bool)
+                           and math.isfinite(x) for x in item)):
+            raise ValueError(f"key {k} is {item!r}; each key is [frame, A], two numbers")
+        if item[0] < 0:
+            raise ValueError(f"key {k}: frame {item[0]} is before frame 0")
+        if not 0.0 <= item[1] <= 1.0:
+            raise ValueError(f"key {k}: A = {item[1]} is outside [0, 1]")
+        if k and item[0] <= value[k - 1][0]:
+            raise ValueError(f"key {k}: frame {item[0]} does not come after frame "
+                             f"{value[k - 1][0]} (frames must increase)")
+        if k and item[1] < value[k - 1][1]:
+            raise ValueError(f"key {k}: A falls from {value[k - 1][1]} to {item[1]} (growth "
+                             "only increases)")
 
 
 def _check_direction(value: str) -> None:
@@ -99,6 +119,12 @@ SCHEMA: dict[str, Any] = {
                         "or smootherstep (C2)", choices=SCHEDULES),
         "ramp": Key(float, 0.6, "fraction of the simulated time over which A(t) rises from 0 "
                     "to 1; the rest is a hold at full growth", low=0.0, high=1.0, low_open=True),
+        "keys": Key(list, [], "A keyed in frames, [[frame, A], ...] (frame 0 is the first stored "
+                    "frame, simulate.frames - 1 the last): a monotone smooth curve (PCHIP) "
+                    "through the keys, held before the first and after the last; e.g. [[0, 0], "
+                    "[24, 0], [72, 1]] holds the bud 24 frames, opens over 48 and holds. "
+                    "Replaces growth.schedule and growth.ramp when given", check=_check_keys,
+                    items=list),
     },
     "simulate": {
         "steps": Key(int, 200_000, "number of time steps", low=1),
@@ -165,8 +191,13 @@ SCHEMA: dict[str, Any] = {
         },
     },
     "export": {
+        "mesh": Key(str, "input", "what the export gives back: input (the user's own parts, "
+                    "names, polygons, UVs, normals and materials, the petals deformed by the "
+                    "simulated sheet through their binding, the other parts in place) or "
+                    "sheet (the simulated sheet, one mesh per petal)", choices=("input", "sheet")),
         "meters_per_unit": Key(float, 1.0, "USD metersPerUnit: how many meters one unit of the "
-                               "input mesh is (Blender, Houdini scale by it)", low=0.0,
+                               "input mesh is (Blender, Houdini scale by it), where the input "
+                               "file does not say (glTF: metres; a Maya OBJ's unit comment)", low=0.0,
                                low_open=True),
     },
     "render": {
@@ -220,14 +251,16 @@ def _coerce(dotted: str, key: Key, value: Any, where: str) -> Any:
         ok = isinstance(value, str)
     elif key.kind is list:
         ok = isinstance(value, list)
-        bad = [item for item in value if not isinstance(item, str)] if ok else []
+        bad = [item for item in value if not isinstance(item, key.items)] if ok else []
         if bad:
-            raise BloomError(f"{dotted}: expected a list of strings, got {bad[0]!r} in it",
+            what = "strings" if key.items is str else "[frame, A] pairs"
+            raise BloomError(f"{dotted}: expected a list of {what}, got {bad[0]!r} in it",
                              where=where)
         if ok:
             value = list(value)
     if not ok:
-        raise BloomError(f"{dotted}: expected {_type_name(key.kind)}, got {value!r}", where=where)
+        kind = "a list of [frame, A] pairs" if key.items is list else _type_name(key.kind)
+        raise BloomError(f"{dotted}: expected {kind}, got {value!r}", where=where)
     if key.choices and value not in key.choices:
         raise BloomError(f"{dotted}: must be one of {', '.join(key.choices)}; got {value!r}",
                          where=where)
@@ -376,6 +409,11 @@ def _check_together(cfg: Config, where: str) -> None:
         raise BloomError(f"simulate.frames: {cfg['simulate.frames']} frames need at least "
                          f"{cfg['simulate.frames'] - 1} steps (simulate.steps = "
                          f"{cfg['simulate.steps']})", where=where)
+    keys = cfg["growth.keys"]
+    if keys and keys[-1][0] > cfg["simulate.frames"] - 1:
+        raise BloomError(f"growth.keys: a key at frame {keys[-1][0]:g} is past the last frame "
+                         f"({cfg['simulate.frames'] - 1}; simulate.frames = "
+                         f"{cfg['simulate.frames']})", where=where)
     if cfg["remesh.target_edge"] > 0 and cfg["remesh.petal_vertices"] > 0:
         raise BloomError("remesh.target_edge, remesh.petal_vertices: set one of them, not both",
                          where=where)

@@ -208,11 +208,13 @@ def _gltf_header(path: Path) -> dict:
         return {}
 
 
-def _read_gltf(path: Path, where: str) -> MeshFile:
+def gltf_node_frames(scene, header: dict):
+    """Each glTF node with a mesh, in the file's node order, as trimesh loaded it:
+    ``(node, name, [(transform (4, 4), trimesh.Trimesh), ...])``, one pair per primitive
+    with triangles (the node's own frame for one primitive, a child frame each for
+    several). ``name`` is the node's name, else its mesh's, else ``part_N``."""
     from trimesh.util import unique_name
 
-    scene = _load(path, where, force="scene")
-    header = _gltf_header(path)
     nodes = header.get("nodes", [])
     meshes = header.get("meshes", [])
     # trimesh names node i after its "name" (made unique) or else str(i): the same here
@@ -225,28 +227,41 @@ def _read_gltf(path: Path, where: str) -> MeshFile:
         frame_of[i] = frame
     graph = scene.graph
     children = graph.transforms.children
-    parts = []
+    found = 0
     for i, node in enumerate(nodes):
         if "mesh" not in node or frame_of[i] not in graph.nodes:
             continue
         mesh_name = meshes[node["mesh"]].get("name") if node["mesh"] < len(meshes) else None
-        name = node.get("name") or mesh_name or f"part_{len(parts)}"
+        name = node.get("name") or mesh_name or f"part_{found}"
         # one primitive: the node's own frame; several: one child frame each
         frames = [frame_of[i]] + [c for c in children.get(frame_of[i], [])
                                   if c not in taken.keys() and c.startswith(frame_of[i] + "_")]
-        verts, faces, offset = [], [], 0
+        out = []
         for frame in frames:
             transform, geometry = graph[frame]
             mesh = scene.geometry.get(geometry) if geometry is not None else None
             if mesh is None or len(getattr(mesh, "faces", ())) == 0:
                 continue
+            out.append((np.asarray(transform, dtype=np.float64), mesh))
+        if out:
+            found += 1
+            yield node, name, out
+
+
+def _read_gltf(path: Path, where: str) -> MeshFile:
+    scene = _load(path, where, force="scene")
+    header = _gltf_header(path)
+    graph = scene.graph
+    parts = []
+    for _, name, frames in gltf_node_frames(scene, header):
+        verts, faces, offset = [], [], 0
+        for transform, mesh in frames:
             v = np.asarray(mesh.vertices, dtype=np.float64)
             verts.append(v @ transform[:3, :3].T + transform[:3, 3])
             faces.append(np.asarray(mesh.faces, dtype=np.int64) + offset)
             offset += len(v)
-        if verts:
-            parts.append(Part(name, *_checked(np.vstack(verts), np.vstack(faces), where,
-                                               f"part {name!r}")))
+        parts.append(Part(name, *_checked(np.vstack(verts), np.vstack(faces), where,
+                                           f"part {name!r}")))
     if not parts and scene.geometry:  # no node table (unexpected): trimesh's own frames
         for k, frame in enumerate(graph.nodes_geometry):
             transform, geometry = graph[frame]

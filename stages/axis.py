@@ -7,7 +7,8 @@ import numpy as np
 
 from .common import config_options, input_hashes, load, log, output_options
 
-CARRIED = ("mesh/vertices", "mesh/faces", "mesh/petal", "mesh/part_names", "mesh/part", "mesh/thickness")
+CARRIED = ("mesh/vertices", "mesh/faces", "mesh/petal", "mesh/part_names", "mesh/part", "mesh/thickness",
+           "input/asset", "bind")
 
 
 @click.command("axis")

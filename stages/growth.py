@@ -11,7 +11,7 @@ from .common import config_options, input_hashes, load, log, output_options
 
 CARRIED = ("mesh/vertices", "mesh/faces", "mesh/petal", "mesh/part_names", "mesh/part", "mesh/thickness",
            "axis/base", "axis/on_axis",
-           "axis/tip", "axis/plane", "axis/x", "axis/s")
+           "axis/tip", "axis/plane", "axis/x", "axis/s", "input/asset", "bind")
 
 
 @click.command("growth")

@@ -34,7 +34,7 @@ def command(mesh: str | None, config_path, overrides, out, overwrite) -> None:
     at its own mean edge; a petal that cannot be mirrored is kept as it is and listed in
     the attribute unsymmetrized.
     """
-    from pipeline import artifact
+    from pipeline import artifact, binding, userasset
     from pipeline.meshfile import read_parts
     from pipeline.petals import prepare_parts
 
@@ -51,6 +51,7 @@ def command(mesh: str | None, config_path, overrides, out, overwrite) -> None:
                            closed_parts=cfg["remesh.closed_parts"],
                            petals_globs=cfg["scene.petals"], exclude_globs=cfg["scene.exclude"])
     report = result.report
+    asset, bindings = _bound_asset(mesh_path, mesh_file, result)
     for i, part in enumerate(result.parts):
         done = {"petal": "simulated", "kept": "kept as it is (carried forward)",
                 "excluded": "excluded by scene.exclude (carried forward)"}[part["role"]]
@@ -108,4 +109,29 @@ def command(mesh: str | None, config_path, overrides, out, overwrite) -> None:
             artifact.put(h5, f"input/parts/{i}/vertices", pv.astype(np.float64),
                          f"(n, 3) part {mesh_file.parts[i].name!r} as read, input units (not scaled)")
             artifact.put(h5, f"input/parts/{i}/faces", pf.astype(np.int64), "(m, 3) its triangles")
+        if asset is not None:
+            userasset.write(h5, asset)
+            binding.write_bindings(h5, bindings)
     log.info("wrote %s", out)
+
+
+def _bound_asset(mesh_path, mesh_file, result):
+    """The input's parts as the file gives them (for the export) and their petals' binding
+    to the sheet; ``(None, {})`` when the file's own parts cannot be matched to the parts
+    read for simulating (the export can then give back the sheet only)."""
+    from pipeline import binding, userasset
+
+    asset = userasset.read_asset(mesh_path)
+    names = [p.name for p in mesh_file.parts]
+    if asset.names != names:
+        log.warning("%s: the file's own parts (%d) do not match the parts read (%d); the "
+                    "export can give back the simulated sheet only (export.mesh = \"sheet\")",
+                    mesh_path, len(asset.parts), len(names))
+        return None, {}
+    bindings = binding.bind_parts(asset, result.scale, result.vertices, result.faces, result.part)
+    for i, b in sorted(bindings.items()):
+        log.info("%s: part %r: %d points bound to its sheet (offset up to %.3g along the "
+                 "normal, %.3g across)", mesh_path, names[i], len(b.face),
+                 float(np.abs(b.offset[:, 2]).max()) / result.scale,
+                 float(np.linalg.norm(b.offset[:, :2], axis=1).max()) / result.scale)
+    return asset, bindings

@@ -47,7 +47,10 @@ def command(growth_h5: str, config_path, overrides, out, overwrite, progress, re
             raise BloomError(f"cannot build the model: {exc}", where=growth_h5) from None
         petals = PetalFrames.from_mesh(v, petal, base, src["axis/on_axis"], src["axis/tip"],
                                        src["axis/plane"])
-        control = Control(cfg["growth.schedule"], cfg["growth.ramp"] * steps * h)
+        if cfg["growth.keys"]:
+            control = Control.keyed(cfg["growth.keys"], frames, steps, h)
+        else:
+            control = Control(cfg["growth.schedule"], cfg["growth.ramp"] * steps * h)
         integrator = make_integrator(sim["integrator"], sim["eta"], sim["damping"],
                                      sim["speed_limit"], sim["stages"], sim["tolerance"],
                                      sim["substeps"])
@@ -133,14 +136,17 @@ def command(growth_h5: str, config_path, overrides, out, overwrite, progress, re
                  "steps": steps, "h": h,
                  "wall_seconds": wall, "ms_per_step": 1e3 * wall / stepped,
                  "effects": ",".join(effects.names),
-                 "integrator": sim["integrator"]}
+                 "integrator": sim["integrator"], "fps": cfg["render.fps"]}
         if resumed is not None:  # then wall_seconds covers this run's steps only
             attrs["resumed_from_step"] = resumed_step
         with artifact.writing(out, stage="simulate", config_json=cfg.to_json(),
                               inputs=inputs, attrs=attrs, previous=src) as h5:
             src.copy_to(h5, ("mesh/faces", "mesh/petal", "axis/base", "axis/on_axis", "axis/x",
-                             "axis/s", "axis/tip", "axis/plane", "growth/hinges"))
+                             "axis/s", "axis/tip", "axis/plane", "growth/hinges", "input/asset",
+                             "bind"))
             artifact.put(h5, "frames/time", np.asarray(rec.time), "(T,) time of each frame")
+            artifact.put(h5, "frames/frame", np.arange(len(rec.time), dtype=np.int64),
+                         "(T,) frame number of each frame (growth.keys' frames; USD time codes)")
             artifact.put(h5, "frames/positions", positions, "(T, V, 3) vertex positions")
             for name, values in diag.items():
                 artifact.put(h5, f"diagnostics/{name}", values)

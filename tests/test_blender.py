@@ -54,3 +54,36 @@ def test_blender_imports_the_usd_and_sees_the_same_points(tmp_path):
         blender = np.asarray(got["points"][str(t)])
         np.testing.assert_allclose(blender, pos[t][order], atol=1e-5 * np.abs(pos).max())
     assert not np.allclose(pos[0], pos[-1])  # the frames differ: time samples were read
+
+
+@pytest.mark.skipif(not _has_bpy(), reason="bpy (Blender as a module) is not installed")
+def test_blender_imports_the_users_parts(tmp_path):
+    """export.mesh = "input": Blender sees the input's parts under their (prim) names,
+    with the input's vertex counts, UVs per face corner and material names, and the last
+    frame's positions are the input deformed by sim.h5 through the binding."""
+    from pipeline import binding, export, userasset
+    from tests.test_asset_back import maya_obj, run_chain
+
+    mesh = tmp_path / "flower.obj"
+    maya_obj(mesh)
+    sim = run_chain(mesh, tmp_path, "--set", 'scene.petals=["petal"]')
+    usd = tmp_path / "bloom.usdc"
+    assert CliRunner().invoke(cli, ["export", str(sim), "--out", str(usd)]).exit_code == 0
+    r = subprocess.run([sys.executable, str(ROOT / "tests" / "blender" / "asset_report.py"),
+                        str(usd), "8"], capture_output=True, text=True, timeout=300)
+    got = json.loads(next(x for x in r.stdout.splitlines() if x.startswith("JSON"))[4:])
+    asset = userasset.read_asset(mesh)
+    with h5py.File(sim) as f:
+        frames = export.asset_frames(f["frames/positions"][()], f["mesh/faces"][()], asset,
+                                     binding.read_bindings(f), f.attrs["scale"])
+    assert sorted(got) == sorted(export.prim_names(asset.names))
+    for name, part, pts in zip(export.prim_names(asset.names), asset.parts, frames, strict=True):
+        seen = got[name]
+        assert seen["vertices"] == len(part.points) and seen["faces"] == len(part.face_counts)
+        assert seen["loops"] == part.face_indices.tolist()  # Blender keeps the polygons' order
+        assert sorted(seen["materials"]) == sorted(export.prim_names(part.materials))
+        if part.uv is not None:
+            np.testing.assert_allclose(seen["uv"], part.uv[part.uv_indices], atol=1e-6)
+        last = pts[-1] if pts.ndim == 3 else pts
+        # metersPerUnit 0.01: Blender scales the objects, not their local points
+        np.testing.assert_allclose(seen["points"], last, atol=1e-5 * np.abs(last).max())

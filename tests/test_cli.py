@@ -344,15 +344,16 @@ def test_quasi_static_refuses_in_one_line(chain, tmp_path, setting, words):
     assert "Traceback" not in r.output
 
 def test_export_usd_round_trip(chain, tmp_path):
-    """The USD reads back (pxr) with one mesh per petal, the frames' points at the
-    input's scale at several times, faces, normals, the frame rate; OBJ and PLY
-    sequences hold every frame."""
+    """With export.mesh = "sheet", the USD reads back (pxr) with one mesh per petal, the
+    frames' points at the input's scale at several times, faces, normals, the frame
+    rate; OBJ and PLY sequences hold every frame."""
     from pxr import Usd, UsdGeom
 
     from pipeline import export
 
     usd = tmp_path / "bloom.usdc"
-    r = invoke("export", chain["sim"], "--out", usd, "--set", "render.fps=30")
+    sheet = ["--set", "export.mesh=sheet"]
+    r = invoke("export", chain["sim"], "--out", usd, "--set", "render.fps=30", *sheet)
     assert r.exit_code == 0, r.output
     with h5py.File(chain["sim"]) as f:
         pos = f["frames/positions"][()] / f.attrs["scale"]
@@ -372,7 +373,7 @@ def test_export_usd_round_trip(chain, tmp_path):
     assert np.allclose(np.linalg.norm(np.asarray(normals), axis=1), 1.0, atol=1e-5)
     for fmt in ("obj", "ply"):
         seq = tmp_path / fmt
-        assert invoke("export", chain["sim"], "--format", fmt, "--out", seq).exit_code == 0
+        assert invoke("export", chain["sim"], "--format", fmt, "--out", seq, *sheet).exit_code == 0
         files = sorted(seq.glob(f"bloom_*.{fmt}"))
         assert len(files) == len(pos)
         import meshio
@@ -381,7 +382,7 @@ def test_export_usd_round_trip(chain, tmp_path):
         np.testing.assert_allclose(last.points, pos[-1], atol=1e-5 * np.abs(pos).max())
         assert len(last.cells_dict["triangle"]) == len(faces)
     xdmf = tmp_path / "paraview"
-    assert invoke("export", chain["sim"], "--format", "xdmf", "--out", xdmf).exit_code == 0
+    assert invoke("export", chain["sim"], "--format", "xdmf", "--out", xdmf, *sheet).exit_code == 0
     with meshio.xdmf.TimeSeriesReader(str(xdmf / "bloom.xdmf")) as reader:
         points, _ = reader.read_points_cells()
         assert reader.num_steps == len(pos)

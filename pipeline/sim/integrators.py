@@ -175,7 +175,8 @@ class SemiImplicit:
             model.vertex_inv_mass, model.edge_indices, model.edge_rest_length,
             model.edge_growth, model.edge_stiffness, model.hinge_indices,
             model.hinge_rest_cos, model.hinge_rest_sin, model.hinge_stiffness,
-            control.schedule_code, control.ramp_time, state.step * k, n, h_sub, self.eta,
+            control.schedule_code, control.ramp_time, control.table, state.step * k, n, h_sub,
+            self.eta,
             self.d, effects.bundle(), self.speed_limit)
         if intact is not None:
             broke = intact & ~conn.alive

@@ -33,8 +33,9 @@ from numba import njit
 SCHEDULE_LINEAR = 0
 SCHEDULE_SMOOTHSTEP = 1
 SCHEDULE_SMOOTHERSTEP = 2
+SCHEDULE_TABLE = 3  #: A given at evenly spaced times (a keyed schedule, see model.Control)
 SCHEDULE_CODES = {"linear": SCHEDULE_LINEAR, "smoothstep": SCHEDULE_SMOOTHSTEP,
-                  "smootherstep": SCHEDULE_SMOOTHERSTEP}
+                  "smootherstep": SCHEDULE_SMOOTHERSTEP, "table": SCHEDULE_TABLE}
 
 
 @njit(cache=True)
@@ -52,6 +53,24 @@ def schedule_value(kind, t, ramp_time):
     if kind == SCHEDULE_SMOOTHSTEP:
         return u * u * (3.0 - 2.0 * u)
     return u * u * u * (u * (6.0 * u - 15.0) + 10.0)
+
+
+@njit(cache=True)
+def growth_value(kind, t, ramp_time, table):
+    """A(t) of :func:`schedule_value`, or for ``kind == SCHEDULE_TABLE`` read from
+    ``table``: A at ``len(table)`` evenly spaced times from 0 to ``ramp_time``, linear
+    in between, held at the ends."""
+    if kind != SCHEDULE_TABLE:
+        return schedule_value(kind, t, ramp_time)
+    n = len(table) - 1
+    if n <= 0 or t <= 0.0:
+        return table[0]
+    u = t / ramp_time * n
+    if u >= n:
+        return table[n]
+    k = int(u)
+    f = u - k
+    return table[k] if f == 0.0 else table[k] + f * (table[k + 1] - table[k])
 
 
 @njit(cache=True, inline="always")
@@ -413,7 +432,7 @@ def _velocities(V, F, F_next, inv_mass, h, d, eta, eta_next):
 
 @njit(cache=True, error_model="numpy")
 def advance(X, V, F, F_next, inv_mass, edges, rest0, growth, edge_k, hinges, cos0, sin0,
-            hinge_k, schedule, ramp_time, step0, n_steps, h, eta, d, fx, speed_limit):
+            hinge_k, schedule, ramp_time, table, step0, n_steps, h, eta, d, fx, speed_limit):
     """Advance ``n_steps`` steps from step index ``step0`` (time ``step0 * h``).
 
     The semi-implicit scheme of the paper, with one force evaluation per step::
@@ -477,7 +496,7 @@ def advance(X, V, F, F_next, inv_mass, edges, rest0, growth, edge_k, hinges, cos
             if plane_on:  # a push must not move an axis vertex off its plane
                 restore_plane(X, V, plane_idx, plane_n, plane_h)
         t = (step0 + n + 1) * h
-        A = schedule_value(schedule, t, ramp_time)
+        A = growth_value(schedule, t, ramp_time, table)
         if curl_on:
             curl_rest_angles(theta0, A * beta, cos_t, sin_t)
         energy = _add_forces(X, edges, rest0, growth, edge_k, hinges, c0, s0, hinge_k, A, Fn, W)

@@ -141,14 +141,39 @@ class State:
 
 @dataclass
 class Control:
-    """Growth prescribed over time: A(t) rises from 0 to 1 over ``ramp_time`` (Eq. 6)."""
+    """Growth prescribed over time: A(t) rises from 0 to 1 over ``ramp_time`` (Eq. 6), or,
+    keyed (:meth:`keyed`), A read from ``table``."""
 
-    schedule: str  #: linear, smoothstep or smootherstep
-    ramp_time: float  #: time at which A reaches 1
+    schedule: str  #: linear, smoothstep, smootherstep, or table
+    ramp_time: float  #: time at which A reaches 1 (table: the time the table spans)
+    #: (N + 1,) A at N + 1 evenly spaced times from 0 to ``ramp_time`` (schedule "table"
+    #: only; linear in between)
+    table: np.ndarray = field(default_factory=lambda: np.zeros(1))
 
     @property
     def schedule_code(self) -> int:
         return kernels.SCHEDULE_CODES[self.schedule]
 
     def growth_at(self, t: float) -> float:
-        return float(kernels.schedule_value(self.schedule_code, float(t), float(self.ramp_time)))
+        return float(kernels.growth_value(self.schedule_code, float(t), float(self.ramp_time),
+                                          self.table))
+
+    @classmethod
+    def keyed(cls, keys, frames: int, steps: int, h: float) -> Control:
+        """A keyed in frames (``keys``: ``[[frame, A], ...]``, frames increasing, A not
+        decreasing), as a table of A at every step. Frame ``f`` is at step ``f * steps /
+        (frames - 1)`` (frame 0 the first stored frame, ``frames - 1`` the last). Between
+        keys A follows a monotone cubic (PCHIP, Fritsch-Carlson): smooth (C1), never
+        past its keys, flat where two keys hold the same value; before the first key and
+        after the last it holds."""
+        from scipy.interpolate import PchipInterpolator
+
+        keys = np.asarray(keys, dtype=np.float64).reshape(-1, 2)
+        frame = np.arange(steps + 1) * ((frames - 1) / steps)
+        if len(keys) == 1:
+            table = np.full(steps + 1, keys[0, 1])
+        else:
+            table = PchipInterpolator(keys[:, 0], keys[:, 1], extrapolate=False)(frame)
+            table = np.where(frame <= keys[0, 0], keys[0, 1],
+                             np.where(frame >= keys[-1, 0], keys[-1, 1], table))
+        return cls("table", steps * h, np.ascontiguousarray(table, dtype=np.float64))

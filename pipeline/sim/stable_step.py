@@ -43,7 +43,7 @@ import numpy as np
 from numba import njit
 
 from . import hessian
-from .kernels import _edge_vector, schedule_value
+from .kernels import _edge_vector
 
 LANCZOS_STEPS = 24
 
@@ -286,6 +286,6 @@ def rest_angles(model, control, effects, t: float) -> tuple[np.ndarray, np.ndarr
     curl = getattr(effects, "curl", None)
     if curl is None:
         return model.hinge_rest_cos, model.hinge_rest_sin
-    factor = schedule_value(control.schedule_code, float(t), float(control.ramp_time)) * curl.beta
+    factor = control.growth_at(t) * curl.beta
     angle = (1.0 - factor) * curl.theta0
     return np.cos(angle), np.sin(angle)
