@@ -189,6 +189,82 @@ def bud(petals: int = 6, vertices: int = 1800, seed: int = 0, shape: BudShape = 
     return np.concatenate(verts), np.concatenate(faces), np.concatenate(labels)
 
 
+@dataclass(frozen=True)
+class OpenShape:
+    """An open, recurved flower (a lily: Liang & Mahadevan 2011). Each tepal's midrib
+    leaves the receptacle ``lean`` degrees from the flower's axis and turns steadily
+    outward and down to ``recurve`` degrees at its tip; its cross-section is a trough
+    (an arc of radius ``trough`` curving up, toward the flower's inside)."""
+
+    receptacle_radius: float = 0.2
+    lean: float = 20.0
+    recurve: float = 125.0
+    trough: float = 0.6
+    inner_lean: float = 12.0  #: the inner whorl stands more upright
+    inner_recurve: float = 110.0
+    inner_width: float = 1.2  #: inner tepals are broader (relative max half-width)
+
+
+def open_midrib(s: np.ndarray, lean: float, recurve: float, length: float = 1.0):
+    """Midrib of an open tepal in its meridian plane: distance from the axis and height
+    at ``s``, the angle from the axis rising as ``lean + (recurve - lean) s^2``."""
+    s_fine = np.linspace(0.0, 1.0, 4001)
+    phi = np.radians(lean + (recurve - lean) * s_fine ** 2)
+    ds = length / (s_fine.size - 1)
+    r = np.r_[0.0, np.cumsum(0.5 * (np.sin(phi[1:]) + np.sin(phi[:-1])) * ds)]
+    z = np.r_[0.0, np.cumsum(0.5 * (np.cos(phi[1:]) + np.cos(phi[:-1])) * ds)]
+    angle = np.interp(s, s_fine, phi)
+    return np.interp(s, s_fine, r), np.interp(s, s_fine, z), angle
+
+
+def bend_open(points: np.ndarray, azimuth: float, lean: float, recurve: float, trough: float,
+              receptacle_radius: float, length: float = 1.0) -> np.ndarray:
+    """Map flat petal points ``(u, s)`` onto an open tepal at ``azimuth``; lengths along
+    the midrib and across it are kept."""
+    u, s = points[:, 0] * length, points[:, 1]
+    r, z, phi = open_midrib(s, lean, recurve, length)
+    r = r + receptacle_radius * length
+    outward = np.array([np.cos(azimuth), np.sin(azimuth), 0.0])
+    across = np.array([-np.sin(azimuth), np.cos(azimuth), 0.0])
+    up = np.array([0.0, 0.0, 1.0])
+    # the tepal's inner normal in the meridian plane: toward the axis and up
+    n_r, n_z = -np.cos(phi), np.sin(phi)
+    a = u / (trough * length)
+    lift = trough * length * (1.0 - np.cos(a))
+    return ((r + lift * n_r)[:, None] * outward + (trough * length * np.sin(a))[:, None] * across
+            + (z + lift * n_z)[:, None] * up)
+
+
+def open_flower(tepals: int = 6, vertices: int = 1800, seed: int = 0,
+                shape: OpenShape = OpenShape()):
+    """An open lily of ``tepals`` tepals (outer and inner whorls alternating) and about
+    ``vertices`` vertices, as :func:`bud` returns it. The same seed gives the same mesh."""
+    if tepals < 1:
+        raise ValueError("a flower needs at least one tepal")
+    rng = np.random.default_rng(seed)
+    outline = Outline(max_half_width=0.22)
+    spacing = _spacing_for(outline, vertices // tepals, seed)
+    verts, faces, labels = [], [], []
+    offset = 0
+    for p in range(tepals):
+        inner = tepals > 3 and p % 2 == 1
+        width = outline.max_half_width * (shape.inner_width if inner else 1.0)
+        jitter = Outline(outline.base_half_width, width * (1.0 + rng.uniform(-0.03, 0.03)),
+                         outline.widest_at + rng.uniform(-0.03, 0.03))
+        flat, tri = flat_petal(jitter, spacing, rng)
+        azimuth = 2.0 * np.pi * p / tepals + rng.uniform(-0.03, 0.03)
+        lean, recurve = ((shape.inner_lean, shape.inner_recurve) if inner
+                         else (shape.lean, shape.recurve))
+        length = 1.0 + rng.uniform(-0.03, 0.03)
+        v = bend_open(flat, azimuth, lean, recurve, shape.trough,
+                      shape.receptacle_radius * (0.6 if inner else 1.0), length)
+        verts.append(v)
+        faces.append(tri + offset)
+        labels.append(np.full(len(v), p))
+        offset += len(v)
+    return np.concatenate(verts), np.concatenate(faces), np.concatenate(labels)
+
+
 def write_obj(path, vertices: np.ndarray, faces: np.ndarray, petal_ids: np.ndarray, header: str) -> None:
     """Write an OBJ with one ``o`` group per petal (plain text, fixed precision)."""
     lines = [f"# {line}" for line in header.splitlines()]

@@ -125,6 +125,13 @@ SCHEMA: dict[str, Any] = {
                     "[24, 0], [72, 1]] holds the bud 24 frames, opens over 48 and holds. "
                     "Replaces growth.schedule and growth.ramp when given", check=_check_keys,
                     items=list),
+        "start": Key(str, "bud", "what the input mesh is: bud (the paper: it blooms from the "
+                     "mesh) or open (the mesh is the open flower: Bloom finds the bud it grew "
+                     "from by running growth backward, and the bloom ends on the mesh)",
+                     choices=("bud", "open")),
+        "close": Key(float, 1.0, "growth.start = open: how far to close, a scale on the "
+                     "growth ratios of the backward path (0: the bud is the model; 1: the "
+                     "growth curve undone in full)", low=0.0),
     },
     "simulate": {
         "steps": Key(int, 200_000, "number of time steps", low=1),
@@ -423,6 +430,9 @@ def _check_together(cfg: Config, where: str) -> None:
             raise BloomError(f"simulate.integrator: quasi-static cannot run effects."
                              f"{dynamic[0]} (a dynamic effect); use semi-implicit, or set "
                              f"effects.{dynamic[0]}.enabled = false", where=where)
+    if cfg["growth.start"] == "open" and cfg["effects.connections.enabled"]:
+        raise BloomError("growth.start: an open model has no bud lock to break; set "
+                         "effects.connections.enabled = false", where=where)
     if cfg["render.width"] % 2 or cfg["render.height"] % 2:
         raise BloomError("render.width, render.height: must be even (H.264)", where=where)
 

@@ -1,4 +1,4 @@
-"""bloom asset petal|bud: procedural meshes for tests and default scenes."""
+"""bloom asset petal|bud|open: procedural meshes for tests and default scenes."""
 
 from __future__ import annotations
 
@@ -13,7 +13,7 @@ HEADER = "bloom asset"
 
 
 @click.command("asset")
-@click.argument("kind", type=click.Choice(["petal", "bud"]))
+@click.argument("kind", type=click.Choice(["petal", "bud", "open"]))
 @click.option("--petals", type=click.IntRange(1, 64), default=6, show_default=True,
               help="Petals in a bud.")
 @click.option("--vertices", type=click.IntRange(30, 2_000_000), default=None,
@@ -22,7 +22,8 @@ HEADER = "bloom asset"
 @click.option("--out", required=True, type=click.Path(dir_okay=False), help="OBJ file to write.")
 @click.option("--overwrite", is_flag=True, help="Replace --out even if `bloom asset` did not write it.")
 def command(kind: str, petals: int, vertices: int | None, seed: int, out: str, overwrite: bool) -> None:
-    """Generate a procedural cupped petal, or a closed bud of overlapping petals.
+    """Generate a procedural cupped petal, a closed bud of overlapping petals, or an open
+    lily (open: outer and inner tepals, recurved; bloom it with growth.start = "open").
 
     The same options give the same file, byte for byte.
     """
@@ -40,7 +41,7 @@ def command(kind: str, petals: int, vertices: int | None, seed: int, out: str, o
     if kind == "petal":
         petals = 1
     n = vertices or (320 if kind == "petal" else 300 * petals)
-    v, f, p = asset.bud(petals, n, seed)
+    v, f, p = (asset.open_flower if kind == "open" else asset.bud)(petals, n, seed)
     header = (f"{HEADER} {kind} --petals {petals} --vertices {n} --seed {seed}\n"
               f"{len(v)} vertices, {len(f)} faces, {petals} petals; flower axis +z")
     path.parent.mkdir(parents=True, exist_ok=True)

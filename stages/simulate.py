@@ -45,6 +45,24 @@ def command(growth_h5: str, config_path, overrides, out, overwrite, progress, re
                 sim["bending_stiffness"], pinned=base, mass=sim["mass"])
         except ValueError as exc:
             raise BloomError(f"cannot build the model: {exc}", where=growth_h5) from None
+        params = cfg.nested().get("effects", {})
+        rest_angle = src["growth/rest_angle"]
+        grown = model.edge_rest_length * (1.0 + np.maximum(model.edge_growth, 0.0))
+        max_edge = float(grown.max()) if len(grown) else clean.mean_edge_length(v, src["mesh/faces"])
+
+        def build_effects(positions):
+            return fx.build(
+                cfg.effects_enabled(), vertices=positions, faces=src["mesh/faces"], petal=petal,
+                pinned=base, on_axis=src["axis/on_axis"], plane=src["axis/plane"], s=src["axis/s"],
+                rest_angle=rest_angle, flower_axis=src.attrs["flower_axis"], max_edge=max_edge,
+                params=params)
+
+        model_positions, bud_info = None, {}
+        if cfg["growth.start"] == "open":
+            model_positions = np.asarray(v)
+            v, model, rest_angle, params, bud_info = _find_bud(cfg, model, model_positions,
+                                                               rest_angle, params, build_effects,
+                                                               petal, base, where)
         petals = PetalFrames.from_mesh(v, petal, base, src["axis/on_axis"], src["axis/tip"],
                                        src["axis/plane"])
         if cfg["growth.keys"]:
@@ -54,13 +72,7 @@ def command(growth_h5: str, config_path, overrides, out, overwrite, progress, re
         integrator = make_integrator(sim["integrator"], sim["eta"], sim["damping"],
                                      sim["speed_limit"], sim["stages"], sim["tolerance"],
                                      sim["substeps"])
-        grown = model.edge_rest_length * (1.0 + np.maximum(model.edge_growth, 0.0))
-        effects = fx.build(
-            cfg.effects_enabled(), vertices=v, faces=src["mesh/faces"], petal=petal,
-            pinned=base, on_axis=src["axis/on_axis"], plane=src["axis/plane"], s=src["axis/s"],
-            rest_angle=src["growth/rest_angle"], flower_axis=src.attrs["flower_axis"],
-            max_edge=float(grown.max()) if len(grown) else clean.mean_edge_length(v, src["mesh/faces"]),
-            params=cfg.nested().get("effects", {}))
+        effects = build_effects(v)
         state = State.at_rest(model, v, control)
         effects.constrain(state.forces)
         inputs = input_hashes(cfg, growth_h5)
@@ -139,6 +151,15 @@ def command(growth_h5: str, config_path, overrides, out, overwrite, progress, re
                  "integrator": sim["integrator"], "fps": cfg["render.fps"]}
         if resumed is not None:  # then wall_seconds covers this run's steps only
             attrs["resumed_from_step"] = resumed_step
+        if model_positions is not None:
+            from pipeline.sim.reverse import distance_to_model
+
+            attrs["growth_start"] = "open"
+            attrs["distance_to_model"] = distance_to_model(positions[-1], model_positions,
+                                                           petal, base)
+            attrs.update(bud_info)
+            log.info("last frame %.3g petal lengths (RMS) from the model",
+                     attrs["distance_to_model"])
         with artifact.writing(out, stage="simulate", config_json=cfg.to_json(),
                               inputs=inputs, attrs=attrs, previous=src) as h5:
             src.copy_to(h5, ("mesh/faces", "mesh/petal", "axis/base", "axis/on_axis", "axis/x",
@@ -148,6 +169,10 @@ def command(growth_h5: str, config_path, overrides, out, overwrite, progress, re
             artifact.put(h5, "frames/frame", np.arange(len(rec.time), dtype=np.int64),
                          "(T,) frame number of each frame (growth.keys' frames; USD time codes)")
             artifact.put(h5, "frames/positions", positions, "(T, V, 3) vertex positions")
+            if model_positions is not None:
+                artifact.put(h5, "open/model", model_positions,
+                             "(V, 3) the open model (the input mesh) the bloom ends on")
+                artifact.put(h5, "open/bud", v, "(V, 3) the bud found from it (frame 0)")
             for name, values in diag.items():
                 artifact.put(h5, f"diagnostics/{name}", values)
             if effects.connections is not None:
@@ -158,6 +183,45 @@ def command(growth_h5: str, config_path, overrides, out, overwrite, progress, re
                              "(C,) step at which each spring broke, -1 if intact")
     ckpt.unlink(missing_ok=True)
     log.info("wrote %s", out)
+
+
+def _find_bud(cfg, model, positions, rest_angle, params, build_effects, petal, base, where):
+    """growth.start = "open": the model at A = 1, the bud at A = 0 (see
+    :mod:`pipeline.sim.reverse`). Returns the bud's positions, the model and rest angles
+    and effect parameters that grow from it back to the mesh, and figures for the log."""
+    import copy
+    import time
+
+    from pipeline.sim import reverse
+    from pipeline.sim.quasistatic import NotConverged
+
+    close = cfg["growth.close"]
+    try:
+        model = reverse.open_model(model, close)
+        if "curl" in cfg.effects_enabled():
+            params = copy.deepcopy(params)
+            params["curl"]["beta"] = close * params["curl"]["beta"]
+            rest_angle = reverse.open_rest_angle(rest_angle, params["curl"]["beta"])
+    except ValueError as exc:
+        raise BloomError(str(exc), where=where) from None
+    clock = time.perf_counter()
+    try:
+        bud, solver = reverse.find_bud(model, positions, build_effects(positions),
+                                       stages=cfg["simulate.stages"],
+                                       tolerance=cfg["simulate.tolerance"])
+    except NotConverged as exc:
+        raise BloomError(f"growth.close: finding the bud, the quasi-static solver found {exc} "
+                         f"(petal {int(petal[exc.vertex])}); remedy: a smaller growth.close, or "
+                         "more simulate.stages", where=where) from None
+    except ValueError as exc:
+        raise BloomError(f"growth.start: finding the bud: {exc}", where=where) from None
+    seconds = time.perf_counter() - clock
+    moved = reverse.distance_to_model(bud, positions, petal, base)
+    log.info("growth.start = open: found the bud in %.2f s (%d Newton iterations); it is %.3g "
+             "petal lengths (RMS) from the model", seconds, solver.iterations, moved)
+    return bud, model, rest_angle, params, {"bud_seconds": seconds,
+                                            "bud_newton_iterations": solver.iterations,
+                                            "bud_distance": moved}
 
 
 class _Saver:

@@ -1,0 +1,83 @@
+"""``growth.start = "open"``: the input mesh is the open flower; find the bud it grew from.
+
+The open model is taken as the rest state at full growth, A = 1: a rest length at A is
+``rest0 (1 + A c alpha)`` with ``rest0 = L_open / (1 + c alpha)`` (``c`` is
+``growth.close``), so at A = 1 every spring has the model's own length; with curl, the
+rest angle ``(1 - B c beta) theta0`` is the model's own at B = 1. The model is then the
+minimum of the elastic energy at A = 1 (every term is zero there, and the fixed base
+takes away the rigid motions).
+
+The bud is found by following the path of equilibria backward, A from 1 down to 0, with
+the quasi-static Newton solver (:mod:`quasistatic`), with whatever effects the scene
+enabled that it can run (contact among them, so closing petals press on each other and
+never cross). The bloom is then a fresh forward run from that bud with the scene's own
+integrator and schedule. Its last frame lands on the model up to the solver's tolerance
+(quasi-static), or up to what the damping has left (dynamic); that distance is measured
+and recorded (:func:`distance_to_model`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+from .model import Model, State
+
+
+class Backward:
+    """A(t) from 1 at t = 0 down to 0 at t = 1 (linear): the path from the model to its bud."""
+
+    def growth_at(self, t: float) -> float:
+        return float(min(max(1.0 - t, 0.0), 1.0))
+
+
+def open_model(model: Model, close: float) -> Model:
+    """The model whose rest lengths reach the mesh's own at A = 1: ``rest0 = L / (1 + c
+    alpha)``, growth ratios ``c alpha``."""
+    growth = float(close) * model.edge_growth
+    if np.any(1.0 + growth <= 0.0):
+        raise ValueError("growth.close: a growth ratio times it is <= -1 (a rest length "
+                         "at the bud would be zero or negative)")
+    return dataclasses.replace(model, edge_rest_length=model.edge_rest_length / (1.0 + growth),
+                               edge_growth=np.ascontiguousarray(growth))
+
+
+def open_rest_angle(rest_angle: np.ndarray, beta: float) -> np.ndarray:
+    """Rest dihedral angles at the bud such that curl (``theta0 (1 - B beta)``, Eq. 11)
+    gives the model's own at B = 1."""
+    if beta >= 1.0:
+        raise ValueError(f"effects.curl.beta: {beta:g} x growth.close is 1 or more; curl "
+                         "cannot be undone from an open model (its rest angles would be "
+                         "infinite)")
+    return np.asarray(rest_angle, dtype=np.float64) / (1.0 - beta)
+
+
+def find_bud(model: Model, open_positions, effects, *, stages: int, tolerance: float):
+    """The equilibrium at A = 0 reached from the model (at A = 1) along the path of
+    equilibria. Returns ``(positions, solver)``; the solver's diagnostics say what it took."""
+    from .quasistatic import QuasiStatic
+
+    backward = Backward()
+    solver = QuasiStatic(stages=stages, tolerance=tolerance)
+    state = State.at_rest(model, open_positions, backward)
+    solver.advance(model, state, backward, 1, 1.0, effects)
+    return state.positions.copy(), solver
+
+
+def petal_lengths(positions, petal, base) -> np.ndarray:
+    """``(P,)`` each petal's length: the farthest of its vertices from its base's centre."""
+    X = np.asarray(positions)
+    out = np.zeros(int(np.max(petal)) + 1)
+    for p in range(len(out)):
+        mine = petal == p
+        held = mine & base
+        centre = X[held].mean(axis=0) if held.any() else X[mine].mean(axis=0)
+        out[p] = np.linalg.norm(X[mine] - centre, axis=1).max()
+    return out
+
+
+def distance_to_model(positions, model_positions, petal, base) -> float:
+    """RMS distance of the vertices from the model, over the mean petal length."""
+    d = np.linalg.norm(np.asarray(positions) - np.asarray(model_positions), axis=1)
+    return float(np.sqrt(np.mean(d ** 2)) / petal_lengths(model_positions, petal, base).mean())

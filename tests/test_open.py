@@ -1,0 +1,94 @@
+"""growth.start = "open": from a model of the open flower, its bud, and the bloom back to it."""
+
+from __future__ import annotations
+
+import h5py
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from pipeline import asset, clean
+from pipeline.axis import find_axes
+from pipeline.growth import assign_growth
+from pipeline.sim import kernels, reverse
+from pipeline.sim.effects import Effects
+from pipeline.sim.model import Control, State
+from pipeline.sim.quasistatic import QuasiStatic
+from stages.cli import cli
+from tests.conftest import build_model
+
+
+def open_petal(vertices: int = 150):
+    """One tepal of the procedural open lily, at mean edge 1, with its axes and growth."""
+    v, f, petal = asset.open_flower(1, vertices, 0)
+    v = v / clean.mean_edge_length(v, f)
+    axes = find_axes(v, f, petal)
+    return v, f, petal, axes, assign_growth(v, f, axes.x, "0.2*x**2")
+
+
+def residual(model, X, growth: float) -> float:
+    """Largest free-vertex force over the largest spring force scale (k times a rest length)."""
+    F = np.zeros_like(X)
+    kernels.internal_forces(X, model.edge_indices, model.edge_rest_length, model.edge_growth,
+                            model.edge_stiffness, model.hinge_indices, model.hinge_rest_cos,
+                            model.hinge_rest_sin, model.hinge_stiffness, growth, F)
+    F[model.pinned] = 0.0
+    scale = float(np.max(model.edge_stiffness * model.edge_rest_length))
+    return float(np.abs(F).max() / scale)
+
+
+def test_the_open_model_is_the_rest_state_at_full_growth():
+    v, f, petal, axes, growth = open_petal()
+    model = reverse.open_model(build_model(v, growth, axes), 1.0)
+    rest = model.edge_rest_length * (1.0 + model.edge_growth)
+    length = np.empty(model.edge_count)
+    kernels.edge_lengths(v, model.edge_indices, length)
+    np.testing.assert_allclose(rest, length, rtol=1e-14)
+    assert residual(model, v, 1.0) < 1e-12
+    assert residual(model, v, 0.0) > 1e-4  # shorter rest lengths at the bud: not at rest there
+    half = reverse.open_model(build_model(v, growth, axes), 0.5)
+    np.testing.assert_allclose(half.edge_growth, 0.5 * model.edge_growth)
+    with pytest.raises(ValueError, match="growth.close"):
+        reverse.open_model(build_model(v, growth, axes), -1e3)
+    with pytest.raises(ValueError, match="curl"):
+        reverse.open_rest_angle(np.ones(3), 1.0)
+
+
+def test_backward_then_forward_returns_to_the_model_and_the_bud_is_an_equilibrium():
+    """One tepal: the bud is found backward (A 1 -> 0), is an equilibrium at A = 0 (to
+    rounding), is closed (its tip nearer the axis), and growing it forward again ends on
+    the model to the solver's tolerance."""
+    v, f, petal, axes, growth = open_petal()
+    model = reverse.open_model(build_model(v, growth, axes), 1.0)
+    bud, solver = reverse.find_bud(model, v, Effects(), stages=20, tolerance=1e-6)
+    assert solver.increments >= 20
+    assert residual(model, bud, 0.0) < 1e-9
+    moved = reverse.distance_to_model(bud, v, petal, axes.base)
+    assert moved > 0.05  # it closed by a twentieth of its length or more
+    tip = int(axes.tip[0])
+    assert np.hypot(*bud[tip, :2]) < np.hypot(*v[tip, :2])  # the tip came in toward the axis
+    control = Control("linear", 10.0)
+    state = State.at_rest(model, bud, control)
+    QuasiStatic().advance(model, state, control, 10, 1.0)
+    assert reverse.distance_to_model(state.positions, v, petal, axes.base) < 1e-6
+
+
+@pytest.mark.slow
+def test_the_open_lily_scene_blooms_back_to_itself(tmp_path):
+    """The default scene lily_open, end to end: the last frame is the model, the first is
+    at least 20 deg less open."""
+    from tests.conftest import ROOT
+
+    out = tmp_path / "s"
+    runner = CliRunner()
+    config = str(ROOT / "configs" / "lily_open.toml")
+    for stage, src in (("remesh", None), ("axis", "remesh"), ("growth", "axis"), ("simulate", "growth")):
+        args = [stage] + ([str(out / f"{src}.h5")] if src else []) + [
+            "--config", config, "--out", str(out / f"{stage}.h5")]
+        result = runner.invoke(cli, args)
+        assert result.exit_code == 0, result.output
+    with h5py.File(out / "simulate.h5") as h:
+        assert h.attrs["distance_to_model"] < 1e-3
+        opening = h["diagnostics/opening_angle"][()]
+        assert opening[-1] - opening[0] >= 20.0
+        np.testing.assert_array_equal(h["open/bud"][()], h["frames/positions"][0])
