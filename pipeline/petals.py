@@ -475,11 +475,13 @@ def _petal(pts, lf, plane, h, symmetrize, what, scale):
         return fixed, fixed_f, (0.0 if kept else target), note + [
             f"{what}: warning: cannot be mirrored ({exc}); left unsymmetrized"], False
     missed = _shortfall(out, out_f)
+    if topology.components(out_f, len(out)).max() > 0:
+        missed = "pieces (the center plane cuts the petal more than once)"
     if missed:
-        # the cut met the rim in a notch or a slit the mirrored remesh cannot mend; the
-        # simulator needs the bound more than it needs the symmetry
+        # the cut met the rim in a notch or a slit the mirrored remesh cannot mend, or cut
+        # a curled petal into pieces; the simulator needs a sound sheet more than symmetry
         fixed, fixed_f = _remeshed(pts, lf, target)
-        if not _shortfall(fixed, fixed_f):
+        if not _shortfall(fixed, fixed_f) or missed.startswith("pieces"):
             return fixed, fixed_f, target, [
                 f"{what}: warning: mirrored, it kept {missed}; remeshed at edge "
                 f"{target / scale:.4g}, unsymmetrized"], False

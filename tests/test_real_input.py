@@ -272,7 +272,7 @@ def test_uv_seam_duplicates_are_welded_at_centimetre_scale(tmp_path):
 @needs_shared
 @pytest.mark.parametrize("name, petals", [
     ("hallgeirl_petals", 14), ("ssajeev_daisy", 11), ("ericrius1_petal", 1),
-    ("dimontel_petal", 1), ("chianti_flower5", 5)])
+    ("dimontel_petal", 1), ("chianti_flower5", 5), ("pchinyun_petal", 1)])
 def test_external_meshes(tmp_path, name, petals):
     code, out = run("remesh", EXTERNAL / f"{name}.obj", "--out", tmp_path / "r.h5")
     assert code == 0, out

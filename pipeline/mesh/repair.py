@@ -129,6 +129,16 @@ def resolve_nonmanifold_edges(vertices: np.ndarray, faces: np.ndarray) -> tuple[
     return f[keep], int(np.sum(~keep))
 
 
+def _fans_at(faces: np.ndarray, vertex: int) -> int:
+    """How many separate fans of faces meet at ``vertex`` (1 on a sound sheet)."""
+    around = faces[np.any(faces == vertex, axis=1)]
+    if len(around) == 0:
+        return 0
+    fan = corner_fans(around)
+    corner = around.T.ravel() == vertex
+    return len(np.unique(fan[corner]))
+
+
 #: rim vertices closer than this times the sheet's mean edge, two steps apart along the
 #: rim, are the two lips of a slit
 ZIP = 0.05
@@ -140,7 +150,7 @@ def zip_slits(vertices: np.ndarray, faces: np.ndarray, tolerance: float | None =
     sheet), the two lips' rim vertices next to the slit's end are merged, and again,
     until the lips part by more than ``tolerance`` (default :data:`ZIP` times the mean
     edge). The slit's end becomes an inside vertex. A merge that would make an edge of
-    three faces is not made. Returns ``(vertices, faces, vertices merged)``; vertices
+    three faces, or a vertex where two fans of faces meet (a pinch), is not made. Returns ``(vertices, faces, vertices merged)``; vertices
     keep their order, merged ones are dropped."""
     from .. import clean
     from ..remesh import boundary_loops
@@ -174,7 +184,7 @@ def zip_slits(vertices: np.ndarray, faces: np.ndarray, tolerance: float | None =
         g = np.where(f == gone, keep, f)
         g = g[(g[:, 0] != g[:, 1]) & (g[:, 1] != g[:, 2]) & (g[:, 2] != g[:, 0])]
         _, _, count = topology.unique_edges(g)
-        if np.any(count > 2) or len(g) == 0:
+        if len(g) == 0 or np.any(count > 2) or _fans_at(g, keep) > 1:
             refused.add(found)
             continue
         f = g
