@@ -150,8 +150,9 @@ def zip_slits(vertices: np.ndarray, faces: np.ndarray, tolerance: float | None =
     sheet), the two lips' rim vertices next to the slit's end are merged, and again,
     until the lips part by more than ``tolerance`` (default :data:`ZIP` times the mean
     edge). The slit's end becomes an inside vertex. A merge that would make an edge of
-    three faces, or a vertex where two fans of faces meet (a pinch), is not made. Returns ``(vertices, faces, vertices merged)``; vertices
-    keep their order, merged ones are dropped."""
+    three faces, or a vertex where two fans of faces meet (a pinch), is not made.
+    Returns ``(vertices, faces, vertices merged)``; vertices keep their order, merged ones
+    are dropped."""
     from .. import clean
     from ..remesh import boundary_loops
 
