@@ -60,9 +60,9 @@ def command(growth_h5: str, config_path, overrides, out, overwrite, progress, re
         model_positions, bud_info = None, {}
         if cfg["growth.start"] == "open":
             model_positions = np.asarray(v)
-            v, model, rest_angle, params, bud_info = _find_bud(cfg, model, model_positions,
-                                                               rest_angle, params, build_effects,
-                                                               petal, base, where)
+            v, model, rest_angle, params, bud_info = _find_bud(
+                cfg, model, model_positions, rest_angle, params, build_effects, petal, base,
+                src["axis/s"], src["axis/x"], src.attrs["flower_axis"], where)
         petals = PetalFrames.from_mesh(v, petal, base, src["axis/on_axis"], src["axis/tip"],
                                        src["axis/plane"])
         if cfg["growth.keys"]:
@@ -185,13 +185,20 @@ def command(growth_h5: str, config_path, overrides, out, overwrite, progress, re
     log.info("wrote %s", out)
 
 
-def _find_bud(cfg, model, positions, rest_angle, params, build_effects, petal, base, where):
+#: growth.start = open: the nudge toward closing that picks the bud's branch, in petal
+#: lengths at the tip (see pipeline.sim.reverse.find_bud)
+LIFT = 0.05
+
+
+def _find_bud(cfg, model, positions, rest_angle, params, build_effects, petal, base, s, x,
+              flower_axis, where):
     """growth.start = "open": the model at A = 1, the bud at A = 0 (see
     :mod:`pipeline.sim.reverse`). Returns the bud's positions, the model and rest angles
     and effect parameters that grow from it back to the mesh, and figures for the log."""
     import copy
     import time
 
+    from pipeline.sim import effects as fx
     from pipeline.sim import reverse
     from pipeline.sim.quasistatic import NotConverged
 
@@ -206,9 +213,13 @@ def _find_bud(cfg, model, positions, rest_angle, params, build_effects, petal, b
         raise BloomError(str(exc), where=where) from None
     clock = time.perf_counter()
     try:
-        bud, solver = reverse.find_bud(model, positions, build_effects(positions),
+        _, up = fx.flower_axis_or_guess(positions, flower_axis)
+        size = LIFT * reverse.petal_lengths(positions, petal, base).mean()
+        lift = reverse.closing_lift(positions, s, x, base, up, size)
+        bud, solver = reverse.find_bud(model, positions, build_effects(positions + lift),
                                        stages=cfg["simulate.stages"],
-                                       tolerance=cfg["simulate.tolerance"])
+                                       tolerance=cfg["simulate.tolerance"], lift=lift,
+                                       settle_effects=build_effects(positions))
     except NotConverged as exc:
         raise BloomError(f"growth.close: finding the bud, the quasi-static solver found {exc} "
                          f"(petal {int(petal[exc.vertex])}); remedy: a smaller growth.close, or "

@@ -92,3 +92,24 @@ def test_the_open_lily_scene_blooms_back_to_itself(tmp_path):
         opening = h["diagnostics/opening_angle"][()]
         assert opening[-1] - opening[0] >= 20.0
         np.testing.assert_array_equal(h["open/bud"][()], h["frames/positions"][0])
+
+
+def test_the_lift_chooses_the_branch_a_flat_petal_closes_on():
+    """A flat, horizontal petal closes up or down (the path forks): lifted toward +z it
+    closes up, toward -z down, and either way the bud is the model's own equilibrium."""
+    v, f, petal = asset.open_flower(1, 150, 0, asset.OpenShape(lean=90.0, recurve=90.0,
+                                                                trough=1e3))
+    v = v / clean.mean_edge_length(v, f)
+    assert np.ptp(v[:, 2]) < 1e-3 * np.ptp(v[:, 0])  # flat
+    axes = find_axes(v, f, petal)
+    growth = assign_growth(v, f, axes.x, "0.2*x**2")
+    model = reverse.open_model(build_model(v, growth, axes), 1.0)
+    size = 0.05 * reverse.petal_lengths(v, petal, axes.base).mean()
+    tips = []
+    for sign in (1.0, -1.0):
+        lift = reverse.closing_lift(v, axes.s, axes.x, axes.base, [0.0, 0.0, sign], size)
+        bud, _ = reverse.find_bud(model, v, Effects(), stages=20, tolerance=1e-6, lift=lift)
+        assert residual(model, bud, 0.0) < 1e-9
+        tips.append(bud[int(axes.tip[0]), 2] - v[axes.base, 2].mean())
+    length = reverse.petal_lengths(v, petal, axes.base)[0]
+    assert tips[0] > 0.05 * length and tips[1] < -0.05 * length, tips

@@ -53,16 +53,64 @@ def open_rest_angle(rest_angle: np.ndarray, beta: float) -> np.ndarray:
     return np.asarray(rest_angle, dtype=np.float64) / (1.0 - beta)
 
 
-def find_bud(model: Model, open_positions, effects, *, stages: int, tolerance: float):
+class _Bud:
+    """A(t) = 0: the bud's growth, held."""
+
+    def growth_at(self, t: float) -> float:
+        return 0.0
+
+
+def rest_at(model: Model, positions) -> Model:
+    """``model`` with its rest lengths and angles measured on ``positions`` (the growth
+    ratios kept): rest lengths ``L / (1 + alpha)``, so that they are ``positions``' at A = 1."""
+    from . import kernels
+
+    X = np.ascontiguousarray(positions, dtype=np.float64)
+    length = np.empty(model.edge_count)
+    kernels.edge_lengths(X, model.edge_indices, length)
+    cos0, sin0 = np.empty(model.hinge_count), np.empty(model.hinge_count)
+    kernels.hinge_cos_sin(X, model.hinge_indices, cos0, sin0)
+    return dataclasses.replace(model, edge_rest_length=length / (1.0 + model.edge_growth),
+                               hinge_rest_cos=cos0, hinge_rest_sin=sin0)
+
+
+def find_bud(model: Model, open_positions, effects, *, stages: int, tolerance: float,
+             lift=None, settle_effects=None):
     """The equilibrium at A = 0 reached from the model (at A = 1) along the path of
-    equilibria. Returns ``(positions, solver)``; the solver's diagnostics say what it took."""
+    equilibria. Returns ``(positions, solver)``; the solver's diagnostics say what it took.
+
+    ``lift`` ``(V, 3)``, if given, picks the branch where the path forks (a flat petal
+    can close up or down): the path is followed from the model moved by ``lift`` (rest
+    lengths and angles measured there), and the bud it reaches is then settled at A = 0
+    on the model itself (``settle_effects``: fresh effects for that solve), so the bud
+    is the model's own equilibrium, on the branch the lift chose."""
     from .quasistatic import QuasiStatic
 
     backward = Backward()
     solver = QuasiStatic(stages=stages, tolerance=tolerance)
-    state = State.at_rest(model, open_positions, backward)
-    solver.advance(model, state, backward, 1, 1.0, effects)
-    return state.positions.copy(), solver
+    start = np.asarray(open_positions, dtype=np.float64)
+    path_model = model if lift is None else rest_at(model, start + lift)
+    if lift is not None:
+        start = start + lift
+    state = State.at_rest(path_model, start, backward)
+    solver.advance(path_model, state, backward, 1, 1.0, effects)
+    if lift is None:
+        return state.positions.copy(), solver
+    settle = QuasiStatic(stages=stages, tolerance=tolerance, perturbation=0.0)
+    bud = State.at_rest(model, state.positions, _Bud())
+    settle.advance(model, bud, _Bud(), 0, 1.0, settle_effects if settle_effects is not None else effects)
+    solver.iterations += settle.iterations
+    return bud.positions.copy(), solver
+
+
+def closing_lift(positions, s, x, pinned, up, size: float) -> np.ndarray:
+    """``(V, 3)``: each free vertex moved by ``size (s^2 + x^2) / 2`` along ``up`` (the
+    flower's axis, toward its open side; ``s`` along the petal, ``x`` across it): every
+    petal is nudged into a cup that closes over the flower, not one that folds under it."""
+    s, x = np.asarray(s, dtype=np.float64), np.asarray(x, dtype=np.float64)
+    lift = size * 0.5 * (s ** 2 + x ** 2)[:, None] * np.asarray(up)[None, :]
+    lift[np.asarray(pinned, bool)] = 0.0
+    return lift
 
 
 def petal_lengths(positions, petal, base) -> np.ndarray:
