@@ -55,7 +55,7 @@ def bud():
 def test_an_effect_that_is_off_is_not_built_and_its_loop_never_runs(bud):
     rec, effects, _, _ = simulate(bud, (), steps=200, frames=3)
     assert effects.curl is effects.collisions is effects.connections is effects.center_plane is None
-    assert effects.bundle()[0] is False and effects.bundle()[15] is False
+    assert effects.bundle().curl_on is False and effects.bundle().coll_on is False
     assert effects.counters.tolist() == [0, 0, 0, 0]  # no grid was ever built
     assert "contacts" not in rec.diagnostics and "connections_intact" not in rec.diagnostics
     rec, effects, _, _ = simulate(bud, ("collisions",), steps=200, frames=3)

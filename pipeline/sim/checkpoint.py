@@ -52,8 +52,10 @@ def fingerprint(config_json: str, inputs: dict[str, str]) -> str:
     return hashlib.sha256(text.encode()).hexdigest()
 
 
-def _bundle_arrays(effects: Effects) -> list[tuple[int, np.ndarray]]:
-    return [(i, a) for i, a in enumerate(effects.bundle()) if isinstance(a, np.ndarray)]
+def _bundle_arrays(effects: Effects) -> list[tuple[str, np.ndarray]]:
+    """The arrays of the effects' bundle, by field name (sorted)."""
+    return sorted((name, a) for name, a in effects.bundle()._asdict().items()
+                  if isinstance(a, np.ndarray))
 
 
 def _alive(pid: str) -> bool:
@@ -80,8 +82,8 @@ def save(path: Path, key: str, state: State, effects: Effects, rec: Recording) -
             f.attrs["potential_energy"] = state.potential_energy
             for name in ("positions", "velocities", "forces"):
                 f[f"state/{name}"] = getattr(state, name)
-            for i, a in _bundle_arrays(effects):
-                f[f"effects/{i}"] = a
+            for name, a in _bundle_arrays(effects):
+                f[f"effects/{name}"] = a
             f["frames/time"] = np.asarray(rec.time)
             f["frames/positions"] = np.asarray(rec.positions)
             for name, values in rec.diagnostics.items():
@@ -107,7 +109,7 @@ def load(path: Path, key: str, state: State, effects: Effects) -> Recording | No
                 log.info("%s: not resumed: made from other inputs, config or code", path)
                 return None
             saved_state = {n: f[f"state/{n}"][()] for n in ("positions", "velocities", "forces")}
-            saved_fx = {int(i): f[f"effects/{i}"][()] for i in f["effects"]}
+            saved_fx = {name: f[f"effects/{name}"][()] for name in f["effects"]}
             step, energy = int(f.attrs["step"]), float(f.attrs["potential_energy"])
             rec = Recording()
             rec.time = list(f["frames/time"][()])
@@ -115,15 +117,15 @@ def load(path: Path, key: str, state: State, effects: Effects) -> Recording | No
             for name in f["diagnostics"]:
                 rec.diagnostics[name] = list(f[f"diagnostics/{name}"][()])
         arrays = _bundle_arrays(effects)
-        if (sorted(saved_fx) != [i for i, _ in arrays]
-                or any(saved_fx[i].shape != a.shape for i, a in arrays)
+        if (sorted(saved_fx) != [name for name, _ in arrays]
+                or any(saved_fx[name].shape != a.shape for name, a in arrays)
                 or any(saved_state[n].shape != getattr(state, n).shape for n in saved_state)):
             log.info("%s: not resumed: its arrays do not fit this run", path)
             return None
         for name, value in saved_state.items():
             getattr(state, name)[...] = value
-        for i, a in arrays:
-            a[...] = saved_fx[i]
+        for name, a in arrays:
+            a[...] = saved_fx[name]
         state.step, state.potential_energy = step, energy
         return rec
     except (OSError, KeyError, ValueError) as exc:

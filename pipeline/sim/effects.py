@@ -18,6 +18,7 @@ arrays) and its loop never runs.
 
 from __future__ import annotations
 
+from collections import namedtuple
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -170,6 +171,45 @@ def flower_axis_or_guess(vertices, flower_axis) -> tuple[np.ndarray, np.ndarray]
     return np.asarray(vertices).mean(axis=0), np.array([0.0, 0.0, 1.0])
 
 
+#: What :func:`kernels.advance` takes of the effects, by name: each effect's on-flag,
+#: parameters and work arrays (an effect that is off gives empty arrays). A namedtuple, so
+#: that the compiled kernel reads fields by name and a checkpoint saves its arrays by name.
+Bundle = namedtuple("Bundle", [
+    "curl_on",
+    "curl_theta0",
+    "curl_beta",
+    "curl_cos",
+    "curl_sin",
+    "plane_on",
+    "plane_vertices",
+    "plane_normals",
+    "conn_on",
+    "conn_pairs",
+    "conn_rest",
+    "conn_k",
+    "conn_limit",
+    "conn_alive",
+    "conn_broken",
+    "coll_on",
+    "coll_faces",
+    "coll_face_petal",
+    "coll_vertex_petal",
+    "coll_side",
+    "coll_normals",
+    "coll_params",
+    "grid_start",
+    "grid_count",
+    "grid_items",
+    "grid_reference",
+    "counters",
+    "pair_start",
+    "pair_faces",
+    "best_face",
+    "best_dist",
+    "coll_near",
+    "plane_height",
+])
+
 _F8 = np.zeros(0)
 _I8 = np.zeros(0, dtype=np.int64)
 
@@ -185,12 +225,12 @@ class Effects:
     center_plane: CenterPlane | None = None
     #: kernel counters: contacts since the last frame, grid builds, overflow, near pairs
     counters: np.ndarray = field(default_factory=lambda: np.zeros(4, dtype=np.int64))
-    _bundle: tuple | None = None
+    _bundle: Bundle | None = None
 
-    def bundle(self) -> tuple:
+    def bundle(self) -> Bundle:
         if self._bundle is None:
             c, p, k, g = self.curl, self.center_plane, self.connections, self.collisions
-            self._bundle = (
+            self._bundle = Bundle(
                 c is not None, c.theta0 if c else _F8, c.beta if c else 0.0,
                 c.cos_t if c else _F8, c.sin_t if c else _F8,
                 p is not None, p.vertices if p else _I8, p.normals if p else np.zeros((0, 3)),

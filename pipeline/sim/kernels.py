@@ -447,7 +447,7 @@ def advance(X, V, F, F_next, inv_mass, edges, rest0, growth, edge_k, hinges, cos
     vertices have ``inv_mass = 0``: their forces are ignored and their positions never
     change (Eq. 10).
 
-    ``fx`` is the effects bundle (:class:`pipeline.sim.effects.Effects`); an effect that
+    ``fx`` is the effects' :class:`~pipeline.sim.effects.Bundle` (fields by name); an effect that
     is off is skipped by one branch per step and runs no loop. Within a step: positions
     (Eq. 7), collisions push vertices back, curl sets the rest angles of ``t[n+1]``,
     forces (springs, hinges, connection springs; the center-plane constraint removes
@@ -467,15 +467,20 @@ def advance(X, V, F, F_next, inv_mass, edges, rest0, growth, edge_k, hinges, cos
     eta_next = 1.0 - eta
     limit_sq = speed_limit * speed_limit
     energy = 0.0
-    curl_on, theta0, beta, cos_t, sin_t = fx[0], fx[1], fx[2], fx[3], fx[4]
-    plane_on, plane_idx, plane_n = fx[5], fx[6], fx[7]
+    curl_on, theta0, beta, cos_t, sin_t = (fx.curl_on, fx.curl_theta0, fx.curl_beta,
+                                           fx.curl_cos, fx.curl_sin)
+    plane_on, plane_idx, plane_n, plane_h = (fx.plane_on, fx.plane_vertices, fx.plane_normals,
+                                             fx.plane_height)
     conn_on, conn_pairs, conn_rest, conn_k, conn_limit, conn_alive, conn_broken = (
-        fx[8], fx[9], fx[10], fx[11], fx[12], fx[13], fx[14])
+        fx.conn_on, fx.conn_pairs, fx.conn_rest, fx.conn_k, fx.conn_limit, fx.conn_alive,
+        fx.conn_broken)
     coll_on, faces, face_petal, vert_petal, side, normals, coll_par = (
-        fx[15], fx[16], fx[17], fx[18], fx[19], fx[20], fx[21])
-    start, count, items, X_ref, counters = fx[22], fx[23], fx[24], fx[25], fx[26]
-    pair_start, pair_faces, best_face, best_dist, near = fx[27], fx[28], fx[29], fx[30], fx[31]
-    plane_h = fx[32]
+        fx.coll_on, fx.coll_faces, fx.coll_face_petal, fx.coll_vertex_petal, fx.coll_side,
+        fx.coll_normals, fx.coll_params)
+    start, count, items, X_ref, counters = (fx.grid_start, fx.grid_count, fx.grid_items,
+                                            fx.grid_reference, fx.counters)
+    pair_start, pair_faces, best_face, best_dist, near = (
+        fx.pair_start, fx.pair_faces, fx.best_face, fx.best_dist, fx.coll_near)
     c0, s0 = (cos_t, sin_t) if curl_on else (cos0, sin0)
     W = np.empty(_W_SIZE)  # the one allocation: per call, not per step
     Fc = F  # f(X[n])
