@@ -8,7 +8,7 @@ import numpy as np
 
 from . import topology
 from .expr import evaluate_curve
-from .sim.kernels import dihedral_angles
+from .sim.elastic import dihedral_angles
 
 
 @dataclass

@@ -85,7 +85,7 @@ def section_weights(hinges, hinge_edge_ends_s, hinge_edge_ends_x) -> np.ndarray:
 def cross_section_curvature(X, hinges, weights, petal_of_hinge, petals: int) -> np.ndarray:
     """``(P,)`` mean |dihedral angle| (radians per mean edge) over each petal's hinges
     that run along the petal, weighted by :func:`section_weights`."""
-    from .sim.kernels import dihedral_angles
+    from .sim.elastic import dihedral_angles
 
     theta = np.abs(dihedral_angles(np.asarray(X, dtype=np.float64), hinges))
     out = np.zeros(petals)
@@ -136,7 +136,7 @@ def gaussian_curvature_sign(X, faces, petal, interior) -> np.ndarray:
 def rim_bending(X, hinges, rim) -> float:
     """Mean |dihedral angle| (radians) over the hinges that touch the boundary (``rim``,
     a per-hinge mask): how sharply the rim is folded. A buckled rim scores high."""
-    from .sim.kernels import dihedral_angles
+    from .sim.elastic import dihedral_angles
 
     theta = np.abs(dihedral_angles(np.asarray(X, dtype=np.float64), hinges))
     return float(theta[rim].mean()) if rim.any() else 0.0

@@ -143,12 +143,12 @@ class Collisions:
 
     def near_pairs(self, X, reach: float) -> int:
         """List the near pairs at ``X`` (as the kernel does when it rebuilds)."""
-        from . import kernels
+        from . import pushback
 
         free = np.ones(len(X))
         cell = self.params[0]
-        lost = kernels.build_face_grid(X, self.faces, reach, cell, self.start, self.count, self.items)
-        return lost + kernels.near_pairs(X, self.faces, self.face_petal, self.vertex_petal, free,
+        lost = pushback.build_face_grid(X, self.faces, reach, cell, self.start, self.count, self.items)
+        return lost + pushback.near_pairs(X, self.faces, self.face_petal, self.vertex_petal, free,
                                          reach, cell, self.start, self.count, self.items,
                                          self.pair_start, self.pair_faces)
 
@@ -250,7 +250,7 @@ class Effects:
     def constrain(self, forces: np.ndarray) -> None:
         """Apply the constraints to forces computed outside :func:`kernels.advance`."""
         if self.center_plane is not None:
-            from .kernels import project_out_normals
+            from .constraints import project_out_normals
 
             project_out_normals(forces, self.center_plane.vertices, self.center_plane.normals)
 

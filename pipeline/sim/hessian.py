@@ -29,7 +29,7 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
-from .kernels import _edge_vector, _hinge_angle, _hinge_vectors
+from .elastic import _edge_vector, _hinge_angle, _hinge_vectors
 
 
 @njit(cache=True)

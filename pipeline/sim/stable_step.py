@@ -43,7 +43,7 @@ import numpy as np
 from numba import njit
 
 from . import hessian
-from .kernels import _edge_vector
+from .elastic import _edge_vector
 
 LANCZOS_STEPS = 24
 
