@@ -7,13 +7,11 @@ import time
 
 import numpy as np
 
-from . import asset, clean, topology
-from .axis import find_axes
+from . import asset, topology
 from .config import load_config
-from .growth import assign_growth
-from .sim import effects as fx
+from .sim.build import Prepared
 from .sim.integrators import SemiImplicit
-from .sim.model import Control, Model, State
+from .sim.model import Control, State
 
 #: the ``effects`` section of a scene at its defaults, connecting rims up to 3 edges away
 PARAMS = load_config().nested()["effects"]
@@ -23,24 +21,17 @@ VARIANTS = ((), ("curl",), ("wrinkles",), ("collisions",), ("connections",), ("c
 
 
 def _bud(petals: int, vertices: int):
-    v, f, petal = asset.bud(petals, vertices, 0)
-    v = v / clean.mean_edge_length(v, f)
-    return v, f, petal, find_axes(v, f, petal)
+    return asset.bud(petals, vertices, 0)
 
 
 def _ms_per_step(bud, names, steps: int, ramp: float) -> float:
-    v, f, petal, axes = bud
-    growth = assign_growth(v, f, axes.x, "0.2*x**2",
-                           alpha_add=0.1 if "wrinkles" in names else 0.0,
-                           boundary_stiffness=0.5 if "wrinkles" in names else 1.0)
-    model = Model.build(v, growth.edges, growth.alpha, 0.1 * growth.stiffness, growth.hinges,
-                        0.0005, axes.base)
-    effects = fx.build(names, vertices=v, faces=f, petal=petal, pinned=model.pinned,
-                       on_axis=axes.on_axis, plane=axes.plane, s=axes.s,
-                       rest_angle=growth.rest_angle, flower_axis=axes.flower_axis, max_edge=1.5,
-                       params=PARAMS)
+    wrinkles = "wrinkles" in names
+    prep = Prepared.from_mesh(*bud, "0.2*x**2", alpha_add=0.1 if wrinkles else 0.0,
+                              boundary_stiffness=0.5 if wrinkles else 1.0)
+    model = prep.model(0.1, 0.0005)
+    effects = prep.effects(names, PARAMS, max_edge=1.5)
     control = Control("linear", ramp)
-    state = State.at_rest(model, v, control)
+    state = State.at_rest(model, prep.vertices, control)
     integrator = SemiImplicit(0.1)
     integrator.advance(model, state, control, 2, 1.0, effects)  # compile, if not cached
     t0 = time.perf_counter()

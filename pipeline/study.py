@@ -23,10 +23,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from . import asset, clean
-from .axis import find_axes
-from .growth import assign_growth
+from . import asset
 from .measure import PetalFrames
+from .sim.build import Prepared
 from .sim.integrators import make_integrator
 from .sim.model import Control, Model, State
 from .symmetry import mirror_pairs, reflect
@@ -78,22 +77,20 @@ class Scene:
                   stretch: float = 0.1) -> Scene:
         """A scene from a bud mesh (scaled to mean edge 1, as `bloom remesh` does)."""
         petals = int(petal.max()) + 1
-        v = v / clean.mean_edge_length(v, f)
-        axes = find_axes(v, f, petal)
-        growth = assign_growth(v, f, axes.x, curve)
-        model = Model.build(v, growth.edges, growth.alpha, stretch * growth.stiffness,
-                            growth.hinges, bending, axes.base)
-        frames = PetalFrames.from_mesh(v, petal, axes.base, axes.on_axis, axes.tip, axes.plane)
+        prep = Prepared.from_mesh(v, f, petal, curve)
+        v, axes_plane = prep.vertices, prep.plane
+        model = prep.model(stretch, bending)
+        frames = prep.frames()
         length = float(np.linalg.norm(v[frames.tips] - frames.base_centers, axis=1).mean())
         partner = np.arange(len(v))
         for p in range(petals):
             idx = np.flatnonzero(petal == p)
-            pairs = mirror_pairs(v[idx], axes.plane[p])
+            pairs = mirror_pairs(v[idx], axes_plane[p])
             if pairs is None:
                 partner = None
                 break
             partner[idx] = idx[pairs]
-        return cls(v, f, model, frames, length, petal, np.asarray(axes.plane), partner)
+        return cls(v, f, model, frames, length, petal, np.asarray(axes_plane), partner)
 
     def mirrored(self, X) -> np.ndarray:
         """Each petal's shape reflected across its center plane (vertex by vertex)."""

@@ -22,11 +22,10 @@ from .common import config_options, input_hashes, load, log, output_options, pro
 def command(growth_h5: str, config_path, overrides, out, overwrite, progress, resume) -> None:
     """Simulate the bloom of the petals in GROWTH_H5 and write the frames to sim.h5."""
     from pipeline import artifact, clean
-    from pipeline.measure import PetalFrames
     from pipeline.sim import checkpoint
-    from pipeline.sim import effects as fx
+    from pipeline.sim.build import Prepared
     from pipeline.sim.integrators import Diverged, make_integrator
-    from pipeline.sim.model import Control, Model, State
+    from pipeline.sim.model import Control, State
     from pipeline.sim.quasistatic import NotConverged
     from pipeline.sim.run import run
 
@@ -36,35 +35,28 @@ def command(growth_h5: str, config_path, overrides, out, overwrite, progress, re
     sim = cfg.section("simulate")
     steps, frames, h = sim["steps"], sim["frames"], sim["h"]
     with artifact.Artifact(growth_h5, needs="growth", reader="simulate") as src:
-        v = src["mesh/vertices"]
-        petal, base = src["mesh/petal"], src["axis/base"]
+        prep = Prepared.from_artifact(src)
+        v, petal, base = prep.vertices, prep.petal, prep.base
         try:
-            model = Model.build(
-                v, src["growth/edges"], src["growth/alpha"],
-                sim["stretch_stiffness"] * src["growth/stiffness"], src["growth/hinges"],
-                sim["bending_stiffness"], pinned=base, mass=sim["mass"])
+            model = prep.model(sim["stretch_stiffness"], sim["bending_stiffness"], sim["mass"])
         except ValueError as exc:
             raise BloomError(f"cannot build the model: {exc}", where=growth_h5) from None
         params = cfg.nested().get("effects", {})
-        rest_angle = src["growth/rest_angle"]
+        rest_angle = prep.rest_angle
         grown = model.edge_rest_length * (1.0 + np.maximum(model.edge_growth, 0.0))
-        max_edge = float(grown.max()) if len(grown) else clean.mean_edge_length(v, src["mesh/faces"])
+        max_edge = float(grown.max()) if len(grown) else clean.mean_edge_length(v, prep.faces)
 
         def build_effects(positions):
-            return fx.build(
-                cfg.effects_enabled(), vertices=positions, faces=src["mesh/faces"], petal=petal,
-                pinned=base, on_axis=src["axis/on_axis"], plane=src["axis/plane"], s=src["axis/s"],
-                rest_angle=rest_angle, flower_axis=src.attrs["flower_axis"], max_edge=max_edge,
-                params=params)
+            return prep.effects(cfg.effects_enabled(), params, positions=positions,
+                                rest_angle=rest_angle, max_edge=max_edge)
 
         model_positions, bud_info = None, {}
         if cfg["growth.start"] == "open":
             model_positions = np.asarray(v)
             v, model, rest_angle, params, bud_info = _find_bud(
                 cfg, model, model_positions, rest_angle, params, build_effects, petal, base,
-                src["axis/s"], src["axis/x"], src.attrs["flower_axis"], where)
-        petals = PetalFrames.from_mesh(v, petal, base, src["axis/on_axis"], src["axis/tip"],
-                                       src["axis/plane"])
+                prep.s, prep.x, prep.flower_axis, where)
+        petals = prep.frames(v)
         if cfg["growth.keys"]:
             control = Control.keyed(cfg["growth.keys"], frames, steps, h)
         else:

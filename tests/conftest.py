@@ -9,6 +9,7 @@ import pytest
 from pipeline import asset, clean
 from pipeline.axis import find_axes
 from pipeline.growth import assign_growth
+from pipeline.sim.build import Prepared
 from pipeline.sim.model import Control, Model
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -25,8 +26,9 @@ def prepared(petals: int = 1, vertices: int = 150, seed: int = 0, curve: str = "
 
 
 def build_model(v, growth, axes, ks=0.1, kb=0.0005, pinned=None) -> Model:
-    return Model.build(v, growth.edges, growth.alpha, ks * growth.stiffness, growth.hinges, kb,
-                       axes.base if pinned is None else pinned)
+    """The model of :func:`prepared`'s results, as the pipeline builds it
+    (:class:`pipeline.sim.build.Prepared`)."""
+    return Prepared.of(v, None, None, axes, growth).model(ks, kb, pinned=pinned)
 
 
 @pytest.fixture(scope="session")
