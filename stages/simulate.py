@@ -114,7 +114,8 @@ def command(growth_h5: str, config_path, overrides, out, overwrite, progress, re
             except ValueError as exc:  # what the integrator cannot do with this scene
                 raise BloomError(f"simulate.integrator: {exc}", where=where) from None
             except RuntimeError as exc:
-                key = "effects.collisions" if "collision" in str(exc) else "simulate"
+                key = getattr(exc, "key", None) or (  # (contact.ContactError names its key)
+                    "effects.collisions" if "collision" in str(exc) else "simulate")
                 raise BloomError(f"{key}: {exc}", where=where) from None
         diag = rec.arrays()
         positions = np.asarray(rec.positions)

@@ -15,8 +15,8 @@ not follow the dynamics: for each growth increment it finds the equilibrium
   (Projecting each element's Hessian to positive definite, the other classic remedy,
   was tried first: it converged linearly, 50-100 iterations per increment, and stalled
   at snaps.)
-- Each connected piece (petal) is its own problem: without collisions or connection
-  springs petals do not interact.
+- Each connected piece (petal) is its own problem when petals do not interact; with
+  collisions or connection springs they are coupled and solved together.
 - Line search: backtracking on the energy (Armijo); a step within rounding of the
   energy is accepted.
 - Increments: ``ceil(dA * stages)`` per call, so ``stages`` bounds the growth per
@@ -27,8 +27,14 @@ not follow the dynamics: for each growth increment it finds the equilibrium
   stable.
 - Effects: curl (rest angles follow B = A), wrinkles (growth map), the fixed base and
   the center-plane constraint (a constrained vertex's Newton step has no component
-  along its plane normal). Collisions and connection springs are dynamic effects and
-  are refused: use a dynamic integrator for those scenes.
+  along its plane normal).
+- Collisions: an IPC barrier between petals joins the energy (:class:`contact.Contact`);
+  every step, the line search's and the negative-curvature search's, is first cut to
+  what continuous collision detection allows, so no iterate crosses (or comes closer
+  than ``effects.collisions.thickness``). A bud that starts intersecting is refused.
+- Connection springs join the energy (:class:`contact.Springs`); when an increment
+  converges with springs past their breaking length, those break (the step at which
+  the growth reached that increment is recorded) and the increment is redone.
 
 ``advance`` has the signature of the dynamic integrators, so :func:`run.run` records
 one equilibrium per frame; velocities stay zero.
@@ -45,11 +51,11 @@ import scipy.sparse as sp
 from scipy.sparse.linalg import spsolve_triangular
 
 from . import hessian, kernels
+from .contact import Contact, Springs
 from .effects import CenterPlane, Curl, Effects
 from .model import Control, Model, State
 
 NO_EFFECTS = Effects()
-DYNAMIC_ONLY = ("collisions", "connections")
 
 
 @dataclass
@@ -64,11 +70,11 @@ class _Part:
 
 
 def _split(model: Model, effects: Effects) -> list[_Part]:
-    """The mesh's connected pieces, each as a problem of its own; [] if it is one piece.
-    Without collisions or connection springs, petals do not interact: each is solved on
-    its own, so a petal that snaps costs iterations of its own factorization only, and
-    the line search of one does not hold back another. Pieces without springs are left
-    where they are."""
+    """The mesh's connected pieces, each as a problem of its own; [] if it is one piece
+    or if the pieces interact (collisions, connection springs: then they are one problem).
+    Without those, petals do not interact: each is solved on its own, so a petal that
+    snaps costs iterations of its own factorization only, and the line search of one does
+    not hold back another. Pieces without springs are left where they are."""
     from scipy.sparse.csgraph import connected_components
 
     n = model.vertex_count
@@ -81,7 +87,7 @@ def _split(model: Model, effects: Effects) -> list[_Part]:
             raise ValueError(f"a piece of the mesh ({int(np.sum(label == c))} vertices) has no "
                              "fixed base vertex: with nothing holding it, it has no "
                              "equilibrium; check axis.base")
-    if count <= 1:
+    if count <= 1 or effects.collisions is not None or effects.connections is not None:
         return []
     parts = []
     for c in range(count):
@@ -167,6 +173,13 @@ class _System:
     take: np.ndarray  #: upper.data = data.ravel()[take]
     diagonal: np.ndarray  #: positions of the diagonal in upper.data
     solver: object = None  #: qdldl's LDL^T, refactored in place (same pattern)
+    #: (3V, 3V) the constraints as a projection: 0 for a fixed vertex, I - n n^T for a
+    #: center-plane vertex, I for the others (applied to the coupling terms' Hessian)
+    project: sp.csr_matrix | None = None
+    #: upper triangle of the coupling terms' constrained Hessian (contact, connection
+    #: springs), added to the elastic one at factorization; None: none
+    extra: sp.csc_matrix | None = None
+    _fresh: bool = False  #: the solver's pattern is not the elastic one: factor anew
 
     @classmethod
     def build(cls, model: Model, effects: Effects) -> _System:
@@ -186,7 +199,27 @@ class _System:
         take = upper.data.astype(np.int64) - 1
         rows = np.repeat(np.arange(3 * n), np.diff(upper.indptr))  # column of each entry
         diagonal = np.flatnonzero(upper.indices == rows)
-        return cls(blocks, model.pinned.copy(), plane_row, normals, upper, take, diagonal)
+        system = cls(blocks, model.pinned.copy(), plane_row, normals, upper, take, diagonal)
+        if effects.collisions is not None or effects.connections is not None:
+            P = np.broadcast_to(np.eye(3), (n, 3, 3)).copy()
+            P[model.pinned] = 0.0
+            if len(normals):
+                idx = effects.center_plane.vertices
+                P[idx] -= normals[:, :, None] * normals[:, None, :]
+            system.project = sp.bsr_matrix((P, np.arange(n), np.arange(n + 1)),
+                                           shape=(3 * n, 3 * n)).tocsr()
+        return system
+
+    def couple(self, terms: list) -> None:
+        """Set the coupling terms' Hessians (3V x 3V sparse, or None) for the next
+        factorizations, restricted to the free directions."""
+        terms = [t for t in terms if t is not None]
+        if not terms:
+            self.extra = None
+            return
+        P = self.project
+        total = terms[0] if len(terms) == 1 else sum(terms[1:], terms[0])
+        self.extra = sp.triu(P @ total @ P, format="csc")
 
     def factor(self, mu: float = 0.0):
         """LDL^T of ``H + mu I`` (H as last assembled). Returns ``(positive, down)``:
@@ -200,8 +233,14 @@ class _System:
         M = self.upper
         M.data = self.blocks.data.ravel()[self.take]
         M.data[self.diagonal] += mu
+        fresh = self._fresh
+        if self.extra is not None:  # another pattern (contacts come and go): factor anew
+            M = (M + self.extra).tocsc()
+            M.sort_indices()
+            fresh = True
+        self._fresh = self.extra is not None
         try:
-            if self.solver is None:
+            if self.solver is None or fresh:
                 self.solver = qdldl.Solver(M)
             else:
                 self.solver.update(M)
@@ -239,6 +278,8 @@ class QuasiStatic:
     increments: int = 0  #: growth increments solved so far
     shifted: int = 0  #: factorizations retried with a larger shift mu
     descents: int = 0  #: searches along a direction of negative curvature
+    ccd_cuts: int = 0  #: steps cut short by continuous collision detection
+    breaks: int = 0  #: connection springs broken (each break redoes its increment)
     residuals: list = field(default_factory=list, repr=False)  #: per iteration of the last solve
     _system: _System | None = field(default=None, repr=False)
     _tangent: bool = field(default=False, repr=False)  #: the factorization is H's at the last equilibrium
@@ -246,22 +287,29 @@ class QuasiStatic:
     _parts: list | None = field(default=None, repr=False)  #: one solver per petal, or []
     _energy_rounding: float = field(default=0.0, repr=False)  #: of the last Newton iterate
     _scale_work: np.ndarray | None = field(default=None, repr=False)
+    _contact: Contact | None = field(default=None, repr=False)  #: the barrier, if collisions
+    _springs: Springs | None = field(default=None, repr=False)  #: if connection springs
+    _coupling: np.ndarray | None = field(default=None, repr=False)  #: their last forces
+    _limited: bool = field(default=False, repr=False)  #: the last line search was cut by CCD
 
     def diagnostics(self) -> dict:
-        return {"newton_iterations": self.iterations, "growth_increments": self.increments,
-                "shifted_factorizations": self.shifted,
-                "negative_curvature_steps": self.descents}
+        out = {"newton_iterations": self.iterations, "growth_increments": self.increments,
+               "shifted_factorizations": self.shifted,
+               "negative_curvature_steps": self.descents}
+        if self._contact is not None:
+            out["ccd_cut_steps"] = self.ccd_cuts
+        if self._springs is not None:
+            out["redone_increments"] = self.breaks
+        return out
 
     # --- one call: growth from A(t0) to A(t0 + n h) -----------------------------------
     def advance(self, model: Model, state: State, control: Control, n_steps: int, h: float,
                 effects: Effects = NO_EFFECTS) -> None:
-        for name in DYNAMIC_ONLY:
-            if getattr(effects, name) is not None:
-                raise ValueError(f"the quasi-static integrator cannot run effect {name!r}")
         if model.hinge_count and not np.all(model.hinge_stiffness > 0.0):
             raise ValueError("the quasi-static integrator needs bending stiffness > 0 (without "
                              "it a petal has no stiffness out of its plane)")
         if self._parts is None:
+            self._couple(model, state, effects)
             self._perturb(model, state, effects)
             self._parts = _split(model, effects)
             for part in self._parts:
@@ -288,6 +336,20 @@ class QuasiStatic:
                                               control.growth_at(state.step * h), cos0, sin0,
                                               state.forces)
         effects.constrain(state.forces)
+        if self._contact is not None:  # the frame's contacts: pairs within the barrier's band
+            effects.counters[0] = self._contact.active_count(state.positions)
+
+    def _couple(self, model: Model, state: State, effects: Effects) -> None:
+        """Build the terms that couple the petals, if the scene has them; refuse a bud
+        that contact cannot start from (:meth:`contact.Contact.check_start`)."""
+        if effects.collisions is not None:
+            c = effects.collisions
+            self._contact = Contact.build(state.positions, c.faces, c.vertex_petal,
+                                          gap=c.thickness,
+                                          stiffness=float(model.edge_stiffness.max()))
+            self._contact.check_start(state.positions)
+        if effects.connections is not None:
+            self._springs = Springs(effects.connections)
 
     def _advance(self, model, state, control, n_steps: int, h: float, effects) -> None:
         """:meth:`advance` for one connected mesh."""
@@ -303,9 +365,22 @@ class QuasiStatic:
         a1 = control.growth_at((state.step + n_steps) * h)
         pieces = max(1, math.ceil(abs(a1 - a0) * self.stages - 1e-9))
         targets = a0 + (a1 - a0) * np.arange(1, pieces + 1) / pieces
+        first, last = state.step, state.step + n_steps
+
+        def step_of(a: float) -> int:
+            """The first step of this call at which the growth reaches ``a`` (A rises)."""
+            lo, hi = first, last
+            while lo < hi:
+                mid = (lo + hi) // 2
+                if control.growth_at(mid * h) >= a:
+                    hi = mid
+                else:
+                    lo = mid + 1
+            return lo
+
         done = a0
         for target in targets:
-            done = self._reach(model, state, effects, done, float(target), state.step + n_steps)
+            done = self._reach(model, state, effects, done, float(target), last, step_of)
         state.step += n_steps
 
     def _not_converged(self, model, X, step: int, growth: float,
@@ -346,9 +421,12 @@ class QuasiStatic:
             effects.constrain(nudge)
         state.positions += nudge
 
-    def _reach(self, model, state, effects, a_from: float, a_to: float, step: int) -> float:
+    def _reach(self, model, state, effects, a_from: float, a_to: float, step: int,
+               step_of=None) -> float:
         """Equilibrium at growth ``a_to``; an increment where Newton fails is halved
-        (up to 6 times), then the path goes on to ``a_to``."""
+        (up to 6 times), then the path goes on to ``a_to``. An increment that ends with
+        connection springs past their breaking length breaks them (at ``step_of(A)``) and
+        is redone from where it started."""
         a_now, size, halvings = a_from, a_to - a_from, 0
         while a_now != a_to:
             a_next = a_to if abs(a_to - a_now) <= abs(size) * (1 + 1e-9) else a_now + size
@@ -356,6 +434,15 @@ class QuasiStatic:
             self._predict(model, state, effects, a_next)
             failure = self._newton(model, state, effects, a_next)
             if failure is None:
+                over = self._springs.over_limit(state.positions) if self._springs else ()
+                if len(over):
+                    c = self._springs.connections
+                    c.alive[over] = False
+                    c.broken_step[over] = step if step_of is None else step_of(a_next)
+                    self.breaks += 1
+                    state.positions[:] = start
+                    self._tangent = False
+                    continue
                 self.increments += 1
                 a_now = a_next
                 continue
@@ -394,12 +481,29 @@ class QuasiStatic:
         H = s.blocks
         H.assemble(model, X, A, cos0, sin0)
         hessian.constrain(H.indptr, H.indices, H.data, s.pinned, s.plane_row, s.normals)
+        if s.project is not None:
+            s.couple([self._contact.hessian(X) if self._contact else None,
+                      self._springs.hessian_at(X) if self._springs else None])
 
     def _energy(self, model, X, A, cos0, sin0, scratch) -> float:
-        return kernels.internal_forces(X, model.edge_indices, model.edge_rest_length,
-                                       model.edge_growth, model.edge_stiffness,
-                                       model.hinge_indices, cos0, sin0, model.hinge_stiffness,
-                                       A, scratch)
+        """The energy at X; the forces into ``scratch``. With coupling terms, their
+        forces are also kept (``_coupling``) for :meth:`_rounding`."""
+        energy = kernels.internal_forces(X, model.edge_indices, model.edge_rest_length,
+                                         model.edge_growth, model.edge_stiffness,
+                                         model.hinge_indices, cos0, sin0,
+                                         model.hinge_stiffness, A, scratch)
+        if self._contact is None and self._springs is None:
+            return energy
+        coupling = self._coupling
+        if coupling is None or coupling.shape != X.shape:
+            coupling = self._coupling = np.empty_like(X)
+        coupling[:] = 0.0
+        if self._contact is not None:
+            energy += self._contact.energy(X, coupling)
+        if self._springs is not None:
+            energy += self._springs.energy(X, coupling)
+        scratch += coupling
+        return energy
 
     def _newton(self, model, state, effects, A: float) -> _Failure | None:
         """Newton iterations at growth A; None when converged, else why not.
@@ -461,7 +565,9 @@ class QuasiStatic:
             length = self._line_search(model, X, A, cos0, sin0, scratch, energy, g, step)
             if length == 0.0:
                 return _Failure(residual, scale, "stalled", inertia)
-            if mu == 0.0 and length * float(np.abs(step).max()) < self.tolerance:
+            # (a step cut by CCD is no sign of convergence: the whole step was not small)
+            if (mu == 0.0 and not self._limited
+                    and length * float(np.abs(step).max()) < self.tolerance):
                 return None  # (the factorization is that of the equilibrium, to rounding)
         return _Failure(residual, scale, "iterations", inertia)
 
@@ -479,6 +585,10 @@ class QuasiStatic:
                                         model.edge_growth, model.edge_stiffness,
                                         model.hinge_indices, cos0, sin0, model.hinge_stiffness,
                                         A, per_vertex)
+        if self._coupling is not None:  # the contacts' and springs' forces at X (just taken)
+            per_vertex += np.abs(self._coupling).max(axis=1)
+            if self._springs is not None:
+                self._springs.scale(X, per_vertex)
         free = ~self._system.pinned
         force = float(per_vertex[free].max()) if free.any() else 0.0
         return force, EPS * energy
@@ -502,12 +612,19 @@ class QuasiStatic:
         return out.ravel()
 
     def _line_search(self, model, X, A, cos0, sin0, scratch, energy, g, step) -> float:
-        """Backtracking (Armijo) along ``step``; moves X and returns the step length
-        taken (0: none found). A change within rounding of the energy is accepted (as
-        :meth:`_rounding` measures it, or 1e-14 of the energy)."""
+        """Backtracking (Armijo) along ``step``, from the longest step that continuous
+        collision detection allows (1 without contact); moves X and returns the step
+        length taken (0: none found). A change within rounding of the energy is accepted
+        (as :meth:`_rounding` measures it, or 1e-14 of the energy)."""
         slope = float(g @ step)
         length = 1.0
         base = X.copy()
+        self._limited = False
+        if self._contact is not None:
+            cap = self._contact.max_step(base, base + step.reshape(-1, 3))
+            if cap < 1.0:
+                length, self._limited = cap, True
+                self.ccd_cuts += 1
         # two energies each within their rounding differ by up to twice it: a step whose
         # predicted change is below that cannot be judged by the energy (near an
         # equilibrium, where only the gradient still tells), so it is taken as Newton's
@@ -532,7 +649,10 @@ class QuasiStatic:
             d = -d
         base = X.copy()
         best, best_length, length = energy, 0.0, 1e-3
-        while length <= 2.0:
+        top = 2.0  # (no further than contact allows)
+        if self._contact is not None:
+            top *= self._contact.max_step(base, base + top * d)
+        while length <= top:
             X[:] = base + length * d
             trial = self._energy(model, X, A, cos0, sin0, scratch)
             if trial >= best:
