@@ -137,16 +137,15 @@ class Contact:
         X = np.asfortranarray(X, dtype=np.float64)
         found = ipctk.NormalCollisions()
         found.build(self.mesh, X, distance)
+        edges, faces = self.mesh.edges, self.mesh.faces
         best: dict[tuple[int, int], float] = {}
         for k in range(len(found)):
-            c = found[k]
-            v = c.vertex_ids(self.mesh.edges, self.mesh.faces)
-            ids = sorted({int(self.petal[i]) for i in v if i >= 0})
-            if len(ids) < 2:
-                continue
-            d = math.sqrt(c.compute_distance(X, self.mesh.edges, self.mesh.faces))
-            key = (ids[0], ids[1])
-            best[key] = min(best.get(key, math.inf), d)
+            # (found[k] refers into found: it must not outlive it, or freeing it crashes)
+            ids = sorted({int(self.petal[i]) for i in found[k].vertex_ids(edges, faces) if i >= 0})
+            d = math.sqrt(found[k].compute_distance(X, edges, faces))
+            if len(ids) == 2:
+                key = (ids[0], ids[1])
+                best[key] = min(best.get(key, math.inf), d)
         return [(a, b, d) for (a, b), d in sorted(best.items()) if d < distance]
 
     # --- energy, gradient, Hessian ------------------------------------------------------

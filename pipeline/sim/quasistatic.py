@@ -293,14 +293,11 @@ class QuasiStatic:
     _limited: bool = field(default=False, repr=False)  #: the last line search was cut by CCD
 
     def diagnostics(self) -> dict:
-        out = {"newton_iterations": self.iterations, "growth_increments": self.increments,
-               "shifted_factorizations": self.shifted,
-               "negative_curvature_steps": self.descents}
-        if self._contact is not None:
-            out["ccd_cut_steps"] = self.ccd_cuts
-        if self._springs is not None:
-            out["redone_increments"] = self.breaks
-        return out
+        # (the same names at every frame, the first included: coupling is built later)
+        return {"newton_iterations": self.iterations, "growth_increments": self.increments,
+                "shifted_factorizations": self.shifted,
+                "negative_curvature_steps": self.descents, "ccd_cut_steps": self.ccd_cuts,
+                "redone_increments": self.breaks}
 
     # --- one call: growth from A(t0) to A(t0 + n h) -----------------------------------
     def advance(self, model: Model, state: State, control: Control, n_steps: int, h: float,
