@@ -77,6 +77,11 @@ class Contact:
     ccd: object = field(repr=False, default=None)  #: narrow phase (Additive CCD)
     collisions: object = field(repr=False, default=None)  #: active set, built at the last X
     _at: np.ndarray | None = field(repr=False, default=None)  #: X the active set is of
+    #: broad-phase candidates of the last move (:meth:`sweep`), and the box each vertex
+    #: swept: valid for any X whose every vertex lies in its box
+    candidates: object = field(repr=False, default=None)
+    _low: np.ndarray | None = field(repr=False, default=None)
+    _high: np.ndarray | None = field(repr=False, default=None)
 
     @classmethod
     def build(cls, positions, faces, petal, *, gap: float, stiffness: float) -> Contact:
@@ -149,11 +154,33 @@ class Contact:
         return [(a, b, d) for (a, b), d in sorted(best.items()) if d < distance]
 
     # --- energy, gradient, Hessian ------------------------------------------------------
+    def sweep(self, X0, X1, margin: float = 0.0) -> None:
+        """Broad phase once for a region: each vertex's box over the straight move
+        X0 -> X1, widened by ``margin``; the candidates are every pair of primitives
+        that can come within the barrier's reach while each vertex stays in its box.
+        So the active sets (:meth:`_active`) and the CCD (:meth:`max_step`) of any
+        position or move inside the boxes are those a full broad phase would give, at
+        a narrow phase's cost: one sweep serves a growth increment's iterations as
+        long as they stay in it."""
+        ipctk = _ipctk()
+        low = np.asfortranarray(np.minimum(X0, X1) - margin, dtype=np.float64)
+        high = np.asfortranarray(np.maximum(X0, X1) + margin, dtype=np.float64)
+        self.candidates = ipctk.Candidates()
+        self.candidates.build(self.mesh, low, high, self.gap + self.band)
+        self._low, self._high = low, high
+
+    def _swept(self, X) -> bool:
+        return (self.candidates is not None and bool(np.all(self._low <= X))
+                and bool(np.all(X <= self._high)))
+
     def _active(self, X):
         if self._at is None or not np.array_equal(self._at, X):
             ipctk = _ipctk()
             self.collisions = ipctk.NormalCollisions()
-            self.collisions.build(self.mesh, X, self.band, self.gap)
+            if self._swept(X):
+                self.collisions.build(self.candidates, self.mesh, X, self.band, self.gap)
+            else:
+                self.collisions.build(self.mesh, X, self.band, self.gap)
             self._at = X.copy()
         return self.collisions
 
@@ -181,6 +208,17 @@ class Contact:
         how = ipctk.PSDProjectionMethod.CLAMP if project else ipctk.PSDProjectionMethod.NONE
         return self.potential.hessian(active, self.mesh, X, how)
 
+    def linked(self, X) -> np.ndarray:
+        """(k, 2) vertex pairs that the contacts within the barrier's band join at X (the
+        Hessian couples their unknowns): each contact's vertices, chained to its first."""
+        active = self._active(np.asfortranarray(X, dtype=np.float64))
+        edges, faces = self.mesh.edges, self.mesh.faces
+        pairs = []
+        for k in range(len(active)):
+            ids = [int(i) for i in active[k].vertex_ids(edges, faces) if i >= 0]
+            pairs.extend((ids[0], i) for i in ids[1:])
+        return np.array(pairs, dtype=np.int64).reshape(-1, 2)
+
     def active_count(self, X) -> int:
         return len(self._active(np.asfortranarray(X, dtype=np.float64)))
 
@@ -188,11 +226,14 @@ class Contact:
     def max_step(self, X0, X1) -> float:
         """The largest fraction of the straight move X0 -> X1 along which no two petals
         come closer than the gap (continuous collision detection, with ipctk's
-        conservative rescaling): 1.0 is the whole move."""
-        ipctk = _ipctk()
-        return float(ipctk.compute_collision_free_stepsize(
+        conservative rescaling): 1.0 is the whole move. Sweeps the move first
+        (:meth:`sweep`, with a margin of the barrier's band) unless the last sweep holds
+        it: its candidates serve the CCD and the active sets along it."""
+        if not (self._swept(X0) and self._swept(X1)):
+            self.sweep(X0, X1, self.gap + self.band)
+        return float(self.candidates.compute_collision_free_stepsize(
             self.mesh, np.asfortranarray(X0, dtype=np.float64),
-            np.asfortranarray(X1, dtype=np.float64), self.gap, None, self.ccd))
+            np.asfortranarray(X1, dtype=np.float64), self.gap, self.ccd))
 
     def min_distance(self, X, reach: float) -> float:
         """Smallest distance between two petals at X, if below ``reach`` (else inf)."""
