@@ -3,10 +3,13 @@
 A petal's bending modes are slow (a period of ~5e4 steps at h = 1), so an explicit
 scheme needs ~1e5 steps or more to settle where growth puts it. This integrator does
 not follow the dynamics: for each growth increment it finds the equilibrium
-(grad U = 0) by Newton's method, starting from a tangent prediction along the path.
+(grad U = 0) by Newton's method, starting from a prediction along the path (the secant
+of the last two equilibria, or the tangent).
 
-- Hessian: the analytic one of :mod:`hessian`. Each Newton step factors it as is (a
-  sparse LDL^T by qdldl, whose pivot signs give its inertia). Where it is positive
+- Hessian: the analytic one of :mod:`hessian`. A Newton step factors it as is (a
+  sparse LDL^T by qdldl, whose pivot signs give its inertia); a later step of the same
+  solve may reuse that factorization (a chord step) if the step it gives is a tenth of
+  the last one or less (the factorization is most of an iteration's cost). Where it is positive
   definite the step is Newton's, and near a stable equilibrium convergence is
   quadratic. Where it is not (the path passes a bifurcation or a snap, or the
   prediction is far off), the energy is first searched along a direction of negative
@@ -15,8 +18,12 @@ not follow the dynamics: for each growth increment it finds the equilibrium
   (Projecting each element's Hessian to positive definite, the other classic remedy,
   was tried first: it converged linearly, 50-100 iterations per increment, and stalled
   at snaps.)
-- Each connected piece (petal) is its own problem when petals do not interact; with
-  collisions or connection springs they are coupled and solved together.
+- Each connected piece (petal) is its own problem when petals do not interact. With
+  collisions or connection springs they share one energy and one line search, but the
+  linear algebra is split by group: petals that a contact within the barrier's band or
+  an intact spring joins are one system, the others each their own (most petals,
+  most of the time, are alone); each group is factored, and converges, apart, and a
+  converged group stays put while the others iterate.
 - Line search: backtracking on the energy (Armijo); a step within rounding of the
   energy is accepted.
 - Increments: ``ceil(dA * stages)`` per call, so ``stages`` bounds the growth per
@@ -126,6 +133,8 @@ def _split(model: Model, effects: Effects) -> list[_Part]:
 #: what the force kernel adds and subtracts at that vertex, :func:`hessian.rounding_scale`)
 #: is rounding: Newton's own steps end at 0.1-0.2 of it on the project's buds
 ROUNDING_FACTOR = 2.0
+#: a group's factorization is reused for a step at most this fraction of its last one
+CHORD = 0.1
 EPS = float(np.finfo(np.float64).eps)
 @dataclass
 class _Failure:
@@ -162,8 +171,29 @@ class NotConverged(RuntimeError):
 
 
 @dataclass
+class _Group:
+    """Pieces (petals) that are one linear system: a piece alone, or pieces joined by
+    contacts or connection springs. Its unknowns, its factorization and how that was
+    made."""
+
+    key: tuple  #: its pieces, ascending
+    dofs: np.ndarray  #: (n,) its unknowns in the whole (3 per vertex), ascending
+    elastic: sp.csc_matrix  #: upper triangle of the elastic Hessian on dofs (its pattern)
+    take: np.ndarray  #: elastic.data = blocks.data.ravel()[take]
+    diagonal: np.ndarray  #: positions of the diagonal in elastic.data
+    local: np.ndarray  #: (3V,) index in dofs of each unknown of the whole, -1 outside
+    solver: object = None  #: qdldl's LDL^T of the last factorization (None: none, or singular)
+    #: (indptr, indices, keys) of the pattern ``solver`` was set up for (:meth:`_System._fit`)
+    pattern: tuple | None = None
+    positive: bool = False  #: the last factorization is positive definite
+    shift: float = 0.0  #: the mu of the last factorization
+    moved: float = 0.0  #: how far its last step (Newton's, or the predictor's) moved it
+
+
+@dataclass
 class _System:
-    """The block-sparse pattern and work arrays, built once per model."""
+    """The block-sparse pattern and work arrays, built once per model, and the groups
+    of pieces that are solved as one system each (:meth:`regroup`)."""
 
     blocks: hessian.Blocks  #: the Hessian, assembled and constrained in place
     pinned: np.ndarray
@@ -172,17 +202,20 @@ class _System:
     upper: sp.csc_matrix  #: the upper triangle in CSC, its pattern fixed
     take: np.ndarray  #: upper.data = data.ravel()[take]
     diagonal: np.ndarray  #: positions of the diagonal in upper.data
-    solver: object = None  #: qdldl's LDL^T, refactored in place (same pattern)
+    piece: np.ndarray  #: (V,) connected piece (petal) of each vertex
     #: (3V, 3V) the constraints as a projection: 0 for a fixed vertex, I - n n^T for a
     #: center-plane vertex, I for the others (applied to the coupling terms' Hessian)
     project: sp.csr_matrix | None = None
     #: upper triangle of the coupling terms' constrained Hessian (contact, connection
     #: springs), added to the elastic one at factorization; None: none
-    extra: sp.csc_matrix | None = None
-    _fresh: bool = False  #: the solver's pattern is not the elastic one: factor anew
+    extra: sp.coo_matrix | None = None
+    groups: list = field(default_factory=list)  #: the current groups (:class:`_Group`)
+    _known: dict = field(default_factory=dict)  #: every group met so far, by key
 
     @classmethod
     def build(cls, model: Model, effects: Effects) -> _System:
+        from scipy.sparse.csgraph import connected_components
+
         n = model.vertex_count
         blocks = hessian.Blocks.build(model)
         indptr, indices = blocks.indptr, blocks.indices
@@ -199,7 +232,11 @@ class _System:
         take = upper.data.astype(np.int64) - 1
         rows = np.repeat(np.arange(3 * n), np.diff(upper.indptr))  # column of each entry
         diagonal = np.flatnonzero(upper.indices == rows)
-        system = cls(blocks, model.pinned.copy(), plane_row, normals, upper, take, diagonal)
+        e = model.edge_indices
+        graph = sp.coo_matrix((np.ones(len(e)), (e[:, 0], e[:, 1])), shape=(n, n))
+        piece = connected_components(graph, directed=False)[1].astype(np.int64)
+        system = cls(blocks, model.pinned.copy(), plane_row, normals, upper, take, diagonal,
+                     piece)
         if effects.collisions is not None or effects.connections is not None:
             P = np.broadcast_to(np.eye(3), (n, 3, 3)).copy()
             P[model.pinned] = 0.0
@@ -208,8 +245,49 @@ class _System:
                 P[idx] -= normals[:, :, None] * normals[:, None, :]
             system.project = sp.bsr_matrix((P, np.arange(n), np.arange(n + 1)),
                                            shape=(3 * n, 3 * n)).tocsr()
+        system.regroup(np.zeros((0, 2), dtype=np.int64))
         return system
 
+    # --- groups ---------------------------------------------------------------------------
+    def regroup(self, links: np.ndarray) -> bool:
+        """Group the pieces: pieces joined by a link (``(k, 2)`` vertex pairs: the
+        contacts and springs that couple them) are one system. Returns whether the
+        groups changed."""
+        from scipy.sparse.csgraph import connected_components
+
+        count = int(self.piece.max()) + 1 if len(self.piece) else 0
+        a, b = self.piece[links[:, 0]], self.piece[links[:, 1]]
+        graph = sp.coo_matrix((np.ones(len(a)), (a, b)), shape=(count, count))
+        label = connected_components(graph, directed=False)[1]
+        keys = [tuple(np.flatnonzero(label == c).tolist()) for c in range(label.max() + 1)]
+        keys.sort()
+        before = [g.key for g in self.groups]
+        self.groups = [self._group(k) for k in keys]
+        return keys != before
+
+    def _group(self, key: tuple) -> _Group:
+        group = self._known.get(key)
+        if group is None:
+            vertices = np.flatnonzero(np.isin(self.piece, key))
+            dofs = (3 * vertices[:, None] + np.arange(3)).ravel()
+            numbered = self.upper.copy()
+            numbered.data = np.arange(1, len(numbered.data) + 1, dtype=np.float64)
+            sub = numbered[dofs][:, dofs].tocsc()
+            sub.sort_indices()
+            take = self.take[sub.data.astype(np.int64) - 1]
+            rows = np.repeat(np.arange(len(dofs)), np.diff(sub.indptr))
+            local = np.full(self.upper.shape[0], -1, dtype=np.int64)
+            local[dofs] = np.arange(len(dofs))
+            group = self._known[key] = _Group(key, dofs, sub, take,
+                                              np.flatnonzero(sub.indices == rows), local)
+        return group
+
+    @property
+    def tangent(self) -> bool:
+        """Every group's last factorization is Newton's (unshifted) and positive definite."""
+        return all(g.solver is not None and g.positive and g.shift == 0.0 for g in self.groups)
+
+    # --- the coupling terms -----------------------------------------------------------------
     def couple(self, terms: list) -> None:
         """Set the coupling terms' Hessians (3V x 3V sparse, or None) for the next
         factorizations, restricted to the free directions."""
@@ -219,36 +297,48 @@ class _System:
             return
         P = self.project
         total = terms[0] if len(terms) == 1 else sum(terms[1:], terms[0])
-        self.extra = sp.triu(P @ total @ P, format="csc")
+        extra = sp.triu(P @ total @ P, format="coo")
+        keep = extra.data != 0.0
+        self.extra = sp.coo_matrix((extra.data[keep], (extra.row[keep], extra.col[keep])),
+                                   shape=extra.shape)
 
-    def factor(self, mu: float = 0.0):
-        """LDL^T of ``H + mu I`` (H as last assembled). Returns ``(positive, down)``:
-        whether it is positive definite and, if not, a direction of negative
-        curvature ``d^T H d < 0`` (None if none was found).
+    # --- factorization --------------------------------------------------------------------
+    def factor(self, group: _Group, mu: float = 0.0):
+        """LDL^T of the group's ``H + mu I`` (H as last assembled). Returns
+        ``(positive, down)``: whether it is positive definite and, if not, a direction
+        of negative curvature ``d^T H d < 0`` (3V, zero outside the group; None if none
+        was found).
 
         ``P (H + mu I) P^T = L D L^T``: the signs of D are those of the eigenvalues
         (Sylvester's law of inertia); for ``D_k < 0``, ``z = L^-T e_k`` has
-        ``z^T L D L^T z = D_k``.
+        ``z^T L D L^T z = D_k``. A group whose matrix has the pattern of its last one
+        (a petal alone always has) reuses qdldl's ordering and symbolic analysis.
         """
-        M = self.upper
-        M.data = self.blocks.data.ravel()[self.take]
-        M.data[self.diagonal] += mu
-        fresh = self._fresh
-        if self.extra is not None:  # another pattern (contacts come and go): factor anew
-            M = (M + self.extra).tocsc()
-            M.sort_indices()
-            fresh = True
-        self._fresh = self.extra is not None
+        M = group.elastic
+        M.data = self.blocks.data.ravel()[group.take]
+        M.data[group.diagonal] += mu
+        if self.extra is not None:
+            x = self.extra
+            r, c = group.local[x.row], group.local[x.col]
+            inside = r >= 0
+            if inside.any():
+                n = len(group.dofs)
+                M = (M + sp.csc_matrix((x.data[inside], (r[inside], c[inside])),
+                                       shape=(n, n))).tocsc()
+                M.sort_indices()
+        group.shift = mu
+        M = self._fit(group, M)
         try:
-            if self.solver is None or fresh:
-                self.solver = qdldl.Solver(M)
+            if group.solver is not None:  # (_fit keeps it only while the pattern holds)
+                group.solver.update(M)
             else:
-                self.solver.update(M)
+                group.solver = qdldl.Solver(M)
         except (ValueError, RuntimeError):  # a zero pivot: singular
-            self.solver = None
+            group.solver, group.pattern, group.positive = None, None, False
             return False, None
-        L, D, perm = self.solver.factors()
-        if np.all(D > 0.0):
+        L, D, perm = group.solver.factors()
+        group.positive = bool(np.all(D > 0.0))
+        if group.positive:
             return True, None
         k = int(np.argmin(D))
         e = np.zeros(len(D))
@@ -259,10 +349,49 @@ class _System:
         d = np.empty(n)
         d[perm] = z
         full = M + sp.triu(M, k=1).T
-        return False, (d if d @ (full @ d) < mu * (d @ d) else None)
+        if not d @ (full @ d) < mu * (d @ d):
+            return False, None
+        out = np.zeros(self.upper.shape[0])
+        out[group.dofs] = d
+        return False, out
 
-    def solve(self, rhs: np.ndarray) -> np.ndarray:
-        return self.solver.solve(rhs)
+    @staticmethod
+    def _fit(group: _Group, M: sp.csc_matrix) -> sp.csc_matrix:
+        """``M`` on the group's pattern: the union of every pattern its matrices have had
+        (contacts come and go; an entry not in M is an explicit zero), so that qdldl's
+        ordering and symbolic analysis are redone only when a new entry appears (then
+        the group's solver is dropped, to be set up anew)."""
+        n = M.shape[0]
+        cols = np.repeat(np.arange(n, dtype=np.int64), np.diff(M.indptr))
+        keys = cols * n + M.indices
+        if group.pattern is not None:
+            indptr, indices, known = group.pattern
+            at = np.searchsorted(known, keys)
+            if np.all(at < len(known)) and np.array_equal(known[np.minimum(at, len(known) - 1)],
+                                                          keys):
+                data = np.zeros(len(known))
+                data[at] = M.data
+                return sp.csc_matrix((data, indices, indptr), shape=M.shape)
+            keys = np.sort(np.concatenate([known, keys]), kind="stable")
+            keys = keys[np.concatenate([[True], keys[1:] != keys[:-1]])]
+            data = np.zeros(len(keys))
+            data[np.searchsorted(keys, cols * n + M.indices)] = M.data
+        else:
+            data = M.data.copy()
+        indices = (keys % n).astype(np.int32)
+        indptr = np.searchsorted(keys // n, np.arange(n + 1)).astype(np.int32)
+        group.pattern = (indptr, indices, keys)
+        group.solver = None  # (a new pattern: qdldl's analysis is redone)
+        return sp.csc_matrix((data, indices, indptr), shape=M.shape)
+
+    def solve(self, rhs: np.ndarray, groups=None) -> np.ndarray:
+        """The step of each group's last factorization for ``rhs`` (3V); zero in the
+        groups not given (default: all) and in a group with no factorization."""
+        out = np.zeros_like(rhs)
+        for g in self.groups if groups is None else groups:
+            if g.solver is not None:
+                out[g.dofs] = g.solver.solve(rhs[g.dofs])
+        return out
 
 
 @dataclass
@@ -282,7 +411,6 @@ class QuasiStatic:
     breaks: int = 0  #: connection springs broken (each break redoes its increment)
     residuals: list = field(default_factory=list, repr=False)  #: per iteration of the last solve
     _system: _System | None = field(default=None, repr=False)
-    _tangent: bool = field(default=False, repr=False)  #: the factorization is H's at the last equilibrium
     _started: bool = field(default=False, repr=False)
     _parts: list | None = field(default=None, repr=False)  #: one solver per petal, or []
     _energy_rounding: float = field(default=0.0, repr=False)  #: of the last Newton iterate
@@ -291,6 +419,8 @@ class QuasiStatic:
     _springs: Springs | None = field(default=None, repr=False)  #: if connection springs
     _coupling: np.ndarray | None = field(default=None, repr=False)  #: their last forces
     _limited: bool = field(default=False, repr=False)  #: the last line search was cut by CCD
+    #: the equilibrium before the last one on the path: (A, X), for the secant predictor
+    _behind: tuple | None = field(default=None, repr=False)
 
     def diagnostics(self) -> dict:
         # (the same names at every frame, the first included: coupling is built later)
@@ -428,7 +558,7 @@ class QuasiStatic:
         while a_now != a_to:
             a_next = a_to if abs(a_to - a_now) <= abs(size) * (1 + 1e-9) else a_now + size
             start = state.positions.copy()
-            self._predict(model, state, effects, a_next)
+            self._predict(model, state, effects, a_now, a_next)
             failure = self._newton(model, state, effects, a_next)
             if failure is None:
                 over = self._springs.over_limit(state.positions) if self._springs else ()
@@ -438,32 +568,46 @@ class QuasiStatic:
                     c.broken_step[over] = step if step_of is None else step_of(a_next)
                     self.breaks += 1
                     state.positions[:] = start
-                    self._tangent = False
+                    self._behind = None  # (another path from here on)
                     continue
                 self.increments += 1
+                self._behind = (a_now, start)
                 a_now = a_next
                 continue
             state.positions[:] = start
-            self._tangent = False
             halvings += 1
             if halvings > 6:
                 raise self._not_converged(model, state.positions, step, a_next, failure)
             size *= 0.5
         return a_to
 
-    def _predict(self, model, state, effects, a_next: float) -> None:
-        """Tangent (Euler) predictor: from the equilibrium just found, whose positive
-        definite factorization is at hand, the step ``H^-1 f(x, A_next)`` (Newton's first
-        step with the old Hessian), with a line search on the new energy."""
-        if not self._tangent:
-            return
+    def _predict(self, model, state, effects, a_now: float, a_next: float) -> None:
+        """Predictor, from the equilibrium X at ``a_now`` to a start for ``a_next``, with a
+        line search on the new energy (CCD-limited with contact). Secant where the
+        equilibrium before it is known (``_behind``): the path extrapolated along the
+        chord of the last two equilibria, which is as accurate as the tangent (the
+        error is second order in the increment) and needs no factorization at X.
+        Otherwise tangent (Euler), if a positive definite factorization is at hand:
+        the step ``H^-1 f(x, A_next)``."""
         X = state.positions
         cos0, sin0 = self._rest_angles(model, effects, a_next)
         scratch = np.empty_like(X)
         energy, g = self._gradient(model, X, a_next, cos0, sin0, scratch)
-        step = self._system.solve(-g)
+        step = None
+        behind = self._behind
+        if behind is not None and behind[0] != a_now and behind[1].shape == X.shape:
+            secant = ((a_next - a_now) / (a_now - behind[0])) * (X - behind[1])
+            step = self._constrained(secant)
+            if float(g @ step) >= 0.0:  # not downhill on the new energy: no use
+                step = None
+        if step is None:
+            if not self._system.tangent:
+                return
+            step = self._system.solve(-g)
         self.iterations += 1
-        self._line_search(model, X, a_next, cos0, sin0, scratch, energy, g, step)
+        length = self._line_search(model, X, a_next, cos0, sin0, scratch, energy, g, step)
+        for gr in self._system.groups:
+            gr.moved = length * float(np.abs(step[gr.dofs]).max(initial=0.0))
 
     def _rest_angles(self, model: Model, effects: Effects, A: float):
         if effects.curl is None:
@@ -481,6 +625,17 @@ class QuasiStatic:
         if s.project is not None:
             s.couple([self._contact.hessian(X) if self._contact else None,
                       self._springs.hessian_at(X) if self._springs else None])
+
+    def _links(self, X) -> np.ndarray:
+        """(k, 2) vertex pairs the coupling terms join at X: the contacts within the
+        barrier's band and the intact connection springs."""
+        links = [np.zeros((0, 2), dtype=np.int64)]
+        if self._contact is not None:
+            links.append(self._contact.linked(X))
+        if self._springs is not None:
+            c = self._springs.connections
+            links.append(np.asarray(c.pairs, dtype=np.int64)[np.asarray(c.alive, dtype=bool)])
+        return np.concatenate(links)
 
     def _energy(self, model, X, A, cos0, sin0, scratch) -> float:
         """The energy at X; the forces into ``scratch``. With coupling terms, their
@@ -505,19 +660,28 @@ class QuasiStatic:
     def _newton(self, model, state, effects, A: float) -> _Failure | None:
         """Newton iterations at growth A; None when converged, else why not.
 
-        Converged: the residual force is at the rounding level of the forces
-        (:meth:`_rounding`), whatever the Hessian's inertia (a piece free to turn, or at
-        a bifurcation, has a singular Hessian at its equilibrium: that is no reason to go
-        on); or it is below ``tolerance`` times the softest stiffness that matters and
-        the Hessian is positive definite (then the tangent predictor can use it).
+        The pieces (petals) are grouped: those a contact or a connection spring joins
+        are one linear system, the others each their own (:meth:`_System.regroup`), and
+        each group is factored, and converges, apart. A group is converged when its
+        residual force is at the rounding level of the forces (:meth:`_rounding`),
+        whatever its Hessian's inertia (a piece free to turn, or at a bifurcation, has a
+        singular Hessian at its equilibrium: that is no reason to go on); or below
+        ``tolerance`` times the softest stiffness that matters with its Hessian
+        positive definite (then the tangent predictor can use it); or when a Newton
+        step moved it less than ``tolerance``. A converged group stays put while the
+        others iterate (unless a new contact joins it to one of them).
 
-        Where H is positive definite the step is Newton's. Where it is not (the path
-        is at a bifurcation or a snap, or the prediction is far off), the energy is
-        first searched along a direction of negative curvature read from the
-        factorization (so a saddle is left in one step rather than by slow
-        amplification of the perturbation); then the step solves ``(H + mu I) p = -g``
-        with ``mu`` grown tenfold until the factorization is positive definite (an
-        implicit Euler step of the gradient flow, time step ``1/sqrt(mu)``).
+        Where a group's H is positive definite the step is Newton's. Each group is
+        factored afresh at its first iteration of the solve, then its factorization is
+        reused for as long as each step cuts its residual at least ``1/CHORD`` times
+        (a chord step: the Hessian has barely changed; a factorization is most of an
+        iteration's cost). Where H is not positive definite (the path is at a
+        bifurcation or a snap, or the prediction is far off), the energy is first
+        searched along a direction of negative curvature read from the factorization
+        (so a saddle is left in one step rather than by slow amplification of the
+        perturbation); then the step solves ``(H + mu I) p = -g`` with ``mu`` grown
+        tenfold until the factorization is positive definite (an implicit Euler step of
+        the gradient flow, time step ``1/sqrt(mu)``).
         """
         X = state.positions
         cos0, sin0 = self._rest_angles(model, effects, A)
@@ -526,47 +690,93 @@ class QuasiStatic:
         floor = 1e-3 * float(model.hinge_stiffness.max(initial=0.0) or model.edge_stiffness.max())
         system = self._system
         self.residuals = []
-        inertia = "definite"
         scale = 0.0
+        done: set = set()  #: groups converged by their step
+        stale: set = set()  #: groups whose factorization a chord step failed with
+        fresh: set = set()  #: groups factored in this solve
+        chord: dict = {}  #: whether a group's step reuses its factorization
         for _ in range(self.max_iterations):
             energy, g = self._gradient(model, X, A, cos0, sin0, scratch)
             residual = float(np.abs(g).max())
             self.residuals.append(residual)
             scale, self._energy_rounding = self._rounding(model, X, A, cos0, sin0)
-            if residual <= ROUNDING_FACTOR * EPS * scale:
+            rounding = ROUNDING_FACTOR * EPS * scale
+            if residual <= rounding:
                 return None  # at rounding: no step can do better
             # a mode as soft as floor moves less than tolerance
-            if residual <= self.tolerance * floor and self._tangent:
+            if residual <= self.tolerance * floor and system.tangent:
+                return None
+            if system.project is not None and system.regroup(self._links(X)):
+                done &= {gr.key for gr in system.groups}
+                fresh &= {gr.key for gr in system.groups}
+            moving = []
+            for gr in system.groups:
+                r = float(np.abs(g[gr.dofs]).max()) if len(gr.dofs) else 0.0
+                if (gr.key in done or r <= rounding
+                        or (r <= self.tolerance * floor and gr.positive and gr.shift == 0.0
+                            and gr.solver is not None)):
+                    continue
+                moving.append(gr)
+                # a chord step (the factorization made at an earlier iteration of this
+                # solve, unshifted and positive) if it is a tenth of the group's last step
+                # or less: then the Hessian has barely changed where it matters
+                chord[gr.key] = (gr.key in fresh and gr.positive and gr.shift == 0.0
+                                 and gr.key not in stale
+                                 and float(np.abs(gr.solver.solve(-g[gr.dofs])).max())
+                                 <= CHORD * gr.moved)
+            if not moving:
                 return None
             self.iterations += 1
-            mu = 0.0
-            self._assemble(model, X, A, cos0, sin0)
-            positive, down = system.factor()
-            self._tangent = positive
-            inertia = "definite" if positive else ("singular" if system.solver is None
-                                                   else "indefinite")
-            if not positive:
-                if down is not None:
-                    self.descents += 1
-                    energy = self._descend(model, X, A, cos0, sin0, scratch, energy, g,
-                                           self._constrained(down))
-                    energy, g = self._gradient(model, X, A, cos0, sin0, scratch)
-                mu = floor
-                while not system.factor(mu)[0]:
-                    self.shifted += 1
-                    mu *= 10.0
-                    if mu > 1e6 * float(model.edge_stiffness.max()):
-                        # no shift makes it positive: not finite?
-                        return _Failure(residual, scale, "shift", inertia)
-            step = system.solve(-g)
+            assembled = False
+            lost = []  # groups whose Hessian is not positive definite
+            for gr in moving:
+                if chord[gr.key]:
+                    continue
+                if not assembled:
+                    self._assemble(model, X, A, cos0, sin0)
+                    assembled = True
+                positive, down = system.factor(gr)
+                fresh.add(gr.key)
+                stale.discard(gr.key)
+                if not positive:
+                    lost.append(gr)
+                    if down is not None:
+                        self.descents += 1
+                        energy = self._descend(model, X, A, cos0, sin0, scratch, energy, g,
+                                               self._constrained(down))
+            if lost:
+                energy, g = self._gradient(model, X, A, cos0, sin0, scratch)
+                for gr in lost:
+                    mu = floor
+                    while not system.factor(gr, mu)[0]:
+                        self.shifted += 1
+                        mu *= 10.0
+                        if mu > 1e6 * float(model.edge_stiffness.max()):
+                            # no shift makes it positive: not finite?
+                            return _Failure(residual, scale, "shift", self._inertia())
+            step = system.solve(-g, moving)
             length = self._line_search(model, X, A, cos0, sin0, scratch, energy, g, step)
             if length == 0.0:
-                return _Failure(residual, scale, "stalled", inertia)
+                reused = [gr.key for gr in moving if chord[gr.key]]
+                if reused:  # an old factorization is no excuse: factor afresh
+                    stale.update(reused)
+                    continue
+                return _Failure(residual, scale, "stalled", self._inertia(lost))
             # (a step cut by CCD is no sign of convergence: the whole step was not small)
-            if (mu == 0.0 and not self._limited
-                    and length * float(np.abs(step).max()) < self.tolerance):
+            for gr in moving:
+                gr.moved = length * float(np.abs(step[gr.dofs]).max())
+                if gr.shift == 0.0 and not self._limited and gr.moved < self.tolerance:
+                    done.add(gr.key)
+            if all(gr.key in done for gr in moving):  # (the others had converged)
                 return None  # (the factorization is that of the equilibrium, to rounding)
-        return _Failure(residual, scale, "iterations", inertia)
+        return _Failure(residual, scale, "iterations", self._inertia())
+
+    def _inertia(self, lost=None) -> str:
+        """The last factorizations' inertia, as a failure names it."""
+        groups = self._system.groups if lost is None else lost
+        if any(g.solver is None for g in groups):
+            return "singular"
+        return "definite" if all(g.positive for g in groups) else "indefinite"
 
     def _rounding(self, model, X, A, cos0, sin0) -> tuple[float, float]:
         """The force scale (the largest, over the vertices, of what the force kernel adds
