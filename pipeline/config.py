@@ -116,6 +116,11 @@ SCHEMA: dict[str, Any] = {
                         "printed)", low=0),
         "stages": Key(int, 20, "quasi-static: growth increments over the ramp (at least; "
                       "each is halved where Newton fails)", low=1),
+        "inertia": Key(bool, False, "quasi-static: add the inertia term (each growth "
+                       "increment, at least one per frame, is an implicit Euler step of the "
+                       "dynamics in incremental-potential form), so that a motion such as the "
+                       "snap after connection springs break plays out over frames and comes "
+                       "to rest; off: the path of equilibria, its limit"),
         "tolerance": Key(float, 1e-6, "quasi-static: converged when a Newton step moves no "
                          "vertex further than this (mesh units)", low=0.0, low_open=True),
         "damping": Key(float, 0.9999, "velocity factor d of the explicit-damping integrator "

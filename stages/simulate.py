@@ -50,7 +50,7 @@ def command(growth_h5: str, config_path, overrides, out, overwrite, progress, re
         control = Control(cfg["growth.schedule"], cfg["growth.ramp"] * steps * h)
         integrator = make_integrator(sim["integrator"], sim["eta"], sim["damping"],
                                      sim["speed_limit"], sim["stages"], sim["tolerance"],
-                                     sim["substeps"])
+                                     sim["substeps"], sim["inertia"])
         grown = model.edge_rest_length * (1.0 + np.maximum(model.edge_growth, 0.0))
         effects = fx.build(
             cfg.effects_enabled(), vertices=v, faces=src["mesh/faces"], petal=petal,

@@ -209,6 +209,9 @@ class _System:
     #: upper triangle of the coupling terms' constrained Hessian (contact, connection
     #: springs), added to the elastic one at factorization; None: none
     extra: sp.coo_matrix | None = None
+    #: (3V,) the inertia term's Hessian (m / dt^2 per unknown), added to the diagonal;
+    #: None: none (the quasi-static path)
+    inertia: np.ndarray | None = None
     groups: list = field(default_factory=list)  #: the current groups (:class:`_Group`)
     _known: dict = field(default_factory=dict)  #: every group met so far, by key
 
@@ -317,6 +320,8 @@ class _System:
         M = group.elastic
         M.data = self.blocks.data.ravel()[group.take]
         M.data[group.diagonal] += mu
+        if self.inertia is not None:
+            M.data[group.diagonal] += self.inertia[group.dofs]
         if self.extra is not None:
             x = self.extra
             r, c = group.local[x.row], group.local[x.col]
@@ -403,6 +408,9 @@ class QuasiStatic:
     max_iterations: int = 200  #: Newton iterations per increment before it is halved (a snap takes ~50)
     perturbation: float = 1e-6  #: symmetry-breaking nudge at the start (mesh units)
     seed: int = 0
+    #: with the inertia term: each increment is an implicit Euler step of the dynamics
+    #: (:meth:`_advance_dynamic`); without it, the path of equilibria (its limit)
+    inertia: bool = False
     iterations: int = 0  #: Newton iterations so far (all increments)
     increments: int = 0  #: growth increments solved so far
     shifted: int = 0  #: factorizations retried with a larger shift mu
@@ -421,6 +429,8 @@ class QuasiStatic:
     _limited: bool = field(default=False, repr=False)  #: the last line search was cut by CCD
     #: the equilibrium before the last one on the path: (A, X), for the secant predictor
     _behind: tuple | None = field(default=None, repr=False)
+    #: the inertia term of the increment being solved: (x_pred (V, 3), m / dt^2 (V,))
+    _dyn: tuple | None = field(default=None, repr=False)
 
     def diagnostics(self) -> dict:
         # (the same names at every frame, the first included: coupling is built later)
@@ -441,23 +451,26 @@ class QuasiStatic:
             self._parts = _split(model, effects)
             for part in self._parts:
                 part.solver = QuasiStatic(self.stages, self.tolerance, self.max_iterations,
-                                          perturbation=0.0)
+                                          perturbation=0.0, inertia=self.inertia)
         if not self._parts:
             self._advance(model, state, control, n_steps, h, effects)
         for part in self._parts:  # independent petals: each follows its own path
             part.state.positions[:] = state.positions[part.vertices]
+            part.state.velocities[:] = state.velocities[part.vertices]
             try:
                 part.solver._advance(part.model, part.state, control, n_steps, h, part.effects)
             except NotConverged as exc:
                 exc.vertex = int(part.vertices[exc.vertex])  # name it in the whole mesh
                 raise
             state.positions[part.vertices] = part.state.positions
+            state.velocities[part.vertices] = part.state.velocities
         if self._parts:
             state.step += n_steps
             self.iterations, self.increments, self.shifted, self.descents = (
                 sum(getattr(p.solver, k) for p in self._parts)
                 for k in ("iterations", "increments", "shifted", "descents"))
-        state.velocities[:] = 0.0
+        if not self.inertia:
+            state.velocities[:] = 0.0
         cos0, sin0 = self._rest_angles(model, effects, control.growth_at(state.step * h))
         state.potential_energy = self._energy(model, state.positions,
                                               control.growth_at(state.step * h), cos0, sin0,
@@ -491,6 +504,9 @@ class QuasiStatic:
         a0 = control.growth_at(state.step * h)
         a1 = control.growth_at((state.step + n_steps) * h)
         pieces = max(1, math.ceil(abs(a1 - a0) * self.stages - 1e-9))
+        if self.inertia:
+            self._advance_dynamic(model, state, control, n_steps, h, effects, pieces)
+            return
         targets = a0 + (a1 - a0) * np.arange(1, pieces + 1) / pieces
         first, last = state.step, state.step + n_steps
 
@@ -508,6 +524,54 @@ class QuasiStatic:
         done = a0
         for target in targets:
             done = self._reach(model, state, effects, done, float(target), last, step_of)
+        state.step += n_steps
+
+    def _advance_dynamic(self, model, state, control, n_steps: int, h: float, effects,
+                         pieces: int) -> None:
+        """:meth:`_advance` with the inertia term: ``pieces`` equal time steps ``dt`` (at
+        least one per call, more where the growth rises fast), each an implicit Euler
+        step in incremental-potential form, the minimum of ``U(x) + 1/(2 dt^2) |x -
+        x_pred|_M^2`` with ``x_pred = x + dt v``; then ``v = (x_new - x) / dt``. A step
+        where Newton fails is halved (up to 6 times); one that ends with connection
+        springs past their breaking length breaks them and is redone."""
+        t_end = (state.step + n_steps) * h
+        for k in range(1, pieces + 1):
+            t_from = state.step * h + (k - 1) * n_steps * h / pieces
+            t_to = t_end if k == pieces else state.step * h + k * n_steps * h / pieces
+            t_now, size, halvings = t_from, t_to - t_from, 0
+            while t_now != t_to:
+                t_next = t_to if t_to - t_now <= size * (1 + 1e-9) else t_now + size
+                dt = t_next - t_now
+                a_now, a_next = control.growth_at(t_now), control.growth_at(t_next)
+                start = state.positions.copy()
+                weight = model.vertex_mass / (dt * dt)
+                self._dyn = (start + dt * state.velocities, weight)
+                self._system.inertia = np.repeat(weight, 3)
+                try:
+                    self._predict(model, state, effects, a_now, a_next,
+                                  guess=self._dyn[0] - start)
+                    failure = self._newton(model, state, effects, a_next)
+                finally:
+                    self._dyn, self._system.inertia = None, None
+                if failure is None:
+                    over = self._springs.over_limit(state.positions) if self._springs else ()
+                    if len(over):
+                        c = self._springs.connections
+                        c.alive[over] = False
+                        c.broken_step[over] = int(round(t_next / h))
+                        self.breaks += 1
+                        state.positions[:] = start
+                        continue
+                    self.increments += 1
+                    state.velocities[:] = (state.positions - start) / dt
+                    t_now = t_next
+                    continue
+                state.positions[:] = start
+                halvings += 1
+                if halvings > 6:
+                    raise self._not_converged(model, state.positions, int(round(t_next / h)),
+                                              a_next, failure)
+                size *= 0.5
         state.step += n_steps
 
     def _not_converged(self, model, X, step: int, growth: float,
@@ -581,21 +645,27 @@ class QuasiStatic:
             size *= 0.5
         return a_to
 
-    def _predict(self, model, state, effects, a_now: float, a_next: float) -> None:
+    def _predict(self, model, state, effects, a_now: float, a_next: float,
+                 guess: np.ndarray | None = None) -> None:
         """Predictor, from the equilibrium X at ``a_now`` to a start for ``a_next``, with a
         line search on the new energy (CCD-limited with contact). Secant where the
         equilibrium before it is known (``_behind``): the path extrapolated along the
         chord of the last two equilibria, which is as accurate as the tangent (the
         error is second order in the increment) and needs no factorization at X.
         Otherwise tangent (Euler), if a positive definite factorization is at hand:
-        the step ``H^-1 f(x, A_next)``."""
+        the step ``H^-1 f(x, A_next)``. ``guess``: a step to try first (with inertia,
+        where the velocity carries the vertices: ``dt v``)."""
         X = state.positions
         cos0, sin0 = self._rest_angles(model, effects, a_next)
         scratch = np.empty_like(X)
         energy, g = self._gradient(model, X, a_next, cos0, sin0, scratch)
         step = None
         behind = self._behind
-        if behind is not None and behind[0] != a_now and behind[1].shape == X.shape:
+        if guess is not None:
+            step = self._constrained(guess)
+            if not np.any(step) or float(g @ step) >= 0.0:
+                step = None
+        elif behind is not None and behind[0] != a_now and behind[1].shape == X.shape:
             secant = ((a_next - a_now) / (a_now - behind[0])) * (X - behind[1])
             step = self._constrained(secant)
             if float(g @ step) >= 0.0:  # not downhill on the new energy: no use
@@ -644,6 +714,11 @@ class QuasiStatic:
                                          model.edge_growth, model.edge_stiffness,
                                          model.hinge_indices, cos0, sin0,
                                          model.hinge_stiffness, A, scratch)
+        if self._dyn is not None:
+            x_pred, weight = self._dyn
+            d = X - x_pred
+            energy += 0.5 * float(np.sum(weight[:, None] * d * d))
+            scratch -= weight[:, None] * d
         if self._contact is None and self._springs is None:
             return energy
         coupling = self._coupling
@@ -792,6 +867,11 @@ class QuasiStatic:
                                         model.edge_growth, model.edge_stiffness,
                                         model.hinge_indices, cos0, sin0, model.hinge_stiffness,
                                         A, per_vertex)
+        if self._dyn is not None:  # the inertia term's force w (x - x_pred)
+            x_pred, weight = self._dyn
+            size = np.abs(X).max(axis=1) + np.abs(x_pred).max(axis=1)
+            per_vertex += weight * size
+            energy += float(np.sum(weight * size * size))
         if self._coupling is not None:  # the contacts' and springs' forces at X (just taken)
             per_vertex += np.abs(self._coupling).max(axis=1)
             if self._springs is not None:
