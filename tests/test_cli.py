@@ -280,7 +280,8 @@ def test_report_refuses_a_png_out_and_an_old_sim(chain, tmp_path):
 
 
 def test_bench_refuses_bad_options_in_one_line():
-    for args in (["--sizes", "300,abc"], ["--steps", "0"], ["--vertices", "5"]):
+    for args in (["--sizes", "300,abc"], ["--steps", "0"], ["--vertices", "5"],
+                 ["--scenes", "tulip"]):
         r = CliRunner().invoke(cli, ["bench", *args])
         assert r.exit_code == 2 and "Traceback" not in r.output, r.output
 
@@ -431,3 +432,36 @@ def test_bench_quick_runs_every_part_end_to_end():
     assert data["converged_bloom"]["reference_refinement_change"] < 1e-3
     for row in runs.values():
         assert row["wall_seconds"] > 0 and np.isfinite(row["error"])
+
+
+def test_a_bud_grown_shut_has_no_intersecting_frame_with_contact(chain, tmp_path):
+    """Growth that curls the 3 petals inward (a negative growth curve) pushes them
+    through each other without contact; with it (the default integrator, Newton with
+    the barrier), no frame of sim.h5 has two intersecting triangles (ipctk's exact
+    test), and the petals end at least the gap apart."""
+    from pipeline.sim.contact import Contact, frame_intersections
+
+    growth = tmp_path / "growth.h5"
+    r = invoke("growth", chain["axis"], "--config", chain["scene"], "--out", growth,
+               "--set", "growth.curve=-0.15*x**2")
+    assert r.exit_code == 0, r.output
+    crossed = {}
+    for on in ("false", "true"):
+        out = tmp_path / f"sim_{on}.h5"
+        r = invoke("simulate", growth, "--config", chain["scene"], "--out", out,
+                   "--set", "simulate.steps=600", "--set", "simulate.frames=4",
+                   "--set", "simulate.stages=6", "--set", f"effects.collisions.enabled={on}")
+        assert r.exit_code == 0, r.output
+        with h5py.File(out) as f:
+            X, faces = f["frames/positions"][()], f["mesh/faces"][()]
+            assert f.attrs["integrator"] == "quasi-static"
+            crossed[on] = frame_intersections(X, faces)
+            if on == "true":
+                assert f["diagnostics/contacts"][-1] > 0  # the petals did press together
+                with h5py.File(growth) as g:
+                    petal = g["mesh/petal"][()]
+                gap = 0.01  # effects.collisions.thickness, the default
+                c = Contact.build(X[0], faces, petal, gap=gap, stiffness=1.0)
+                assert c.min_distance(X[-1], 1.0) >= gap
+    assert any(crossed["false"])
+    assert not any(crossed["true"])
