@@ -43,8 +43,17 @@ of the last two equilibria, or the tangent).
   converges with springs past their breaking length, those break (the step at which
   the growth reached that increment is recorded) and the increment is redone.
 
+- Inertia (``inertia``, the key ``simulate.inertia``): each increment, at least one per
+  frame and evenly spread in time, is an implicit Euler step in incremental-potential
+  form, the minimum of ``U(x) + |x - x_pred|_M^2 / (2 dt^2)``, ``x_pred = x + dt v``, by
+  the same Newton solver (:meth:`QuasiStatic._advance_dynamic`); then ``v = (x_new -
+  x) / dt``. A motion such as the snap after springs break plays out over frames and
+  comes to rest; the path of equilibria is its limit (``dt`` far past the slowest
+  period).
+
 ``advance`` has the signature of the dynamic integrators, so :func:`run.run` records
-one equilibrium per frame; velocities stay zero.
+one equilibrium (or, with inertia, one state of the motion) per frame; without inertia
+velocities stay zero.
 """
 
 from __future__ import annotations
