@@ -64,3 +64,54 @@ def collision_scaling(sizes=(2000, 8000, 32000), steps: int = 300) -> list[dict]
                      "bare_ns_per_edge": 1e6 * bare / edges, "collisions_ms": coll,
                      "collisions_ns_per_vertex": 1e6 * (coll - bare) / len(bud[0])})
     return rows
+
+
+#: the default scenes with contact (``configs/<name>.toml``), for :func:`contact_scenes`
+CONTACT_SCENES = ("lily", "magnolia", "bud6", "plum", "lily_wrinkles", "plum_locked")
+
+
+def contact_scenes(names=("lily",), workdir=None, overrides=()) -> list[dict]:
+    """Each default scene ``configs/<name>.toml`` through remesh, axis, growth and
+    simulate with its own config (Newton with contact), as ``make`` runs it: simulate's
+    wall seconds (``wall_seconds`` of sim.h5, the stepping alone), its Newton iterations,
+    and the frames where two triangles intersect (ipctk's exact test)."""
+    import tempfile
+    from pathlib import Path
+
+    import h5py
+    from click.testing import CliRunner
+
+    from stages.cli import cli
+
+    from .sim.contact import frame_intersections
+
+    root = Path(__file__).resolve().parent.parent
+    rows = []
+    with tempfile.TemporaryDirectory(dir=workdir) as tmp:
+        tmp = Path(tmp)
+        for name in names:
+            config = root / "configs" / f"{name}.toml"
+            sets = [a for o in overrides for a in ("--set", o)]
+            chain = (["remesh", "--config", config, "--out", tmp / "remesh.h5"],
+                     ["axis", tmp / "remesh.h5", "--config", config, "--out", tmp / "axis.h5"],
+                     ["growth", tmp / "axis.h5", "--config", config, "--out", tmp / "growth.h5"],
+                     ["simulate", tmp / "growth.h5", "--config", config, *sets,
+                      "--out", tmp / "sim.h5"])
+            for args in chain:
+                r = CliRunner().invoke(cli, ["-q", *[str(a) for a in args], "--overwrite"])
+                if r.exit_code != 0:
+                    raise RuntimeError(f"{name}: {args[0]} failed: {r.output.strip()}")
+            with h5py.File(tmp / "sim.h5") as f:
+                X = f["frames/positions"][()]
+                d = f["diagnostics"]
+                rows.append({
+                    "scene": name, "vertices": int(X.shape[1]),
+                    "integrator": str(f.attrs["integrator"]),
+                    "simulate_seconds": float(f.attrs["wall_seconds"]),
+                    "newton_iterations": int(d["newton_iterations"][-1])
+                    if "newton_iterations" in d else 0,
+                    "intersecting_frames": int(sum(frame_intersections(X, f["mesh/faces"][()]))),
+                    "frames": int(X.shape[0]),
+                    "opening_deg": float(d["opening_angle"][-1]),
+                    "final_kinetic_energy": float(d["kinetic_energy"][-1])})
+    return rows

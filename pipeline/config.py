@@ -139,15 +139,21 @@ SCHEMA: dict[str, Any] = {
         "h": Key(float, 1.0, "time step (paper: 1.0)", low=0.0, low_open=True),
         "eta": Key(float, 0.1, "damping factor of the semi-implicit scheme (Eq. 8): 1/2 is "
                    "Verlet, smaller damps", low=0.0, high=0.5),
-        "integrator": Key(str, "semi-implicit", "semi-implicit (Eq. 7-8), explicit-damping "
-                          "(Eq. 9, for comparison) or quasi-static (the path of equilibria "
-                          "along the growth, by Newton's method)", choices=INTEGRATORS),
+        "integrator": Key(str, "quasi-static", "quasi-static (the path of equilibria along "
+                          "the growth, by Newton's method; contact and connection springs "
+                          "included), semi-implicit (Eq. 7-8, the paper's scheme) or "
+                          "explicit-damping (Eq. 9, for comparison)", choices=INTEGRATORS),
         "substeps": Key(int, 0, "dynamic integrators: kernel steps per step of h; 0 chooses them "
                         "per frame from the model's stable time step (and halves the substep "
                         "after a divergence); N > 0 takes exactly N (1: the paper's scheme as "
                         "printed)", low=0),
         "stages": Key(int, 20, "quasi-static: growth increments over the ramp (at least; "
                       "each is halved where Newton fails)", low=1),
+        "inertia": Key(bool, False, "quasi-static: add the inertia term (each growth "
+                       "increment, at least one per frame, is an implicit Euler step of the "
+                       "dynamics in incremental-potential form), so that a motion such as the "
+                       "snap after connection springs break plays out over frames and comes "
+                       "to rest; off: the path of equilibria, its limit"),
         "tolerance": Key(float, 1e-6, "quasi-static: converged when a Newton step moves no "
                          "vertex further than this (mesh units)", low=0.0, low_open=True),
         "damping": Key(float, 0.9999, "velocity factor d of the explicit-damping integrator "
@@ -175,7 +181,12 @@ SCHEMA: dict[str, Any] = {
                                       low=0.0, high=1.0, low_open=True),
         },
         "collisions": {
-            "enabled": Key(bool, False, "vertex-triangle collisions between petals"),
+            "enabled": Key(bool, False, "petals kept from passing through each other: quasi-static, "
+                           "a contact barrier with continuous collision detection (no "
+                           "crossing); dynamic integrators, the paper's push-back"),
+            "thickness": Key(float, 0.01, "quasi-static: the gap the contact barrier keeps "
+                             "between petals (mesh units, mean edge 1); the barrier acts from "
+                             "twice this distance on", low=0.0, high=0.25, low_open=True),
             "offset": Key(float, 0.001, "a vertex that went through a petal is put back this far "
                           "on its side (mesh units; keep it below a step's motion, or the "
                           "push-back pumps energy in)", low=0.0, low_open=True),
@@ -424,12 +435,6 @@ def _check_together(cfg: Config, where: str) -> None:
     if cfg["remesh.target_edge"] > 0 and cfg["remesh.petal_vertices"] > 0:
         raise BloomError("remesh.target_edge, remesh.petal_vertices: set one of them, not both",
                          where=where)
-    if cfg["simulate.integrator"] == "quasi-static":
-        dynamic = [n for n in ("collisions", "connections") if cfg[f"effects.{n}.enabled"]]
-        if dynamic:
-            raise BloomError(f"simulate.integrator: quasi-static cannot run effects."
-                             f"{dynamic[0]} (a dynamic effect); use semi-implicit, or set "
-                             f"effects.{dynamic[0]}.enabled = false", where=where)
     if cfg["growth.start"] == "open" and cfg["effects.connections.enabled"]:
         raise BloomError("growth.start: an open model has no bud lock to break; set "
                          "effects.connections.enabled = false", where=where)

@@ -1,8 +1,9 @@
 """The per-scene report: what each effect did, measured on sim.h5's frames.
 
 Opening angle per petal, mean cross-section curvature, boundary wrinkles, petal
-crossings, connection breaks and the sign of each petal's Gaussian curvature, over
-time; written as JSON and drawn as a small plot.
+crossings, intersections (an exact triangle-triangle test, every frame), connection
+breaks and the sign of each petal's Gaussian curvature, over time; written as JSON and
+drawn as a small plot.
 """
 
 from __future__ import annotations
@@ -35,6 +36,9 @@ def compute(sim) -> dict:
         wrinkles.append(measure.wrinkle_count(frame, loops, topology.vertex_normals(frame, faces)))
         crossing.append(measure.crossings(frame, faces, petal) if petals > 1 else 0)
     curvature = np.asarray(curvature)
+    from .sim.contact import frame_intersections
+
+    intersecting = frame_intersections(X, faces)  # ipctk's exact test, self-contact included
     diag = {k: sim[f"diagnostics/{k}"] for k in ("opening_angle_per_petal", "kinetic_energy")}
     report = {
         "scene": sim.config().get("scene", {}).get("name", "") or sim.path.parent.name,
@@ -47,6 +51,8 @@ def compute(sim) -> dict:
         "boundary_wrinkles": wrinkles,
         "rim_bending": rim_fold,
         "crossings": crossing,
+        "intersecting": intersecting,
+        "intersecting_frames": int(sum(intersecting)),
         "gaussian_curvature_sign": {
             "start": measure.gaussian_curvature_sign(X[0], faces, petal, ~boundary).tolist(),
             "end": measure.gaussian_curvature_sign(X[-1], faces, petal, ~boundary).tolist()},

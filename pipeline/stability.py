@@ -238,7 +238,9 @@ MESHES = {
     "centimetres": centimetres,
 }
 
-STEPS = {"simulate.steps": 30_000, "simulate.frames": 31}
+#: the hard cases of the paper's scheme (time steps, push-back, energy in the hold) run it
+#: by name; the "bloom" cases take the default config (the quasi-static solver)
+STEPS = {"simulate.steps": 30_000, "simulate.frames": 31, "simulate.integrator": "semi-implicit"}
 
 CASES = [
     Case("buckling x^6", "severe buckling: growth 0.2 x^6", "petal",
@@ -278,8 +280,11 @@ CASES = [
          "jittered", expect="bloom"),
     Case("asymmetric bud", "6 petals, Delaunay of random points (no mirror pairs)",
          "asymmetric bud6", expect="bloom"),
+    # (its petals start through each other, 13 pairs: the quasi-static solver's contact
+    # refuses such a bud, so this case runs the paper's push-back)
     Case("dense 12 petals", "12 quad-grid petals, 2388 vertices; collisions on", "quad bud12",
-         {"effects.collisions.enabled": True}, expect="bloom"),
+         {"effects.collisions.enabled": True, "simulate.integrator": "semi-implicit"},
+         expect="bloom"),
     Case("5000+ vertices", "5 petals of random Delaunay triangles, 5518 vertices", "bud5 5000",
          expect="bloom"),
     Case("3-vertex base", "a lone petal whose base is one short edge (3 boundary vertices)",

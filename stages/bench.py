@@ -26,24 +26,36 @@ def _sizes(ctx, param, value: str) -> tuple[int, ...]:
               help="Vertex counts for the collision scaling (comma-separated, each >= 120).")
 @click.option("--converge/--no-converge", default=True, show_default=True,
               help="Also time a converged bloom of the Fig. 12-size bud with each integrator.")
+@click.option("--scenes", default="lily", show_default=True,
+              help="Default scenes with contact (configs/<name>.toml, comma-separated; "
+                   "'none' for none) run through remesh, axis, growth and simulate as make "
+                   "runs them: simulate's seconds, Newton iterations, frames with an "
+                   "intersection (ipctk's exact test).")
 @click.option("--json", "as_json", is_flag=True, help="Print JSON instead of tables.")
 @click.option("--quick", is_flag=True,
               help="Every part end to end on small buds (about a minute; for tests): at most "
                    "600 vertices and 300 steps, sizes 600,1200, a 6-petal bud of 600 vertices "
                    "for the converged bloom.")
-def command(vertices: int, steps: int, sizes: tuple[int, ...], converge: bool,
+def command(vertices: int, steps: int, sizes: tuple[int, ...], converge: bool, scenes: str,
             as_json: bool, quick: bool) -> None:
     """Time the simulator on a procedural 6-petal bud: no effect, each effect alone and
     all together (ratios to no effect, best of 3 interleaved runs); then the step cost
     and collisions at several sizes (cost per edge and per vertex should stay flat:
     linear in the vertex count); then, with --converge, the wall time each integrator
     needs for a bloom within 1% of the petal length of a converged reference, on a
-    6-petal bud of 2133 vertices (the paper's Fig. 12 lily: 44 s)."""
+    6-petal bud of 2133 vertices (the paper's Fig. 12 lily: 44 s); then the default
+    scenes with contact named by --scenes (--quick: none)."""
     from pipeline import bench, study
     from pipeline.errors import BloomError
 
+    names = () if scenes.strip() in ("", "none") else tuple(
+        n.strip() for n in scenes.split(","))
+    unknown = [n for n in names if n not in bench.CONTACT_SCENES]
+    if unknown:
+        raise click.BadParameter(f"no such scene {unknown[0]!r} (one of "
+                                 f"{', '.join(bench.CONTACT_SCENES)})", param_hint="--scenes")
     if quick:
-        vertices, steps, sizes = min(vertices, 600), min(steps, 300), (600, 1200)
+        vertices, steps, sizes, names = min(vertices, 600), min(steps, 300), (600, 1200), ()
     try:
         costs = bench.effect_costs(vertices, steps)
         scaling = bench.collision_scaling(sizes)
@@ -56,13 +68,15 @@ def command(vertices: int, steps: int, sizes: tuple[int, ...], converge: bool,
                          "runs": study.time_to_converge(
                              scene, ref.positions, echo=None if as_json else click.echo,
                              quick=quick)}
+        contact = bench.contact_scenes(names) if names else []
     except RuntimeError as exc:  # a run that diverged or did not converge
         raise BloomError(f"a benchmark run failed: {exc}", where="bloom bench") from None
     if as_json:
         steps = [{"vertices": r["vertices"], "edges": r["edges"], "ms_per_step": r["bare_ms"],
                   "ns_per_edge": r["bare_ns_per_edge"]} for r in scaling]
         click.echo(json.dumps({"step_cost": steps, "effects": costs,
-                               "collision_scaling": scaling, "converged_bloom": converged},
+                               "collision_scaling": scaling, "converged_bloom": converged,
+                              "contact_scenes": contact},
                               indent=1))
         return
     click.echo(f"effects on a 6-petal bud of about {vertices} vertices, {steps} steps")
@@ -84,3 +98,12 @@ def command(vertices: int, steps: int, sizes: tuple[int, ...], converge: bool,
             mark = "" if row["converged"] else "  (not within 1% even so)"
             click.echo(f"{row['integrator']:26s} {row['wall_seconds']:8.2f} s  "
                        f"{row['params']}{mark}")
+    if contact:
+        click.echo("\nscenes with contact (configs/<scene>.toml, as make runs them)")
+        click.echo(f"{'scene':14s} {'vertices':>8s} {'integrator':>13s} {'simulate s':>10s} "
+                   f"{'Newton its':>10s} {'intersecting':>12s} {'opening':>8s}")
+        for row in contact:
+            click.echo(f"{row['scene']:14s} {row['vertices']:8d} {row['integrator']:>13s} "
+                       f"{row['simulate_seconds']:10.2f} {row['newton_iterations']:10d} "
+                       f"{row['intersecting_frames']:5d} of {row['frames']:<4d} "
+                       f"{row['opening_deg']:7.1f}")

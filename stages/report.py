@@ -46,8 +46,9 @@ def command(sim_h5: str, out: str, overwrite: bool) -> None:
     with artifact.atomic_path(out_path) as tmp_json, artifact.atomic_path(png) as tmp_png:
         tmp_json.write_text(json.dumps(data, indent=1) + "\n")
         report.plot(data, tmp_png)
-    log.info("opening %.1f deg; wrinkles %d; crossings %d at the end",
-             data["opening_angle_final_mean"], data["boundary_wrinkles"][-1], data["crossings"][-1])
+    log.info("opening %.1f deg; wrinkles %d; crossings %d at the end; %d of %d frames with "
+             "an intersection", data["opening_angle_final_mean"], data["boundary_wrinkles"][-1],
+             data["crossings"][-1], data["intersecting_frames"], len(data["intersecting"]))
     log.info("wrote %s and %s", out_path, png)
 
 

@@ -63,7 +63,7 @@ def command(growth_h5: str, config_path, overrides, out, overwrite, progress, re
             control = Control(cfg["growth.schedule"], cfg["growth.ramp"] * steps * h)
         integrator = make_integrator(sim["integrator"], sim["eta"], sim["damping"],
                                      sim["speed_limit"], sim["stages"], sim["tolerance"],
-                                     sim["substeps"])
+                                     sim["substeps"], sim["inertia"])
         effects = build_effects(v)
         state = State.at_rest(model, v, control)
         effects.constrain(state.forces)
@@ -121,7 +121,8 @@ def command(growth_h5: str, config_path, overrides, out, overwrite, progress, re
             except ValueError as exc:  # what the integrator cannot do with this scene
                 raise BloomError(f"simulate.integrator: {exc}", where=where) from None
             except RuntimeError as exc:
-                key = "effects.collisions" if "collision" in str(exc) else "simulate"
+                key = getattr(exc, "key", None) or (  # (contact.ContactError names its key)
+                    "effects.collisions" if "collision" in str(exc) else "simulate")
                 raise BloomError(f"{key}: {exc}", where=where) from None
         diag = rec.arrays()
         positions = np.asarray(rec.positions)

@@ -97,13 +97,16 @@ def test_sim_artifact(chain):
         assert f.attrs["wall_seconds"] > 0 and f.attrs["effects"] == ""
         ke, speed = f["diagnostics/kinetic_energy"][()], f["diagnostics/max_speed"][()]
         faces = f["mesh/faces"][()]
+        integrator = f.attrs["integrator"]
     with h5py.File(chain["growth"]) as g:
         v0 = g["mesh/vertices"][()]
         assert np.array_equal(faces, g["mesh/faces"][()])
     assert pos.shape == (4, len(v0), 3)
     np.testing.assert_array_equal(t, [0, 200, 400, 600])
     assert np.array_equal(pos[0], v0)
-    assert ke.shape == (4,) and ke[0] == 0.0 and ke[-1] > 0
+    # the default integrator, quasi-static: a path of equilibria, at rest, that moved
+    assert ke.shape == (4,) and np.all(ke == 0.0) and integrator == "quasi-static"
+    assert np.abs(pos[-1] - pos[0]).max() > 0.5
     assert speed.shape == (4,) and np.all(np.isfinite(pos))
 
 
@@ -249,6 +252,7 @@ def test_config_command_lists_keys_and_values(chain):
 def test_divergence_is_caught_early_named_and_leaves_no_file(chain, tmp_path):
     out = tmp_path / "sim.h5"
     r = CliRunner().invoke(cli, ["simulate", str(chain["growth"]), "--out", str(out),
+                                 "--set", "simulate.integrator=semi-implicit",
                                  "--set", "simulate.h=4", "--set", "simulate.substeps=1",
                                  "--set", "simulate.steps=2000",
                                  "--set", "simulate.frames=3"])
@@ -276,7 +280,8 @@ def test_report_refuses_a_png_out_and_an_old_sim(chain, tmp_path):
 
 
 def test_bench_refuses_bad_options_in_one_line():
-    for args in (["--sizes", "300,abc"], ["--steps", "0"], ["--vertices", "5"]):
+    for args in (["--sizes", "300,abc"], ["--steps", "0"], ["--vertices", "5"],
+                 ["--scenes", "tulip"]):
         r = CliRunner().invoke(cli, ["bench", *args])
         assert r.exit_code == 2 and "Traceback" not in r.output, r.output
 
@@ -327,17 +332,20 @@ def test_study_accuracy_writes_csv_and_plot(tmp_path):
     assert max(e for _, e in by["quasi-static"]) < 1e-3
 
 
-@pytest.mark.parametrize("setting, words", [
-    ("effects.collisions.enabled=true", ("simulate.integrator", "collisions")),  # dynamic
-    ("simulate.bending_stiffness=0", ("simulate.integrator", "bending stiffness")),
-], ids=["dynamic effect", "no bending stiffness"])
-def test_quasi_static_refuses_in_one_line(chain, tmp_path, setting, words):
-    """A dynamic effect, or no bending stiffness (no stiffness out of the plane, so no
-    equilibrium): one line naming the key, no traceback, no output, no checkpoint."""
+@pytest.mark.parametrize("settings, words", [
+    # the bud's petals are 0.18 apart at their closest: contact cannot keep 0.25
+    (("effects.collisions.enabled=true", "effects.collisions.thickness=0.25"),
+     ("effects.collisions.thickness", "petals 0-1", "closer than the gap")),
+    (("simulate.bending_stiffness=0",), ("simulate.integrator", "bending stiffness")),
+], ids=["bud closer than the gap", "no bending stiffness"])
+def test_quasi_static_refuses_in_one_line(chain, tmp_path, settings, words):
+    """Petals that start closer than the contact gap (the pairs named), or no bending
+    stiffness (no stiffness out of the plane, so no equilibrium): one line naming the
+    key, no traceback, no output, no checkpoint."""
     out = tmp_path / "sim.h5"
+    sets = [arg for setting in settings for arg in ("--set", setting)]
     r = CliRunner().invoke(cli, ["-q", "simulate", str(chain["growth"]), "--out", str(out),
-                                 "--set", "simulate.integrator=quasi-static",
-                                 "--set", setting])
+                                 "--set", "simulate.integrator=quasi-static", *sets])
     assert r.exit_code != 0 and list(tmp_path.iterdir()) == []
     lines = r.output.strip().splitlines()
     assert len(lines) == 1 and all(w in lines[0] for w in words), lines
@@ -425,3 +433,36 @@ def test_bench_quick_runs_every_part_end_to_end():
     assert data["converged_bloom"]["reference_refinement_change"] < 1e-3
     for row in runs.values():
         assert row["wall_seconds"] > 0 and np.isfinite(row["error"])
+
+
+def test_a_bud_grown_shut_has_no_intersecting_frame_with_contact(chain, tmp_path):
+    """Growth that curls the 3 petals inward (a negative growth curve) pushes them
+    through each other without contact; with it (the default integrator, Newton with
+    the barrier), no frame of sim.h5 has two intersecting triangles (ipctk's exact
+    test), and the petals end at least the gap apart."""
+    from pipeline.sim.contact import Contact, frame_intersections
+
+    growth = tmp_path / "growth.h5"
+    r = invoke("growth", chain["axis"], "--config", chain["scene"], "--out", growth,
+               "--set", "growth.curve=-0.15*x**2")
+    assert r.exit_code == 0, r.output
+    crossed = {}
+    for on in ("false", "true"):
+        out = tmp_path / f"sim_{on}.h5"
+        r = invoke("simulate", growth, "--config", chain["scene"], "--out", out,
+                   "--set", "simulate.steps=600", "--set", "simulate.frames=4",
+                   "--set", "simulate.stages=6", "--set", f"effects.collisions.enabled={on}")
+        assert r.exit_code == 0, r.output
+        with h5py.File(out) as f:
+            X, faces = f["frames/positions"][()], f["mesh/faces"][()]
+            assert f.attrs["integrator"] == "quasi-static"
+            crossed[on] = frame_intersections(X, faces)
+            if on == "true":
+                assert f["diagnostics/contacts"][-1] > 0  # the petals did press together
+                with h5py.File(growth) as g:
+                    petal = g["mesh/petal"][()]
+                gap = 0.01  # effects.collisions.thickness, the default
+                c = Contact.build(X[0], faces, petal, gap=gap, stiffness=1.0)
+                assert c.min_distance(X[-1], 1.0) >= gap
+    assert any(crossed["false"])
+    assert not any(crossed["true"])

@@ -180,25 +180,42 @@ def test_plum_locked_stays_shut_until_its_springs_break_then_opens_faster(tmp_pa
     run("axis", tmp_path / "remesh.h5", "--out", tmp_path / "axis.h5")
     run("growth", tmp_path / "axis.h5", "--config", ROOT / "configs/plum.toml", "--out",
         tmp_path / "growth.h5")
-    opening = {}
+    opening, energy = {}, {}
     for scene in ("plum", "plum_locked"):
         run("simulate", tmp_path / "growth.h5", "--config", ROOT / f"configs/{scene}.toml",
             "--out", tmp_path / f"{scene}.h5")
         with h5py.File(tmp_path / f"{scene}.h5") as f:
             opening[scene] = f["diagnostics/opening_angle"][()]
+            energy[scene] = f["diagnostics/kinetic_energy"][()]
             if scene == "plum_locked":
                 broken = f["effects/connections/broken_step"][()]
+                pairs = f["effects/connections/pairs"][()]
+                X = f["frames/positions"][()]
                 h = f.attrs["h"]
                 times = f["frames/time"][()]
-    assert np.all(broken >= 0)  # every spring broke
-    first = np.searchsorted(times, broken.min() * h)
-    # while locked, the bud stays nearly shut (measured 2.3 deg when the first spring
-    # breaks, at t = 44 840); the free bud is open 22.9 deg by then
+    # the lock gives way: most springs break, and each one left is within its breaking
+    # length (1.2 times its length in the bud, configs/plum_locked.toml): a spring past
+    # it would have broken (with Newton and inertia, measured: 35 of 42 break; the 7
+    # left join rims that stay close)
+    intact = broken < 0
+    assert np.mean(~intact) > 0.75
+    length = np.linalg.norm(X[:, pairs[:, 1]] - X[:, pairs[:, 0]], axis=2)
+    assert np.all(length[-1, intact] <= 1.2 * length[0, intact])
+    first = np.searchsorted(times, broken[~intact].min() * h)
+    # while locked, the bud stays nearly shut (measured 2.4 deg when the first spring
+    # breaks, at t = 45 000); the free bud is open 23.5 deg by then
     assert opening["plum_locked"][first] < 5.0 and opening["plum"][first] > 15.0
-    # once the lock breaks it opens faster than the free bud ever does: the largest
-    # rise over 8 frames (13 333 steps) is 49.6 deg against 18.6
-    rate = {k: np.max(o[8:] - o[:-8]) for k, o in opening.items()}
+    # once the lock breaks it opens faster than the free bud ever does: its peak opening
+    # speed, the largest rise in one frame (1 667 steps), measured 5.4 deg against 2.2.
+    # (With inertia the snap takes about 8 frames, so a rise over 8 frames, as measured
+    # when the semi-implicit scheme snapped within one or two, averages the whole snap:
+    # 34.6 deg against 17.7)
+    rate = {k: np.max(np.diff(o)) for k, o in opening.items()}
     assert rate["plum_locked"] > 2.0 * rate["plum"], rate
+    # the snap is a motion (plum_locked has the inertia term): kinetic energy while it
+    # opens, then rest (measured: peak 1.2e-3, last frame 5e-8)
+    assert energy["plum"].max() == 0.0  # (the quasi-static path: equilibria)
+    assert energy["plum_locked"][-1] < 1e-3 * energy["plum_locked"].max()
 
 
 def test_collisions_with_the_center_plane_keep_axis_vertices_on_their_plane(bud):

@@ -103,7 +103,7 @@ def test_killed_make_then_make_gives_the_uninterrupted_arrays(tree):
     import time
 
     long = TINY.replace("steps = 300\nframes = 3", "steps = 60000\nframes = 31\n"
-                        "checkpoint_seconds = 0.2")
+                        "checkpoint_seconds = 0.2\nintegrator = \"semi-implicit\"")  # (checkpoints)
     for scene in ("one", "two"):
         (tree / "configs" / f"{scene}.toml").write_text(long.format(mesh="petal.obj"))
     proc = subprocess.Popen(["make", "SCENES=one"], cwd=tree, stdout=subprocess.DEVNULL,
@@ -167,7 +167,7 @@ def test_bloom_batch_survives_a_lost_worker(tree):
     import psutil
 
     long = TINY.replace("steps = 300\nframes = 3", "steps = 400000\nframes = 21\n"
-                        "checkpoint_seconds = 0.3")
+                        "checkpoint_seconds = 0.3\nintegrator = \"semi-implicit\"")  # (checkpoints)
     for scene in ("one", "two"):
         (tree / "configs" / f"{scene}.toml").write_text(long.format(mesh="petal.obj"))
     assert make(tree, "SCENES=two").returncode == 0  # the uninterrupted reference
@@ -200,7 +200,8 @@ def test_bloom_batch_reports_failures_and_sees_changed_inputs(tree):
     import h5py
 
     bloom = str(tree / ".venv" / "bin" / "bloom")
-    bad = TINY.format(mesh="petal.obj").replace("steps = 300", "steps = 300\nh = 3.0\nsubsteps = 1")
+    bad = TINY.format(mesh="petal.obj").replace("steps = 300", "steps = 300\nh = 3.0\nsubsteps = 1\n"
+                                                    "integrator = \"semi-implicit\"")
     (tree / "configs" / "bad.toml").write_text(bad)
     r = subprocess.run([bloom, "batch", "configs/one.toml", "configs/bad.toml", "--out-root", "b"],
                        cwd=tree, capture_output=True, text=True)
@@ -221,7 +222,8 @@ def test_bloom_batch_reports_failures_and_sees_changed_inputs(tree):
 
 
 def test_a_failing_stage_under_make_says_so_on_stderr(tree):
-    bad = TINY.format(mesh="petal.obj").replace("steps = 300", "steps = 300\nh = 3.0\nsubsteps = 1")
+    bad = TINY.format(mesh="petal.obj").replace("steps = 300", "steps = 300\nh = 3.0\nsubsteps = 1\n"
+                                                    "integrator = \"semi-implicit\"")
     (tree / "configs" / "bad.toml").write_text(bad)
     r = make(tree, "SCENES=bad")
     assert r.returncode != 0

@@ -327,3 +327,38 @@ def test_simulate_names_the_cause_in_one_line(tmp_path, monkeypatch):
     assert "growth curve" not in lines["rest"]
     assert "axis.base_fraction" in lines["weak"] and "base is a line" in lines["weak"]
     assert "spin about it" in lines["weak"] and "petal 0" in lines["weak"]
+
+
+def test_inertia_plays_a_jump_in_growth_out_over_frames_and_comes_to_rest(petal):
+    """The inertia term (implicit Euler, incremental-potential form): growth jumps to
+    A = 1 in one time unit; the petal takes many frames to get to the equilibrium there
+    (it moves, with kinetic energy), then comes to rest on it. With a time step far
+    longer than the petal's slowest period the first frame is already the equilibrium:
+    the quasi-static path is the limit."""
+    m = petal.model
+    control = Control("linear", 1.0)
+    eq = State.at_rest(m, petal.vertices, control)
+    QuasiStatic(stages=10, tolerance=1e-9).advance(m, eq, control, 1, 1.0)
+    length = petal.length
+
+    def error(X):
+        return study.shape_error(petal, X, eq.positions)[0]
+
+    start = error(petal.vertices)
+    assert start > 0.05  # the jump moves the petal a lot
+    state = State.at_rest(m, petal.vertices, control)
+    qs = QuasiStatic(stages=10, tolerance=1e-9, inertia=True)
+    errors, energies = [], []
+    for _ in range(60):
+        qs.advance(m, state, control, 2000, 1.0)
+        errors.append(error(state.positions))
+        energies.append(state.kinetic_energy(m))
+    assert errors[0] > 0.2 * start  # one frame is not enough: inertia holds it back
+    assert max(energies) > 1e-9 * m.vertex_count * length ** 2  # it moved
+    assert energies[-1] < 1e-6 * max(energies)  # and came to rest ...
+    assert errors[-1] < 1e-4  # ... on the equilibrium
+    assert np.array_equal(state.velocities[m.pinned], np.zeros_like(state.velocities[m.pinned]))
+
+    limit = State.at_rest(m, petal.vertices, control)
+    QuasiStatic(stages=10, tolerance=1e-9, inertia=True).advance(m, limit, control, 10**12, 1.0)
+    assert error(limit.positions) < 1e-5

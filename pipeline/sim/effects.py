@@ -117,10 +117,13 @@ class Collisions:
     best_face: np.ndarray  #: (P,) work arrays of the nearest face per petal
     best_dist: np.ndarray
     near: np.ndarray  #: (V, P) int8: vertex was over or under that petal at the last step
+    #: gap the quasi-static solver's contact barrier keeps between petals (mesh units);
+    #: the push-back above does not use it
+    thickness: float = 0.01
 
     @classmethod
     def build(cls, vertices, faces, petal, *, offset: float, max_edge: float,
-              margin: float = 0.2, slack: float = 0.1) -> Collisions:
+              margin: float = 0.2, slack: float = 0.1, thickness: float = 0.01) -> Collisions:
         """Which side of another petal a vertex belongs on is the side it is on when it
         comes near that petal (within the margin, over or under one of its faces): the
         kernel records it then. For vertices near another petal in the bud that is the
@@ -139,7 +142,7 @@ class Collisions:
                    np.zeros(27 * len(f), dtype=np.int64), v.copy(),
                    np.zeros(len(v) + 1, dtype=np.int64), np.zeros(64 * len(v), dtype=np.int64),
                    np.zeros(count, dtype=np.int64), np.zeros(count),
-                   np.zeros((len(v), count), dtype=np.int8))
+                   np.zeros((len(v), count), dtype=np.int8), float(thickness))
 
     def near_pairs(self, X, reach: float) -> int:
         """List the near pairs at ``X`` (as the kernel does when it rebuilds)."""
@@ -286,8 +289,9 @@ def build(names, *, vertices, faces, petal, pinned, on_axis, plane, s, rest_angl
     if "curl" in names:
         fx.curl = Curl.build(rest_angle, params["curl"]["beta"])
     if "collisions" in names:
-        fx.collisions = Collisions.build(vertices, faces, petal,
-                                         offset=params["collisions"]["offset"], max_edge=max_edge)
+        c = params["collisions"]
+        fx.collisions = Collisions.build(vertices, faces, petal, offset=c["offset"],
+                                         max_edge=max_edge, thickness=c.get("thickness", 0.01))
     if "connections" in names:
         c = params["connections"]
         fx.connections = Connections.build(

@@ -213,12 +213,14 @@ class _Snapshot:
 
 
 def make_integrator(name: str, eta: float, damping: float, speed_limit: float = 1.0,
-                    stages: int = 20, tolerance: float = 1e-6, substeps: int = 0):
-    """The integrator a scene asks for by ``simulate.integrator``."""
+                    stages: int = 20, tolerance: float = 1e-6, substeps: int = 0,
+                    inertia: bool = False):
+    """The integrator a scene asks for by ``simulate.integrator`` (``inertia``: the
+    quasi-static solver's inertia term, ``simulate.inertia``)."""
     if name == "quasi-static":
         from .quasistatic import QuasiStatic
 
-        return QuasiStatic(stages=stages, tolerance=tolerance)
+        return QuasiStatic(stages=stages, tolerance=tolerance, inertia=inertia)
     if name == "semi-implicit":
         return SemiImplicit(eta=eta, speed_limit=speed_limit, substeps=substeps)
     if name == "explicit-damping":

@@ -3,10 +3,13 @@
 A petal's bending modes are slow (a period of ~5e4 steps at h = 1), so an explicit
 scheme needs ~1e5 steps or more to settle where growth puts it. This integrator does
 not follow the dynamics: for each growth increment it finds the equilibrium
-(grad U = 0) by Newton's method, starting from a tangent prediction along the path.
+(grad U = 0) by Newton's method, starting from a prediction along the path (the secant
+of the last two equilibria, or the tangent).
 
-- Hessian: the analytic one of :mod:`hessian`. Each Newton step factors it as is (a
-  sparse LDL^T by qdldl, whose pivot signs give its inertia). Where it is positive
+- Hessian: the analytic one of :mod:`hessian`. A Newton step factors it as is (a
+  sparse LDL^T by qdldl, whose pivot signs give its inertia); a later step of the same
+  solve may reuse that factorization (a chord step) if the step it gives is a tenth of
+  the last one or less (the factorization is most of an iteration's cost). Where it is positive
   definite the step is Newton's, and near a stable equilibrium convergence is
   quadratic. Where it is not (the path passes a bifurcation or a snap, or the
   prediction is far off), the energy is first searched along a direction of negative
@@ -15,8 +18,12 @@ not follow the dynamics: for each growth increment it finds the equilibrium
   (Projecting each element's Hessian to positive definite, the other classic remedy,
   was tried first: it converged linearly, 50-100 iterations per increment, and stalled
   at snaps.)
-- Each connected piece (petal) is its own problem: without collisions or connection
-  springs petals do not interact.
+- Each connected piece (petal) is its own problem when petals do not interact. With
+  collisions or connection springs they share one energy and one line search, but the
+  linear algebra is split by group: petals that a contact within the barrier's band or
+  an intact spring joins are one system, the others each their own (most petals,
+  most of the time, are alone); each group is factored, and converges, apart, and a
+  converged group stays put while the others iterate.
 - Line search: backtracking on the energy (Armijo); a step within rounding of the
   energy is accepted.
 - Increments: ``ceil(dA * stages)`` per call, so ``stages`` bounds the growth per
@@ -27,11 +34,26 @@ not follow the dynamics: for each growth increment it finds the equilibrium
   stable.
 - Effects: curl (rest angles follow B = A), wrinkles (growth map), the fixed base and
   the center-plane constraint (a constrained vertex's Newton step has no component
-  along its plane normal). Collisions and connection springs are dynamic effects and
-  are refused: use a dynamic integrator for those scenes.
+  along its plane normal).
+- Collisions: an IPC barrier between petals joins the energy (:class:`contact.Contact`);
+  every step, the line search's and the negative-curvature search's, is first cut to
+  what continuous collision detection allows, so no iterate crosses (or comes closer
+  than ``effects.collisions.thickness``). A bud that starts intersecting is refused.
+- Connection springs join the energy (:class:`contact.Springs`); when an increment
+  converges with springs past their breaking length, those break (the step at which
+  the growth reached that increment is recorded) and the increment is redone.
+
+- Inertia (``inertia``, the key ``simulate.inertia``): each increment, at least one per
+  frame and evenly spread in time, is an implicit Euler step in incremental-potential
+  form, the minimum of ``U(x) + |x - x_pred|_M^2 / (2 dt^2)``, ``x_pred = x + dt v``, by
+  the same Newton solver (:meth:`QuasiStatic._advance_dynamic`); then ``v = (x_new -
+  x) / dt``. A motion such as the snap after springs break plays out over frames and
+  comes to rest; the path of equilibria is its limit (``dt`` far past the slowest
+  period).
 
 ``advance`` has the signature of the dynamic integrators, so :func:`run.run` records
-one equilibrium per frame; velocities stay zero.
+one equilibrium (or, with inertia, one state of the motion) per frame; without inertia
+velocities stay zero.
 """
 
 from __future__ import annotations
@@ -45,11 +67,11 @@ import scipy.sparse as sp
 from scipy.sparse.linalg import spsolve_triangular
 
 from . import hessian, kernels
+from .contact import Contact, Springs
 from .effects import CenterPlane, Curl, Effects
 from .model import Control, Model, State
 
 NO_EFFECTS = Effects()
-DYNAMIC_ONLY = ("collisions", "connections")
 
 
 @dataclass
@@ -64,11 +86,11 @@ class _Part:
 
 
 def _split(model: Model, effects: Effects) -> list[_Part]:
-    """The mesh's connected pieces, each as a problem of its own; [] if it is one piece.
-    Without collisions or connection springs, petals do not interact: each is solved on
-    its own, so a petal that snaps costs iterations of its own factorization only, and
-    the line search of one does not hold back another. Pieces without springs are left
-    where they are."""
+    """The mesh's connected pieces, each as a problem of its own; [] if it is one piece
+    or if the pieces interact (collisions, connection springs: then they are one problem).
+    Without those, petals do not interact: each is solved on its own, so a petal that
+    snaps costs iterations of its own factorization only, and the line search of one does
+    not hold back another. Pieces without springs are left where they are."""
     from scipy.sparse.csgraph import connected_components
 
     n = model.vertex_count
@@ -81,7 +103,7 @@ def _split(model: Model, effects: Effects) -> list[_Part]:
             raise ValueError(f"a piece of the mesh ({int(np.sum(label == c))} vertices) has no "
                              "fixed base vertex: with nothing holding it, it has no "
                              "equilibrium; check axis.base")
-    if count <= 1:
+    if count <= 1 or effects.collisions is not None or effects.connections is not None:
         return []
     parts = []
     for c in range(count):
@@ -120,6 +142,8 @@ def _split(model: Model, effects: Effects) -> list[_Part]:
 #: what the force kernel adds and subtracts at that vertex, :func:`hessian.rounding_scale`)
 #: is rounding: Newton's own steps end at 0.1-0.2 of it on the project's buds
 ROUNDING_FACTOR = 2.0
+#: a group's factorization is reused for a step at most this fraction of its last one
+CHORD = 0.1
 EPS = float(np.finfo(np.float64).eps)
 @dataclass
 class _Failure:
@@ -156,8 +180,29 @@ class NotConverged(RuntimeError):
 
 
 @dataclass
+class _Group:
+    """Pieces (petals) that are one linear system: a piece alone, or pieces joined by
+    contacts or connection springs. Its unknowns, its factorization and how that was
+    made."""
+
+    key: tuple  #: its pieces, ascending
+    dofs: np.ndarray  #: (n,) its unknowns in the whole (3 per vertex), ascending
+    elastic: sp.csc_matrix  #: upper triangle of the elastic Hessian on dofs (its pattern)
+    take: np.ndarray  #: elastic.data = blocks.data.ravel()[take]
+    diagonal: np.ndarray  #: positions of the diagonal in elastic.data
+    local: np.ndarray  #: (3V,) index in dofs of each unknown of the whole, -1 outside
+    solver: object = None  #: qdldl's LDL^T of the last factorization (None: none, or singular)
+    #: (indptr, indices, keys) of the pattern ``solver`` was set up for (:meth:`_System._fit`)
+    pattern: tuple | None = None
+    positive: bool = False  #: the last factorization is positive definite
+    shift: float = 0.0  #: the mu of the last factorization
+    moved: float = 0.0  #: how far its last step (Newton's, or the predictor's) moved it
+
+
+@dataclass
 class _System:
-    """The block-sparse pattern and work arrays, built once per model."""
+    """The block-sparse pattern and work arrays, built once per model, and the groups
+    of pieces that are solved as one system each (:meth:`regroup`)."""
 
     blocks: hessian.Blocks  #: the Hessian, assembled and constrained in place
     pinned: np.ndarray
@@ -166,10 +211,23 @@ class _System:
     upper: sp.csc_matrix  #: the upper triangle in CSC, its pattern fixed
     take: np.ndarray  #: upper.data = data.ravel()[take]
     diagonal: np.ndarray  #: positions of the diagonal in upper.data
-    solver: object = None  #: qdldl's LDL^T, refactored in place (same pattern)
+    piece: np.ndarray  #: (V,) connected piece (petal) of each vertex
+    #: (3V, 3V) the constraints as a projection: 0 for a fixed vertex, I - n n^T for a
+    #: center-plane vertex, I for the others (applied to the coupling terms' Hessian)
+    project: sp.csr_matrix | None = None
+    #: upper triangle of the coupling terms' constrained Hessian (contact, connection
+    #: springs), added to the elastic one at factorization; None: none
+    extra: sp.coo_matrix | None = None
+    #: (3V,) the inertia term's Hessian (m / dt^2 per unknown), added to the diagonal;
+    #: None: none (the quasi-static path)
+    inertia: np.ndarray | None = None
+    groups: list = field(default_factory=list)  #: the current groups (:class:`_Group`)
+    _known: dict = field(default_factory=dict)  #: every group met so far, by key
 
     @classmethod
     def build(cls, model: Model, effects: Effects) -> _System:
+        from scipy.sparse.csgraph import connected_components
+
         n = model.vertex_count
         blocks = hessian.Blocks.build(model)
         indptr, indices = blocks.indptr, blocks.indices
@@ -186,30 +244,115 @@ class _System:
         take = upper.data.astype(np.int64) - 1
         rows = np.repeat(np.arange(3 * n), np.diff(upper.indptr))  # column of each entry
         diagonal = np.flatnonzero(upper.indices == rows)
-        return cls(blocks, model.pinned.copy(), plane_row, normals, upper, take, diagonal)
+        e = model.edge_indices
+        graph = sp.coo_matrix((np.ones(len(e)), (e[:, 0], e[:, 1])), shape=(n, n))
+        piece = connected_components(graph, directed=False)[1].astype(np.int64)
+        system = cls(blocks, model.pinned.copy(), plane_row, normals, upper, take, diagonal,
+                     piece)
+        if effects.collisions is not None or effects.connections is not None:
+            P = np.broadcast_to(np.eye(3), (n, 3, 3)).copy()
+            P[model.pinned] = 0.0
+            if len(normals):
+                idx = effects.center_plane.vertices
+                P[idx] -= normals[:, :, None] * normals[:, None, :]
+            system.project = sp.bsr_matrix((P, np.arange(n), np.arange(n + 1)),
+                                           shape=(3 * n, 3 * n)).tocsr()
+        system.regroup(np.zeros((0, 2), dtype=np.int64))
+        return system
 
-    def factor(self, mu: float = 0.0):
-        """LDL^T of ``H + mu I`` (H as last assembled). Returns ``(positive, down)``:
-        whether it is positive definite and, if not, a direction of negative
-        curvature ``d^T H d < 0`` (None if none was found).
+    # --- groups ---------------------------------------------------------------------------
+    def regroup(self, links: np.ndarray) -> bool:
+        """Group the pieces: pieces joined by a link (``(k, 2)`` vertex pairs: the
+        contacts and springs that couple them) are one system. Returns whether the
+        groups changed."""
+        from scipy.sparse.csgraph import connected_components
+
+        count = int(self.piece.max()) + 1 if len(self.piece) else 0
+        a, b = self.piece[links[:, 0]], self.piece[links[:, 1]]
+        graph = sp.coo_matrix((np.ones(len(a)), (a, b)), shape=(count, count))
+        label = connected_components(graph, directed=False)[1]
+        keys = [tuple(np.flatnonzero(label == c).tolist()) for c in range(label.max() + 1)]
+        keys.sort()
+        before = [g.key for g in self.groups]
+        self.groups = [self._group(k) for k in keys]
+        return keys != before
+
+    def _group(self, key: tuple) -> _Group:
+        group = self._known.get(key)
+        if group is None:
+            vertices = np.flatnonzero(np.isin(self.piece, key))
+            dofs = (3 * vertices[:, None] + np.arange(3)).ravel()
+            numbered = self.upper.copy()
+            numbered.data = np.arange(1, len(numbered.data) + 1, dtype=np.float64)
+            sub = numbered[dofs][:, dofs].tocsc()
+            sub.sort_indices()
+            take = self.take[sub.data.astype(np.int64) - 1]
+            rows = np.repeat(np.arange(len(dofs)), np.diff(sub.indptr))
+            local = np.full(self.upper.shape[0], -1, dtype=np.int64)
+            local[dofs] = np.arange(len(dofs))
+            group = self._known[key] = _Group(key, dofs, sub, take,
+                                              np.flatnonzero(sub.indices == rows), local)
+        return group
+
+    @property
+    def tangent(self) -> bool:
+        """Every group's last factorization is Newton's (unshifted) and positive definite."""
+        return all(g.solver is not None and g.positive and g.shift == 0.0 for g in self.groups)
+
+    # --- the coupling terms -----------------------------------------------------------------
+    def couple(self, terms: list) -> None:
+        """Set the coupling terms' Hessians (3V x 3V sparse, or None) for the next
+        factorizations, restricted to the free directions."""
+        terms = [t for t in terms if t is not None]
+        if not terms:
+            self.extra = None
+            return
+        P = self.project
+        total = terms[0] if len(terms) == 1 else sum(terms[1:], terms[0])
+        extra = sp.triu(P @ total @ P, format="coo")
+        keep = extra.data != 0.0
+        self.extra = sp.coo_matrix((extra.data[keep], (extra.row[keep], extra.col[keep])),
+                                   shape=extra.shape)
+
+    # --- factorization --------------------------------------------------------------------
+    def factor(self, group: _Group, mu: float = 0.0):
+        """LDL^T of the group's ``H + mu I`` (H as last assembled). Returns
+        ``(positive, down)``: whether it is positive definite and, if not, a direction
+        of negative curvature ``d^T H d < 0`` (3V, zero outside the group; None if none
+        was found).
 
         ``P (H + mu I) P^T = L D L^T``: the signs of D are those of the eigenvalues
         (Sylvester's law of inertia); for ``D_k < 0``, ``z = L^-T e_k`` has
-        ``z^T L D L^T z = D_k``.
+        ``z^T L D L^T z = D_k``. A group whose matrix has the pattern of its last one
+        (a petal alone always has) reuses qdldl's ordering and symbolic analysis.
         """
-        M = self.upper
-        M.data = self.blocks.data.ravel()[self.take]
-        M.data[self.diagonal] += mu
+        M = group.elastic
+        M.data = self.blocks.data.ravel()[group.take]
+        M.data[group.diagonal] += mu
+        if self.inertia is not None:
+            M.data[group.diagonal] += self.inertia[group.dofs]
+        if self.extra is not None:
+            x = self.extra
+            r, c = group.local[x.row], group.local[x.col]
+            inside = r >= 0
+            if inside.any():
+                n = len(group.dofs)
+                M = (M + sp.csc_matrix((x.data[inside], (r[inside], c[inside])),
+                                       shape=(n, n))).tocsc()
+                M.sort_indices()
+        group.shift = mu
+        M = self._fit(group, M)
         try:
-            if self.solver is None:
-                self.solver = qdldl.Solver(M)
+            if group.solver is not None:  # (_fit keeps it only while the pattern holds)
+                group.solver.update(M)
             else:
-                self.solver.update(M)
+                group.solver = qdldl.Solver(M)
         except (ValueError, RuntimeError):  # a zero pivot: singular
-            self.solver = None
+            group.solver, group.pattern, group.positive = None, None, False
             return False, None
-        L, D, perm = self.solver.factors()
-        if np.all(D > 0.0):
+        L, D, perm = group.solver.factors()
+        group.positive = bool(np.all(D > 0.0))
+        if group.positive:
             return True, None
         k = int(np.argmin(D))
         e = np.zeros(len(D))
@@ -220,10 +363,49 @@ class _System:
         d = np.empty(n)
         d[perm] = z
         full = M + sp.triu(M, k=1).T
-        return False, (d if d @ (full @ d) < mu * (d @ d) else None)
+        if not d @ (full @ d) < mu * (d @ d):
+            return False, None
+        out = np.zeros(self.upper.shape[0])
+        out[group.dofs] = d
+        return False, out
 
-    def solve(self, rhs: np.ndarray) -> np.ndarray:
-        return self.solver.solve(rhs)
+    @staticmethod
+    def _fit(group: _Group, M: sp.csc_matrix) -> sp.csc_matrix:
+        """``M`` on the group's pattern: the union of every pattern its matrices have had
+        (contacts come and go; an entry not in M is an explicit zero), so that qdldl's
+        ordering and symbolic analysis are redone only when a new entry appears (then
+        the group's solver is dropped, to be set up anew)."""
+        n = M.shape[0]
+        cols = np.repeat(np.arange(n, dtype=np.int64), np.diff(M.indptr))
+        keys = cols * n + M.indices
+        if group.pattern is not None:
+            indptr, indices, known = group.pattern
+            at = np.searchsorted(known, keys)
+            if np.all(at < len(known)) and np.array_equal(known[np.minimum(at, len(known) - 1)],
+                                                          keys):
+                data = np.zeros(len(known))
+                data[at] = M.data
+                return sp.csc_matrix((data, indices, indptr), shape=M.shape)
+            keys = np.sort(np.concatenate([known, keys]), kind="stable")
+            keys = keys[np.concatenate([[True], keys[1:] != keys[:-1]])]
+            data = np.zeros(len(keys))
+            data[np.searchsorted(keys, cols * n + M.indices)] = M.data
+        else:
+            data = M.data.copy()
+        indices = (keys % n).astype(np.int32)
+        indptr = np.searchsorted(keys // n, np.arange(n + 1)).astype(np.int32)
+        group.pattern = (indptr, indices, keys)
+        group.solver = None  # (a new pattern: qdldl's analysis is redone)
+        return sp.csc_matrix((data, indices, indptr), shape=M.shape)
+
+    def solve(self, rhs: np.ndarray, groups=None) -> np.ndarray:
+        """The step of each group's last factorization for ``rhs`` (3V); zero in the
+        groups not given (default: all) and in a group with no factorization."""
+        out = np.zeros_like(rhs)
+        for g in self.groups if groups is None else groups:
+            if g.solver is not None:
+                out[g.dofs] = g.solver.solve(rhs[g.dofs])
+        return out
 
 
 @dataclass
@@ -235,59 +417,88 @@ class QuasiStatic:
     max_iterations: int = 200  #: Newton iterations per increment before it is halved (a snap takes ~50)
     perturbation: float = 1e-6  #: symmetry-breaking nudge at the start (mesh units)
     seed: int = 0
+    #: with the inertia term: each increment is an implicit Euler step of the dynamics
+    #: (:meth:`_advance_dynamic`); without it, the path of equilibria (its limit)
+    inertia: bool = False
     iterations: int = 0  #: Newton iterations so far (all increments)
     increments: int = 0  #: growth increments solved so far
     shifted: int = 0  #: factorizations retried with a larger shift mu
     descents: int = 0  #: searches along a direction of negative curvature
+    ccd_cuts: int = 0  #: steps cut short by continuous collision detection
+    breaks: int = 0  #: connection springs broken (each break redoes its increment)
     residuals: list = field(default_factory=list, repr=False)  #: per iteration of the last solve
     _system: _System | None = field(default=None, repr=False)
-    _tangent: bool = field(default=False, repr=False)  #: the factorization is H's at the last equilibrium
     _started: bool = field(default=False, repr=False)
     _parts: list | None = field(default=None, repr=False)  #: one solver per petal, or []
     _energy_rounding: float = field(default=0.0, repr=False)  #: of the last Newton iterate
     _scale_work: np.ndarray | None = field(default=None, repr=False)
+    _contact: Contact | None = field(default=None, repr=False)  #: the barrier, if collisions
+    _springs: Springs | None = field(default=None, repr=False)  #: if connection springs
+    _coupling: np.ndarray | None = field(default=None, repr=False)  #: their last forces
+    _limited: bool = field(default=False, repr=False)  #: the last line search was cut by CCD
+    #: the equilibrium before the last one on the path: (A, X), for the secant predictor
+    _behind: tuple | None = field(default=None, repr=False)
+    #: the inertia term of the increment being solved: (x_pred (V, 3), m / dt^2 (V,))
+    _dyn: tuple | None = field(default=None, repr=False)
 
     def diagnostics(self) -> dict:
+        # (the same names at every frame, the first included: coupling is built later)
         return {"newton_iterations": self.iterations, "growth_increments": self.increments,
                 "shifted_factorizations": self.shifted,
-                "negative_curvature_steps": self.descents}
+                "negative_curvature_steps": self.descents, "ccd_cut_steps": self.ccd_cuts,
+                "redone_increments": self.breaks}
 
     # --- one call: growth from A(t0) to A(t0 + n h) -----------------------------------
     def advance(self, model: Model, state: State, control: Control, n_steps: int, h: float,
                 effects: Effects = NO_EFFECTS) -> None:
-        for name in DYNAMIC_ONLY:
-            if getattr(effects, name) is not None:
-                raise ValueError(f"the quasi-static integrator cannot run effect {name!r}")
         if model.hinge_count and not np.all(model.hinge_stiffness > 0.0):
             raise ValueError("the quasi-static integrator needs bending stiffness > 0 (without "
                              "it a petal has no stiffness out of its plane)")
         if self._parts is None:
+            self._couple(model, state, effects)
             self._perturb(model, state, effects)
             self._parts = _split(model, effects)
             for part in self._parts:
                 part.solver = QuasiStatic(self.stages, self.tolerance, self.max_iterations,
-                                          perturbation=0.0)
+                                          perturbation=0.0, inertia=self.inertia)
         if not self._parts:
             self._advance(model, state, control, n_steps, h, effects)
         for part in self._parts:  # independent petals: each follows its own path
             part.state.positions[:] = state.positions[part.vertices]
+            part.state.velocities[:] = state.velocities[part.vertices]
             try:
                 part.solver._advance(part.model, part.state, control, n_steps, h, part.effects)
             except NotConverged as exc:
                 exc.vertex = int(part.vertices[exc.vertex])  # name it in the whole mesh
                 raise
             state.positions[part.vertices] = part.state.positions
+            state.velocities[part.vertices] = part.state.velocities
         if self._parts:
             state.step += n_steps
             self.iterations, self.increments, self.shifted, self.descents = (
                 sum(getattr(p.solver, k) for p in self._parts)
                 for k in ("iterations", "increments", "shifted", "descents"))
-        state.velocities[:] = 0.0
+        if not self.inertia:
+            state.velocities[:] = 0.0
         cos0, sin0 = self._rest_angles(model, effects, control.growth_at(state.step * h))
         state.potential_energy = self._energy(model, state.positions,
                                               control.growth_at(state.step * h), cos0, sin0,
                                               state.forces)
         effects.constrain(state.forces)
+        if self._contact is not None:  # the frame's contacts: pairs within the barrier's band
+            effects.counters[0] = self._contact.active_count(state.positions)
+
+    def _couple(self, model: Model, state: State, effects: Effects) -> None:
+        """Build the terms that couple the petals, if the scene has them; refuse a bud
+        that contact cannot start from (:meth:`contact.Contact.check_start`)."""
+        if effects.collisions is not None:
+            c = effects.collisions
+            self._contact = Contact.build(state.positions, c.faces, c.vertex_petal,
+                                          gap=c.thickness,
+                                          stiffness=float(model.edge_stiffness.max()))
+            self._contact.check_start(state.positions)
+        if effects.connections is not None:
+            self._springs = Springs(effects.connections)
 
     def _advance(self, model, state, control, n_steps: int, h: float, effects) -> None:
         """:meth:`advance` for one connected mesh."""
@@ -302,10 +513,74 @@ class QuasiStatic:
         a0 = control.growth_at(state.step * h)
         a1 = control.growth_at((state.step + n_steps) * h)
         pieces = max(1, math.ceil(abs(a1 - a0) * self.stages - 1e-9))
+        if self.inertia:
+            self._advance_dynamic(model, state, control, n_steps, h, effects, pieces)
+            return
         targets = a0 + (a1 - a0) * np.arange(1, pieces + 1) / pieces
+        first, last = state.step, state.step + n_steps
+
+        def step_of(a: float) -> int:
+            """The first step of this call at which the growth reaches ``a`` (A rises)."""
+            lo, hi = first, last
+            while lo < hi:
+                mid = (lo + hi) // 2
+                if control.growth_at(mid * h) >= a:
+                    hi = mid
+                else:
+                    lo = mid + 1
+            return lo
+
         done = a0
         for target in targets:
-            done = self._reach(model, state, effects, done, float(target), state.step + n_steps)
+            done = self._reach(model, state, effects, done, float(target), last, step_of)
+        state.step += n_steps
+
+    def _advance_dynamic(self, model, state, control, n_steps: int, h: float, effects,
+                         pieces: int) -> None:
+        """:meth:`_advance` with the inertia term: ``pieces`` equal time steps ``dt`` (at
+        least one per call, more where the growth rises fast), each an implicit Euler
+        step in incremental-potential form, the minimum of ``U(x) + 1/(2 dt^2) |x -
+        x_pred|_M^2`` with ``x_pred = x + dt v``; then ``v = (x_new - x) / dt``. A step
+        where Newton fails is halved (up to 6 times); one that ends with connection
+        springs past their breaking length breaks them and is redone."""
+        t_end = (state.step + n_steps) * h
+        for k in range(1, pieces + 1):
+            t_from = state.step * h + (k - 1) * n_steps * h / pieces
+            t_to = t_end if k == pieces else state.step * h + k * n_steps * h / pieces
+            t_now, size, halvings = t_from, t_to - t_from, 0
+            while t_now != t_to:
+                t_next = t_to if t_to - t_now <= size * (1 + 1e-9) else t_now + size
+                dt = t_next - t_now
+                a_now, a_next = control.growth_at(t_now), control.growth_at(t_next)
+                start = state.positions.copy()
+                weight = model.vertex_mass / (dt * dt)
+                self._dyn = (start + dt * state.velocities, weight)
+                self._system.inertia = np.repeat(weight, 3)
+                try:
+                    self._predict(model, state, effects, a_now, a_next,
+                                  guess=self._dyn[0] - start)
+                    failure = self._newton(model, state, effects, a_next)
+                finally:
+                    self._dyn, self._system.inertia = None, None
+                if failure is None:
+                    over = self._springs.over_limit(state.positions) if self._springs else ()
+                    if len(over):
+                        c = self._springs.connections
+                        c.alive[over] = False
+                        c.broken_step[over] = int(round(t_next / h))
+                        self.breaks += 1
+                        state.positions[:] = start
+                        continue
+                    self.increments += 1
+                    state.velocities[:] = (state.positions - start) / dt
+                    t_now = t_next
+                    continue
+                state.positions[:] = start
+                halvings += 1
+                if halvings > 6:
+                    raise self._not_converged(model, state.positions, int(round(t_next / h)),
+                                              a_next, failure)
+                size *= 0.5
         state.step += n_steps
 
     def _not_converged(self, model, X, step: int, growth: float,
@@ -346,40 +621,72 @@ class QuasiStatic:
             effects.constrain(nudge)
         state.positions += nudge
 
-    def _reach(self, model, state, effects, a_from: float, a_to: float, step: int) -> float:
+    def _reach(self, model, state, effects, a_from: float, a_to: float, step: int,
+               step_of=None) -> float:
         """Equilibrium at growth ``a_to``; an increment where Newton fails is halved
-        (up to 6 times), then the path goes on to ``a_to``."""
+        (up to 6 times), then the path goes on to ``a_to``. An increment that ends with
+        connection springs past their breaking length breaks them (at ``step_of(A)``) and
+        is redone from where it started."""
         a_now, size, halvings = a_from, a_to - a_from, 0
         while a_now != a_to:
             a_next = a_to if abs(a_to - a_now) <= abs(size) * (1 + 1e-9) else a_now + size
             start = state.positions.copy()
-            self._predict(model, state, effects, a_next)
+            self._predict(model, state, effects, a_now, a_next)
             failure = self._newton(model, state, effects, a_next)
             if failure is None:
+                over = self._springs.over_limit(state.positions) if self._springs else ()
+                if len(over):
+                    c = self._springs.connections
+                    c.alive[over] = False
+                    c.broken_step[over] = step if step_of is None else step_of(a_next)
+                    self.breaks += 1
+                    state.positions[:] = start
+                    self._behind = None  # (another path from here on)
+                    continue
                 self.increments += 1
+                self._behind = (a_now, start)
                 a_now = a_next
                 continue
             state.positions[:] = start
-            self._tangent = False
             halvings += 1
             if halvings > 6:
                 raise self._not_converged(model, state.positions, step, a_next, failure)
             size *= 0.5
         return a_to
 
-    def _predict(self, model, state, effects, a_next: float) -> None:
-        """Tangent (Euler) predictor: from the equilibrium just found, whose positive
-        definite factorization is at hand, the step ``H^-1 f(x, A_next)`` (Newton's first
-        step with the old Hessian), with a line search on the new energy."""
-        if not self._tangent:
-            return
+    def _predict(self, model, state, effects, a_now: float, a_next: float,
+                 guess: np.ndarray | None = None) -> None:
+        """Predictor, from the equilibrium X at ``a_now`` to a start for ``a_next``, with a
+        line search on the new energy (CCD-limited with contact). Secant where the
+        equilibrium before it is known (``_behind``): the path extrapolated along the
+        chord of the last two equilibria, which is as accurate as the tangent (the
+        error is second order in the increment) and needs no factorization at X.
+        Otherwise tangent (Euler), if a positive definite factorization is at hand:
+        the step ``H^-1 f(x, A_next)``. ``guess``: a step to try first (with inertia,
+        where the velocity carries the vertices: ``dt v``)."""
         X = state.positions
         cos0, sin0 = self._rest_angles(model, effects, a_next)
         scratch = np.empty_like(X)
         energy, g = self._gradient(model, X, a_next, cos0, sin0, scratch)
-        step = self._system.solve(-g)
+        step = None
+        behind = self._behind
+        if guess is not None:
+            step = self._constrained(guess)
+            if not np.any(step) or float(g @ step) >= 0.0:
+                step = None
+        elif behind is not None and behind[0] != a_now and behind[1].shape == X.shape:
+            secant = ((a_next - a_now) / (a_now - behind[0])) * (X - behind[1])
+            step = self._constrained(secant)
+            if float(g @ step) >= 0.0:  # not downhill on the new energy: no use
+                step = None
+        if step is None:
+            if not self._system.tangent:
+                return
+            step = self._system.solve(-g)
         self.iterations += 1
-        self._line_search(model, X, a_next, cos0, sin0, scratch, energy, g, step)
+        length = self._line_search(model, X, a_next, cos0, sin0, scratch, energy, g, step)
+        for gr in self._system.groups:
+            gr.moved = length * float(np.abs(step[gr.dofs]).max(initial=0.0))
 
     def _rest_angles(self, model: Model, effects: Effects, A: float):
         if effects.curl is None:
@@ -394,29 +701,71 @@ class QuasiStatic:
         H = s.blocks
         H.assemble(model, X, A, cos0, sin0)
         hessian.constrain(H.indptr, H.indices, H.data, s.pinned, s.plane_row, s.normals)
+        if s.project is not None:
+            s.couple([self._contact.hessian(X) if self._contact else None,
+                      self._springs.hessian_at(X) if self._springs else None])
+
+    def _links(self, X) -> np.ndarray:
+        """(k, 2) vertex pairs the coupling terms join at X: the contacts within the
+        barrier's band and the intact connection springs."""
+        links = [np.zeros((0, 2), dtype=np.int64)]
+        if self._contact is not None:
+            links.append(self._contact.linked(X))
+        if self._springs is not None:
+            c = self._springs.connections
+            links.append(np.asarray(c.pairs, dtype=np.int64)[np.asarray(c.alive, dtype=bool)])
+        return np.concatenate(links)
 
     def _energy(self, model, X, A, cos0, sin0, scratch) -> float:
-        return kernels.internal_forces(X, model.edge_indices, model.edge_rest_length,
-                                       model.edge_growth, model.edge_stiffness,
-                                       model.hinge_indices, cos0, sin0, model.hinge_stiffness,
-                                       A, scratch)
+        """The energy at X; the forces into ``scratch``. With coupling terms, their
+        forces are also kept (``_coupling``) for :meth:`_rounding`."""
+        energy = kernels.internal_forces(X, model.edge_indices, model.edge_rest_length,
+                                         model.edge_growth, model.edge_stiffness,
+                                         model.hinge_indices, cos0, sin0,
+                                         model.hinge_stiffness, A, scratch)
+        if self._dyn is not None:
+            x_pred, weight = self._dyn
+            d = X - x_pred
+            energy += 0.5 * float(np.sum(weight[:, None] * d * d))
+            scratch -= weight[:, None] * d
+        if self._contact is None and self._springs is None:
+            return energy
+        coupling = self._coupling
+        if coupling is None or coupling.shape != X.shape:
+            coupling = self._coupling = np.empty_like(X)
+        coupling[:] = 0.0
+        if self._contact is not None:
+            energy += self._contact.energy(X, coupling)
+        if self._springs is not None:
+            energy += self._springs.energy(X, coupling)
+        scratch += coupling
+        return energy
 
     def _newton(self, model, state, effects, A: float) -> _Failure | None:
         """Newton iterations at growth A; None when converged, else why not.
 
-        Converged: the residual force is at the rounding level of the forces
-        (:meth:`_rounding`), whatever the Hessian's inertia (a piece free to turn, or at
-        a bifurcation, has a singular Hessian at its equilibrium: that is no reason to go
-        on); or it is below ``tolerance`` times the softest stiffness that matters and
-        the Hessian is positive definite (then the tangent predictor can use it).
+        The pieces (petals) are grouped: those a contact or a connection spring joins
+        are one linear system, the others each their own (:meth:`_System.regroup`), and
+        each group is factored, and converges, apart. A group is converged when its
+        residual force is at the rounding level of the forces (:meth:`_rounding`),
+        whatever its Hessian's inertia (a piece free to turn, or at a bifurcation, has a
+        singular Hessian at its equilibrium: that is no reason to go on); or below
+        ``tolerance`` times the softest stiffness that matters with its Hessian
+        positive definite (then the tangent predictor can use it); or when a Newton
+        step moved it less than ``tolerance``. A converged group stays put while the
+        others iterate (unless a new contact joins it to one of them).
 
-        Where H is positive definite the step is Newton's. Where it is not (the path
-        is at a bifurcation or a snap, or the prediction is far off), the energy is
-        first searched along a direction of negative curvature read from the
-        factorization (so a saddle is left in one step rather than by slow
-        amplification of the perturbation); then the step solves ``(H + mu I) p = -g``
-        with ``mu`` grown tenfold until the factorization is positive definite (an
-        implicit Euler step of the gradient flow, time step ``1/sqrt(mu)``).
+        Where a group's H is positive definite the step is Newton's. Each group is
+        factored afresh at its first iteration of the solve, then its factorization is
+        reused for as long as each step cuts its residual at least ``1/CHORD`` times
+        (a chord step: the Hessian has barely changed; a factorization is most of an
+        iteration's cost). Where H is not positive definite (the path is at a
+        bifurcation or a snap, or the prediction is far off), the energy is first
+        searched along a direction of negative curvature read from the factorization
+        (so a saddle is left in one step rather than by slow amplification of the
+        perturbation); then the step solves ``(H + mu I) p = -g`` with ``mu`` grown
+        tenfold until the factorization is positive definite (an implicit Euler step of
+        the gradient flow, time step ``1/sqrt(mu)``).
         """
         X = state.positions
         cos0, sin0 = self._rest_angles(model, effects, A)
@@ -425,45 +774,93 @@ class QuasiStatic:
         floor = 1e-3 * float(model.hinge_stiffness.max(initial=0.0) or model.edge_stiffness.max())
         system = self._system
         self.residuals = []
-        inertia = "definite"
         scale = 0.0
+        done: set = set()  #: groups converged by their step
+        stale: set = set()  #: groups whose factorization a chord step failed with
+        fresh: set = set()  #: groups factored in this solve
+        chord: dict = {}  #: whether a group's step reuses its factorization
         for _ in range(self.max_iterations):
             energy, g = self._gradient(model, X, A, cos0, sin0, scratch)
             residual = float(np.abs(g).max())
             self.residuals.append(residual)
             scale, self._energy_rounding = self._rounding(model, X, A, cos0, sin0)
-            if residual <= ROUNDING_FACTOR * EPS * scale:
+            rounding = ROUNDING_FACTOR * EPS * scale
+            if residual <= rounding:
                 return None  # at rounding: no step can do better
             # a mode as soft as floor moves less than tolerance
-            if residual <= self.tolerance * floor and self._tangent:
+            if residual <= self.tolerance * floor and system.tangent:
+                return None
+            if system.project is not None and system.regroup(self._links(X)):
+                done &= {gr.key for gr in system.groups}
+                fresh &= {gr.key for gr in system.groups}
+            moving = []
+            for gr in system.groups:
+                r = float(np.abs(g[gr.dofs]).max()) if len(gr.dofs) else 0.0
+                if (gr.key in done or r <= rounding
+                        or (r <= self.tolerance * floor and gr.positive and gr.shift == 0.0
+                            and gr.solver is not None)):
+                    continue
+                moving.append(gr)
+                # a chord step (the factorization made at an earlier iteration of this
+                # solve, unshifted and positive) if it is a tenth of the group's last step
+                # or less: then the Hessian has barely changed where it matters
+                chord[gr.key] = (gr.key in fresh and gr.positive and gr.shift == 0.0
+                                 and gr.key not in stale
+                                 and float(np.abs(gr.solver.solve(-g[gr.dofs])).max())
+                                 <= CHORD * gr.moved)
+            if not moving:
                 return None
             self.iterations += 1
-            mu = 0.0
-            self._assemble(model, X, A, cos0, sin0)
-            positive, down = system.factor()
-            self._tangent = positive
-            inertia = "definite" if positive else ("singular" if system.solver is None
-                                                   else "indefinite")
-            if not positive:
-                if down is not None:
-                    self.descents += 1
-                    energy = self._descend(model, X, A, cos0, sin0, scratch, energy, g,
-                                           self._constrained(down))
-                    energy, g = self._gradient(model, X, A, cos0, sin0, scratch)
-                mu = floor
-                while not system.factor(mu)[0]:
-                    self.shifted += 1
-                    mu *= 10.0
-                    if mu > 1e6 * float(model.edge_stiffness.max()):
-                        # no shift makes it positive: not finite?
-                        return _Failure(residual, scale, "shift", inertia)
-            step = system.solve(-g)
+            assembled = False
+            lost = []  # groups whose Hessian is not positive definite
+            for gr in moving:
+                if chord[gr.key]:
+                    continue
+                if not assembled:
+                    self._assemble(model, X, A, cos0, sin0)
+                    assembled = True
+                positive, down = system.factor(gr)
+                fresh.add(gr.key)
+                stale.discard(gr.key)
+                if not positive:
+                    lost.append(gr)
+                    if down is not None:
+                        self.descents += 1
+                        energy = self._descend(model, X, A, cos0, sin0, scratch, energy, g,
+                                               self._constrained(down))
+            if lost:
+                energy, g = self._gradient(model, X, A, cos0, sin0, scratch)
+                for gr in lost:
+                    mu = floor
+                    while not system.factor(gr, mu)[0]:
+                        self.shifted += 1
+                        mu *= 10.0
+                        if mu > 1e6 * float(model.edge_stiffness.max()):
+                            # no shift makes it positive: not finite?
+                            return _Failure(residual, scale, "shift", self._inertia())
+            step = system.solve(-g, moving)
             length = self._line_search(model, X, A, cos0, sin0, scratch, energy, g, step)
             if length == 0.0:
-                return _Failure(residual, scale, "stalled", inertia)
-            if mu == 0.0 and length * float(np.abs(step).max()) < self.tolerance:
+                reused = [gr.key for gr in moving if chord[gr.key]]
+                if reused:  # an old factorization is no excuse: factor afresh
+                    stale.update(reused)
+                    continue
+                return _Failure(residual, scale, "stalled", self._inertia(lost))
+            # (a step cut by CCD is no sign of convergence: the whole step was not small)
+            for gr in moving:
+                gr.moved = length * float(np.abs(step[gr.dofs]).max())
+                if gr.shift == 0.0 and not self._limited and gr.moved < self.tolerance:
+                    done.add(gr.key)
+            if all(gr.key in done for gr in moving):  # (the others had converged)
                 return None  # (the factorization is that of the equilibrium, to rounding)
-        return _Failure(residual, scale, "iterations", inertia)
+        return _Failure(residual, scale, "iterations", self._inertia())
+
+    def _inertia(self, lost=None) -> str:
+        """The last factorizations' inertia, as a failure names it."""
+        groups = self._system.groups if lost is None else lost
+        if any(g.solver is None for g in groups):
+            return "singular"
+        return "definite" if all(g.positive for g in groups) else "indefinite"
 
     def _rounding(self, model, X, A, cos0, sin0) -> tuple[float, float]:
         """The force scale (the largest, over the vertices, of what the force kernel adds
@@ -479,6 +876,15 @@ class QuasiStatic:
                                         model.edge_growth, model.edge_stiffness,
                                         model.hinge_indices, cos0, sin0, model.hinge_stiffness,
                                         A, per_vertex)
+        if self._dyn is not None:  # the inertia term's force w (x - x_pred)
+            x_pred, weight = self._dyn
+            size = np.abs(X).max(axis=1) + np.abs(x_pred).max(axis=1)
+            per_vertex += weight * size
+            energy += float(np.sum(weight * size * size))
+        if self._coupling is not None:  # the contacts' and springs' forces at X (just taken)
+            per_vertex += np.abs(self._coupling).max(axis=1)
+            if self._springs is not None:
+                self._springs.scale(X, per_vertex)
         free = ~self._system.pinned
         force = float(per_vertex[free].max()) if free.any() else 0.0
         return force, EPS * energy
@@ -502,12 +908,19 @@ class QuasiStatic:
         return out.ravel()
 
     def _line_search(self, model, X, A, cos0, sin0, scratch, energy, g, step) -> float:
-        """Backtracking (Armijo) along ``step``; moves X and returns the step length
-        taken (0: none found). A change within rounding of the energy is accepted (as
-        :meth:`_rounding` measures it, or 1e-14 of the energy)."""
+        """Backtracking (Armijo) along ``step``, from the longest step that continuous
+        collision detection allows (1 without contact); moves X and returns the step
+        length taken (0: none found). A change within rounding of the energy is accepted
+        (as :meth:`_rounding` measures it, or 1e-14 of the energy)."""
         slope = float(g @ step)
         length = 1.0
         base = X.copy()
+        self._limited = False
+        if self._contact is not None:
+            cap = self._contact.max_step(base, base + step.reshape(-1, 3))
+            if cap < 1.0:
+                length, self._limited = cap, True
+                self.ccd_cuts += 1
         # two energies each within their rounding differ by up to twice it: a step whose
         # predicted change is below that cannot be judged by the energy (near an
         # equilibrium, where only the gradient still tells), so it is taken as Newton's
@@ -532,7 +945,10 @@ class QuasiStatic:
             d = -d
         base = X.copy()
         best, best_length, length = energy, 0.0, 1e-3
-        while length <= 2.0:
+        top = 2.0  # (no further than contact allows)
+        if self._contact is not None:
+            top *= self._contact.max_step(base, base + top * d)
+        while length <= top:
             X[:] = base + length * d
             trial = self._energy(model, X, A, cos0, sin0, scratch)
             if trial >= best:

@@ -1,0 +1,209 @@
+"""Contact and connection springs in the quasi-static (Newton) solver: the barrier's
+derivatives, no iterate ever crossing (CCD), the gap kept, springs that break."""
+
+import math
+
+import numpy as np
+import pytest
+
+from pipeline.sim import contact as ct
+from pipeline.sim import effects as fx
+from pipeline.sim.model import Control, Model, State
+from pipeline.sim.quasistatic import QuasiStatic
+from pipeline.sim.run import run
+
+GAP = 0.01
+
+
+def _grid(nx: int, ny: int, z: float, spacing: float = 1.0):
+    """A flat nx x ny vertex grid at height z, triangulated; (vertices, faces)."""
+    x, y = np.meshgrid(np.arange(nx) * spacing, np.arange(ny) * spacing, indexing="ij")
+    v = np.column_stack([x.ravel(), y.ravel(), np.full(x.size, z)])
+    idx = np.arange(nx * ny).reshape(nx, ny)
+    a, b, c, d = idx[:-1, :-1].ravel(), idx[1:, :-1].ravel(), idx[1:, 1:].ravel(), idx[:-1, 1:].ravel()
+    faces = np.concatenate([np.column_stack([a, b, c]), np.column_stack([a, c, d])])
+    return v, faces
+
+
+def _edges_hinges(faces):
+    from pipeline import topology
+
+    return topology.unique_edges(faces)[0], topology.hinges(faces)[0]
+
+
+def two_sheets(height: float = 0.5, bend: float = 0.0):
+    """Sheet 0: a flat 7 x 5 grid at z = 0, all fixed (an obstacle). Sheet 1: a 5 x 5
+    grid at ``height`` above it, its first two columns fixed; each of its hinges across x
+    wants to fold by ``bend`` radians (negative: down, through sheet 0)."""
+    va, fa = _grid(7, 5, 0.0)
+    vb, fb = _grid(5, 5, height)
+    v = np.concatenate([va, vb])
+    faces = np.concatenate([fa, fb + len(va)])
+    petal = np.r_[np.zeros(len(va), int), np.ones(len(vb), int)]
+    edges, hinges = _edges_hinges(faces)
+    pinned = np.r_[np.ones(len(va), bool), vb[:, 0] < 1.5]
+    model = Model.build(v, edges, 0.0, 0.1, hinges, 0.0005, pinned)
+    if bend:
+        e = v[hinges[:, 1]] - v[hinges[:, 0]]
+        across = (petal[hinges[:, 0]] == 1) & (np.abs(e[:, 0]) < 1e-9)  # edges along y
+        angle = np.where(across, bend, np.arctan2(model.hinge_rest_sin, model.hinge_rest_cos))
+        model.hinge_rest_cos[:] = np.cos(angle)
+        model.hinge_rest_sin[:] = np.sin(angle)
+    return v, faces, petal, model
+
+
+def _collisions(v, faces, petal, gap=GAP):
+    return fx.Effects(names=("collisions",), collisions=fx.Collisions.build(
+        v, faces, petal, offset=0.001, max_edge=1.5, thickness=gap))
+
+
+def _sheets_in_the_band():
+    """Sheet 1 laid over sheet 0, 1.3 to 1.9 gaps above it and rippled, so that
+    vertex-face and edge-edge pairs are in the barrier's band."""
+    v, faces, petal, model = two_sheets(height=0.0)
+    rng = np.random.default_rng(3)
+    X = v.copy()
+    top = petal == 1
+    X[top, 2] = GAP * rng.uniform(1.3, 1.9, top.sum())
+    X[top, :2] += rng.uniform(-0.2, 0.2, (top.sum(), 2))
+    return X, faces, petal
+
+
+def test_barrier_gradient_and_hessian_match_finite_differences():
+    """Central differences with a step of 1e-3 of the gap (the barrier's length scale),
+    compared at 1e-5 of the largest entry: the truncation error is (step/gap)^2 ~ 1e-6
+    of it."""
+    X, faces, petal = _sheets_in_the_band()
+    c = ct.Contact.build(X, faces, petal, gap=GAP, stiffness=0.1)
+    assert c.active_count(X) > 10
+    F = np.zeros_like(X)
+    energy = c.energy(X, F)
+    assert math.isfinite(energy) and energy > 0.0
+    grad = -F.ravel()
+    H = c.hessian(X, project=False).toarray()
+    step = 1e-3 * GAP
+    moving = np.flatnonzero(np.repeat(petal == 1, 3))
+    fd_grad = np.empty(len(moving))
+    fd_hess = np.empty((len(moving), len(grad)))
+    for n, k in enumerate(moving):
+        plus, minus = X.copy().ravel(), X.copy().ravel()
+        plus[k] += step
+        minus[k] -= step
+        Fp, Fm = np.zeros_like(X), np.zeros_like(X)
+        ep = c.energy(plus.reshape(-1, 3), Fp)
+        em = c.energy(minus.reshape(-1, 3), Fm)
+        fd_grad[n] = (ep - em) / (2 * step)
+        fd_hess[n] = (-Fp.ravel() + Fm.ravel()) / (2 * step)
+    g = grad[moving]
+    assert np.abs(fd_grad - g).max() <= 1e-5 * np.abs(g).max()
+    assert np.abs(fd_hess - H[moving]).max() <= 1e-5 * np.abs(H[moving]).max()
+    # the solver's Hessian: each contact's projected to positive semi-definite
+    P = c.hessian(X).toarray()
+    assert np.linalg.eigvalsh(P).min() >= -1e-12 * np.abs(P).max()
+    assert np.linalg.eigvalsh(H).min() < -1e-6 * np.abs(H).max()  # (the exact one is not)
+
+
+def test_barrier_stiffness_scales_with_the_springs():
+    """kappa makes the barrier's curvature at the middle of its band the stiffness asked
+    for; the energy is zero past the band and infinite at the gap."""
+    for stiffness, gap in ((0.1, 0.01), (3.0, 0.05)):
+        c = ct.Contact.build(*_grid(2, 2, 0.0), np.zeros(4, int), gap=gap, stiffness=stiffness)
+        assert c.kappa * ct.barrier_curvature(1.5 * gap, gap, gap) == pytest.approx(stiffness)
+
+
+def test_connection_spring_gradient_and_hessian_match_finite_differences():
+    rng = np.random.default_rng(0)
+    X = rng.normal(size=(6, 3))
+    pairs = np.array([[0, 3], [1, 4], [2, 5], [0, 5]])
+    rest = np.linalg.norm(X[pairs[:, 0]] - X[pairs[:, 1]], axis=1) * [0.7, 1.3, 1.0, 0.9]
+    conn = fx.Connections(pairs, rest, 10 * rest, 0.2, np.array([True, True, True, False]),
+                          np.full(4, -1))
+    s = ct.Springs(conn)
+    F = np.zeros_like(X)
+    s.energy(X, F)
+    H = s.hessian_at(X).toarray()
+    step = 1e-6  # positions of order 1
+    for k in range(X.size):
+        plus, minus = X.copy().ravel(), X.copy().ravel()
+        plus[k] += step
+        minus[k] -= step
+        Fp, Fm = np.zeros_like(X), np.zeros_like(X)
+        ep, em = s.energy(plus.reshape(-1, 3), Fp), s.energy(minus.reshape(-1, 3), Fm)
+        assert (ep - em) / (2 * step) == pytest.approx(-F.ravel()[k], abs=1e-7 * np.abs(F).max())
+        np.testing.assert_allclose((Fm - Fp).ravel() / (2 * step), H[k],
+                                   atol=1e-7 * np.abs(H).max())
+    assert np.abs(H[:, 3 * 5:]).max() > 0  # an intact spring reaches vertex 5
+
+
+def test_newton_with_contact_never_crosses_and_keeps_the_gap(monkeypatch):
+    """Sheet 1 wants to fold down through sheet 0 (it does, without contact). With
+    contact, no position the solver ever evaluates (line-search trials included) has an
+    intersection or two sheets closer than the gap, and it comes to rest on the barrier:
+    between the gap and the end of the band."""
+    v, faces, petal, model = two_sheets(0.5, bend=0.4)
+    control = Control("linear", 10.0)
+    free = State.at_rest(model, v, control)
+    QuasiStatic(stages=5).advance(model, free, control, 10, 1.0, fx.Effects())
+    assert ct.frame_intersections([free.positions], faces) == [True]
+
+    seen = []
+    energy = ct.Contact.energy
+
+    def spy(self, X, F):
+        seen.append(np.array(X, copy=True))
+        return energy(self, X, F)
+
+    monkeypatch.setattr(ct.Contact, "energy", spy)
+    state = State.at_rest(model, v, control)
+    qs = QuasiStatic(stages=5)
+    qs.advance(model, state, control, 10, 1.0, _collisions(v, faces, petal))
+    assert qs.ccd_cuts > 0 and len(seen) > 20
+    assert not any(ct.frame_intersections(seen, faces))
+    c = qs._contact
+    assert min(c.min_distance(X, 2 * GAP) for X in seen) >= GAP
+    final = c.min_distance(state.positions, 1.0)
+    assert GAP <= final <= 2 * GAP
+    assert np.abs(state.positions[petal == 1, 2]).min() < 0.1  # it did come down onto sheet 0
+
+
+def test_connection_springs_break_in_newton_and_the_increment_is_redone():
+    """Sheet 1 grows along x (alpha = 1 on edges along x) while springs tie its far end to sheet 0
+    below it; they break past 1.2 times their length (at least one edge). Each break is
+    recorded at a step inside the run; once all have broken the bloom is the one
+    without springs (equilibria of the same energy)."""
+    v, faces, petal, _ = two_sheets(0.3)
+    edges, hinges = _edges_hinges(faces)
+    d = v[edges[:, 1]] - v[edges[:, 0]]
+    along = d[:, 0] ** 2 / np.einsum("ij,ij->i", d, d)  # (1 along x, 0 across)
+    alpha = np.where(petal[edges[:, 0]] == 1, along, 0.0)
+    pinned = np.r_[np.ones(35, bool), v[35:, 0] < 1.5]
+    model = Model.build(v, edges, alpha, 0.1, hinges, 0.0005, pinned)
+    tip = np.flatnonzero((petal == 1) & (v[:, 0] > 3.5))
+    below = np.array([np.argmin(np.linalg.norm(v[:35] - v[t] * [1, 1, 0], axis=1)) for t in tip])
+    pairs = np.column_stack([tip, below])
+
+    def bloom(springs: bool):
+        rest = np.linalg.norm(v[pairs[:, 0]] - v[pairs[:, 1]], axis=1)
+        conn = fx.Connections(pairs, rest, 1.2 * np.maximum(rest, 1.0), 1e-4,
+                              np.ones(len(pairs), bool), np.full(len(pairs), -1))
+        effects = fx.Effects(names=("connections",), connections=conn if springs else None)
+        control = Control("linear", 100.0)
+        state = State.at_rest(model, v, control)
+        qs = QuasiStatic(stages=10)
+        rec, _ = run(model, state, control, qs, steps=100, frames=11, h=1.0, effects=effects)
+        return rec, state, qs, conn
+
+    rec, state, qs, conn = bloom(True)
+    assert not conn.alive.any()
+    assert np.all((conn.broken_step > 0) & (conn.broken_step < 100))
+    assert qs.breaks >= 1 and rec.diagnostics["redone_increments"][-1] == qs.breaks
+    intact = rec.diagnostics["connections_intact"]
+    assert intact[0] == len(pairs) and intact[-1] == 0
+    # the last frame before the first break: every spring within its breaking length
+    before = (conn.broken_step.min() - 1) // 10
+    assert before >= 1
+    held = rec.positions[before]
+    assert np.linalg.norm(held[tip] - held[below], axis=1).max() <= 1.2
+    # springs gone, the same energy: the same equilibrium (to the solver's tolerance)
+    _, alone, _, _ = bloom(False)
+    assert np.abs(state.positions - alone.positions).max() < 1e-5
