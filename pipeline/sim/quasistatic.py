@@ -435,6 +435,7 @@ class QuasiStatic:
     _parts: list | None = field(default=None, repr=False)  #: one solver per petal, or []
     _energy_rounding: float = field(default=0.0, repr=False)  #: of the last Newton iterate
     _scale_work: np.ndarray | None = field(default=None, repr=False)
+    _perturbed: bool = field(default=False, repr=False)  #: the symmetry-breaking nudge is made
     _contact: Contact | None = field(default=None, repr=False)  #: the barrier, if collisions
     _springs: Springs | None = field(default=None, repr=False)  #: if connection springs
     _coupling: np.ndarray | None = field(default=None, repr=False)  #: their last forces
@@ -459,7 +460,12 @@ class QuasiStatic:
                              "it a petal has no stiffness out of its plane)")
         if self._parts is None:
             self._couple(model, state, effects)
+        if not self._perturbed and (control.growth_at((state.step + n_steps) * h)
+                                    != control.growth_at(state.step * h)):
+            # at the first growth (not before: a keyed hold of the bud holds to the bit)
+            self._perturbed = True
             self._perturb(model, state, effects)
+        if self._parts is None:
             self._parts = _split(model, effects)
             for part in self._parts:
                 part.solver = QuasiStatic(self.stages, self.tolerance, self.max_iterations,
