@@ -33,6 +33,26 @@ def petal_meshes(faces: np.ndarray, petal: np.ndarray) -> list[tuple[np.ndarray,
     return out
 
 
+def _new_stage(path, source: dict | None, up: str, meters_per_unit: float,
+               frame_numbers: np.ndarray, fps: float):
+    """A new USD stage at ``path``: ``source`` in the layer's custom data under ``bloom``,
+    the up axis ("Y" or "Z"), metres per unit, time codes the frame numbers at ``fps``,
+    and the default prim ``/Bloom``."""
+    from pxr import Usd, UsdGeom
+
+    stage = Usd.Stage.CreateNew(str(path))
+    stage.GetRootLayer().customLayerData = {"bloom": {k: str(v) for k, v in
+                                                      (source or {}).items()}}
+    UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.y if up == "Y" else UsdGeom.Tokens.z)
+    UsdGeom.SetStageMetersPerUnit(stage, float(meters_per_unit))
+    stage.SetStartTimeCode(float(frame_numbers[0]))
+    stage.SetEndTimeCode(float(frame_numbers[-1]))
+    stage.SetTimeCodesPerSecond(fps)
+    stage.SetFramesPerSecond(fps)
+    stage.SetDefaultPrim(UsdGeom.Xform.Define(stage, "/Bloom").GetPrim())
+    return stage
+
+
 def write_usd(path, positions: np.ndarray, faces: np.ndarray, petal: np.ndarray,
               fps: float, source: dict | None = None, up: str = "Z",
               meters_per_unit: float = 1.0, frame_numbers: np.ndarray | None = None) -> None:
@@ -41,18 +61,8 @@ def write_usd(path, positions: np.ndarray, faces: np.ndarray, petal: np.ndarray,
     layer's custom data under ``bloom``."""
     from pxr import Gf, Sdf, Usd, UsdGeom, Vt
 
-    stage = Usd.Stage.CreateNew(str(path))
-    stage.GetRootLayer().customLayerData = {"bloom": {k: str(v) for k, v in
-                                                      (source or {}).items()}}
-    UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.y if up == "Y" else UsdGeom.Tokens.z)
-    UsdGeom.SetStageMetersPerUnit(stage, float(meters_per_unit))
     numbers = np.arange(len(positions)) if frame_numbers is None else np.asarray(frame_numbers)
-    stage.SetStartTimeCode(float(numbers[0]))
-    stage.SetEndTimeCode(float(numbers[-1]))
-    stage.SetTimeCodesPerSecond(fps)
-    stage.SetFramesPerSecond(fps)
-    root = UsdGeom.Xform.Define(stage, "/Bloom")
-    stage.SetDefaultPrim(root.GetPrim())
+    stage = _new_stage(path, source, up, meters_per_unit, numbers, fps)
     for p, (idx, local) in enumerate(petal_meshes(faces, petal)):
         mesh = UsdGeom.Mesh.Define(stage, Sdf.Path(f"/Bloom/petal_{p:02d}"))
         mesh.CreateSubdivisionSchemeAttr(UsdGeom.Tokens.none)
@@ -189,18 +199,8 @@ def write_usd_asset(path, frames: list[np.ndarray], asset, fps: float, frame_num
     ``(n, 3)`` static. ``turns[i] (T, n, 3, 3)`` turns a deformed part's own normals."""
     from pxr import Gf, Sdf, Usd, UsdGeom, UsdShade, Vt
 
-    stage = Usd.Stage.CreateNew(str(path))
-    stage.GetRootLayer().customLayerData = {"bloom": {k: str(v) for k, v in
-                                                      (source or {}).items()}}
-    UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.y if up == "Y" else UsdGeom.Tokens.z)
-    UsdGeom.SetStageMetersPerUnit(stage, float(meters_per_unit))
     frame_numbers = np.asarray(frame_numbers)
-    stage.SetStartTimeCode(float(frame_numbers[0]))
-    stage.SetEndTimeCode(float(frame_numbers[-1]))
-    stage.SetTimeCodesPerSecond(fps)
-    stage.SetFramesPerSecond(fps)
-    root = UsdGeom.Xform.Define(stage, "/Bloom")
-    stage.SetDefaultPrim(root.GetPrim())
+    stage = _new_stage(path, source, up, meters_per_unit, frame_numbers, fps)
     material_names = list(dict.fromkeys(m for p in asset.parts for m in p.materials))
     looks = {}
     if material_names:

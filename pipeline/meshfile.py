@@ -176,12 +176,17 @@ def _obj_units(text: str) -> float | None:
     return None
 
 
-def _read_obj(path: Path, where: str) -> MeshFile:
+def obj_text(path: Path, where: str) -> str:
+    """An OBJ file's text, line ends made ``\\n`` (undecodable bytes replaced)."""
     try:
         text = path.read_bytes().decode("utf-8", errors="replace")
     except OSError as exc:
         raise BloomError(f"not a readable OBJ mesh ({exc})", where=where) from None
-    text = text.replace("\r\n", "\n").replace("\r", "\n")
+    return text.replace("\r\n", "\n").replace("\r", "\n")
+
+
+def _read_obj(path: Path, where: str) -> MeshFile:
+    text = obj_text(path, where)
     keys, names = _obj_keys(text)
     loaded = _load(path, where, force="scene", split_objects=True, split_groups=True,
                    group_material=False)

@@ -116,13 +116,9 @@ def _index(token: str, count: int, where: str, line_no: int) -> int:
 
 
 def _read_obj(path: Path, where: str) -> Asset:
-    from .meshfile import _obj_units
+    from .meshfile import _obj_units, obj_text
 
-    try:
-        text = path.read_bytes().decode("utf-8", errors="replace")
-    except OSError as exc:
-        raise BloomError(f"not a readable OBJ mesh ({exc})", where=where) from None
-    text = text.replace("\r\n", "\n").replace("\r", "\n")
+    text = obj_text(path, where)
     v, vt, vn = [], [], []
     obj = group = named_group = None
     material = None
