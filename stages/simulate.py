@@ -21,7 +21,7 @@ from .common import config_options, input_hashes, load, log, output_options, pro
                    "config left next to --out (same result as an uninterrupted run).")
 def command(growth_h5: str, config_path, overrides, out, overwrite, progress, resume) -> None:
     """Simulate the bloom of the petals in GROWTH_H5 and write the frames to sim.h5."""
-    from pipeline import artifact, clean
+    from pipeline import artifact
     from pipeline.sim import checkpoint
     from pipeline.sim.build import Prepared
     from pipeline.sim.integrators import Diverged, make_integrator
@@ -43,8 +43,7 @@ def command(growth_h5: str, config_path, overrides, out, overwrite, progress, re
             raise BloomError(f"cannot build the model: {exc}", where=growth_h5) from None
         params = cfg.nested().get("effects", {})
         rest_angle = prep.rest_angle
-        grown = model.edge_rest_length * (1.0 + np.maximum(model.edge_growth, 0.0))
-        max_edge = float(grown.max()) if len(grown) else clean.mean_edge_length(v, prep.faces)
+        max_edge = prep.max_grown_edge()  # once: the bud search changes the model's rest lengths
 
         def build_effects(positions):
             return prep.effects(cfg.effects_enabled(), params, positions=positions,

@@ -84,19 +84,24 @@ class Prepared:
         longest edge the collision grid must hold (default: the longest fully grown edge)."""
         positions = self.vertices if positions is None else positions
         if max_edge is None:
-            from .. import clean
-            from .elastic import edge_lengths
-
-            edges = np.ascontiguousarray(self.edges, dtype=np.int64).reshape(-1, 2)
-            length = np.empty(len(edges))  # the arithmetic of the model's rest lengths
-            edge_lengths(np.ascontiguousarray(self.vertices, dtype=np.float64), edges, length)
-            grown = length * (1.0 + np.maximum(np.asarray(self.alpha), 0.0))
-            max_edge = (float(grown.max()) if len(grown)
-                        else clean.mean_edge_length(self.vertices, self.faces))
+            max_edge = self.max_grown_edge()
         return fx.build(names, vertices=positions, faces=self.faces, petal=self.petal,
                         pinned=self.base, on_axis=self.on_axis, plane=self.plane, s=self.s,
                         rest_angle=self.rest_angle if rest_angle is None else rest_angle,
                         flower_axis=self.flower_axis, max_edge=max_edge, params=params)
+
+    def max_grown_edge(self) -> float:
+        """The longest edge at full growth (``L (1 + max(alpha, 0))``, measured as the
+        model measures its rest lengths): what the collision grid's cells must hold."""
+        from .. import clean
+        from .elastic import edge_lengths
+
+        edges = np.ascontiguousarray(self.edges, dtype=np.int64).reshape(-1, 2)
+        if len(edges) == 0:
+            return clean.mean_edge_length(self.vertices, self.faces)
+        length = np.empty(len(edges))
+        edge_lengths(np.ascontiguousarray(self.vertices, dtype=np.float64), edges, length)
+        return float((length * (1.0 + np.maximum(np.asarray(self.alpha), 0.0))).max())
 
     def frames(self, positions=None):
         """The petal frames the opening angle is measured in, at ``positions`` (default

@@ -89,9 +89,9 @@ def find_bud(model: Model, open_positions, effects, *, stages: int, tolerance: f
     backward = Backward()
     solver = QuasiStatic(stages=stages, tolerance=tolerance)
     start = np.asarray(open_positions, dtype=np.float64)
-    path_model = model if lift is None else rest_at(model, start + lift)
     if lift is not None:
         start = start + lift
+    path_model = model if lift is None else rest_at(model, start)
     state = State.at_rest(path_model, start, backward)
     solver.advance(path_model, state, backward, 1, 1.0, effects)
     if lift is None:
