@@ -243,6 +243,37 @@ def _mid(v, f):
     return sv, sf, np.asarray(m.thickness)[nearest]
 
 
+def _lobe_sheets(v, f):
+    """Sheets of a petal part that has no mid-surface: one per lobe of the ring it makes
+    (:func:`pipeline.mesh.lobes.lobes`; the hub where they join left out), each sampled as a
+    height field (:func:`pipeline.mesh.heightfield.height_sheet`). Returns
+    ``[(vertices, faces, thickness)]``, lobes under ``DUST`` of the largest left out;
+    raises ValueError for a lobe that is two layers as far apart as a solid's
+    (``MAX_RELATIVE_THICKNESS`` of its width: a box, a sphere, a block of voxels)."""
+    from .mesh.heightfield import height_sheet
+    from .mesh.lobes import lobes
+
+    from .mesh.midsurface import MAX_RELATIVE_THICKNESS
+
+    split = lobes(v, f)
+    made = []
+    for k in range(split.count):
+        mine = (split.label == k) & (split.radius >= split.hub_radius)
+        if not mine.any():
+            continue
+        h = height_sheet(v, f[mine])
+        if h.two_sided and h.relative_thickness > MAX_RELATIVE_THICKNESS:
+            raise ValueError(f"a solid: {h.relative_thickness:.2f} as thick as wide")
+        sv, sf, _ = clean.clean_mesh(h.vertices, h.faces)
+        if len(sf):
+            from scipy.spatial import cKDTree
+
+            _, nearest = cKDTree(h.vertices).query(sv)
+            made.append((sv, sf, np.asarray(h.thickness)[nearest]))
+    areas = np.array([_area(sv, sf) for sv, sf, _ in made])
+    return [m for m, a in zip(made, areas, strict=True) if a >= DUST * areas.max()] if made else []
+
+
 @dataclass
 class _Judged:
     name: str
@@ -336,6 +367,16 @@ def prepare_parts(mesh_file, *, where: str, target_edge: float = 0.0, petal_vert
         try:
             made = _thick_sheets(v, f, pieces)
         except (ValueError, RuntimeError, np.linalg.LinAlgError) as exc:
+            try:  # no clean mid-surface: a coarse cage, hems, petals joined at a hub
+                made = _lobe_sheets(v, f)
+            except ValueError:
+                made = None
+            if made:
+                total.height_sheets += len(made)
+                notes.append(f"{label}: no mid-surface ({_one_line(exc)}); simulated as "
+                             f"{len(made)} sheet(s) sampled over its lobes")
+                sheets += [(sv, sf, i, (sv, t)) for sv, sf, t in made]
+                continue
             if closed_parts == "drop" and all(_is_closed(pv, pf) for pv, pf in pieces):
                 dropped.append(f"{part.name} (closed, {len(v)} vertices: {_one_line(exc)})")
                 info[-1]["role"] = "kept"  # carried forward untouched, as a part that is not a petal

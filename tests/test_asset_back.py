@@ -292,7 +292,7 @@ def test_the_blender_lily_comes_back_as_18_meshes(tmp_path):
     r = CliRunner().invoke(cli, ["remesh", str(lily), "--out", str(tmp_path / "remesh.h5")])
     if r.exit_code != 0:
         pytest.skip(f"bloom remesh does not take the lily yet: {r.output.strip()[:300]}")
-    sim = run_chain(lily, tmp_path)
+    sim = run_chain(lily, tmp_path, "--set", "remesh.petal_vertices=300")  # coarse: test time
     usd = tmp_path / "bloom.usdc"
     invoke("export", sim, "--out", usd)
     asset = userasset.read_asset(lily)

@@ -262,20 +262,6 @@ def test_real_meshes_go_through_the_geometry_stages_and_simulate(tmp_path, name,
     assert angles.min() > 4.0 and np.percentile(angles, 5) > 18.0, (angles.min(), np.percentile(angles, 5))
 
 
-@needs_shared
-@pytest.mark.parametrize("name, reason", [
-    # pchinyun, ericrius1 and dimontel are thick petals: now simulated as their mid-surface
-    # (tests/test_real_input.py); clach_flower's one part is five thin shells and a solid
-    ("clach_flower", "pCylinder2: cannot become a sheet: piece 1 of 6: not a thin shell")])
-def test_thick_and_broken_real_meshes_are_refused_in_one_line(tmp_path, name, reason):
-    mesh = EXTERNAL / f"{name}.obj"
-    code, out = run("remesh", mesh, "--out", tmp_path / "remesh.h5")
-    assert code == 1
-    assert out.startswith(f"bloom remesh: error: {mesh}: ") and reason in out, out
-    assert out.strip().count("\n") == 0 and "Traceback" not in out
-    assert not any(tmp_path.iterdir())
-
-
 def test_remeshing_is_reproducible_bit_for_bit():
     v, f = irregular_petal()
     a = prepare(v, f, where="test", petal_vertices=200)

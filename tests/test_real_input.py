@@ -272,7 +272,7 @@ def test_uv_seam_duplicates_are_welded_at_centimetre_scale(tmp_path):
 @needs_shared
 @pytest.mark.parametrize("name, petals", [
     ("hallgeirl_petals", 14), ("ssajeev_daisy", 11), ("ericrius1_petal", 1),
-    ("dimontel_petal", 1), ("chianti_flower5", 5), ("pchinyun_petal", 1)])
+    ("dimontel_petal", 1), ("chianti_flower5", 5), ("pchinyun_petal", 1), ("clach_flower", 5)])
 def test_external_meshes(tmp_path, name, petals):
     code, out = run("remesh", EXTERNAL / f"{name}.obj", "--out", tmp_path / "r.h5")
     assert code == 0, out
@@ -285,13 +285,42 @@ def test_external_meshes(tmp_path, name, petals):
 
 
 @needs_shared
-def test_the_blender_lily_is_repaired_then_refused_by_name(tmp_path):
-    """bulat66_lily.glb's petals (Circle.003) are a coarse subdivision cage with a rib on
-    each petal: the 37 non-manifold edges are repaired, but the doubled surface has no
-    usable mid-surface, and that is said in one line naming the part (before: a 4-vertex
-    "petal" went on to the simulator). Issue (2 of 5) is not done until it blooms."""
-    code, out = run("remesh", EXTERNAL / "bulat66_lily.glb", "--out", tmp_path / "r.h5")
-    assert code == 1 and out.strip().count("\n") == 0, out
-    assert "Circle.003: cannot become a sheet: its mid-surface covers only" in out, out
-    assert "Circle.004: stamen" in out and not (tmp_path / "r.h5").exists()
-
+def test_the_blender_lily_reaches_growth_with_six_tepals_based_at_its_centre(tmp_path):
+    """bulat66_lily.glb's petal part (Circle.003) is six tepals and a hub in one coarse
+    surface, each tepal a single sheet whose edges fold under (a hem), with a groove
+    along its midrib: no mid-surface covers it. Its 37 non-manifold edges are repaired,
+    it is split into its six lobes and each is sampled as a height field; the stamens,
+    stem, pistil and sepal stay as they are. Each tepal's base is at the flower's centre
+    and its tip is the point farthest out."""
+    code, out = run("remesh", EXTERNAL / "bulat66_lily.glb", "--out", tmp_path / "r.h5",
+                    "--set", "remesh.petal_vertices=300")
+    assert code == 0, out
+    assert "Circle.003: no mid-surface" in out and "simulated as 6 sheet(s) sampled over its lobes" in out
+    with h5py.File(tmp_path / "r.h5") as h:
+        assert h["mesh/petal"][()].max() + 1 == 6
+        names = list(h["mesh/part_names"].asstr()[()])
+        assert set(names[i] for i in h["mesh/part"][()]) == {"Circle.003"}
+        clean = json.loads(h.attrs["clean"])
+        assert clean["height_sheets"] == 6 and clean["nonmanifold_edges"] == 37
+        kinds = {d["name"]: d["kind"] for d in json.loads(h.attrs["parts"])}
+        assert kinds["Circle.004"] == "stamen" and kinds["Sphere"] == "stamen"
+    for stage, src in (("axis", "r.h5"), ("growth", "a.h5")):
+        dst = {"axis": "a.h5", "growth": "g.h5"}[stage]
+        code, out = run(stage, tmp_path / src, "--out", tmp_path / dst)
+        assert code == 0, out
+    with h5py.File(tmp_path / "g.h5") as h:
+        v, petal = h["mesh/vertices"][()], h["mesh/petal"][()]
+        base, tip, s = h["axis/base"][()], h["axis/tip"][()], h["axis/s"][()]
+        alpha = h["growth/alpha"][()]
+        assert np.isfinite(alpha).all() and alpha.max() > 0 and np.isfinite(h["growth/rest_angle"][()]).all()
+    centre = v.mean(axis=0)
+    normal = np.linalg.svd(v - centre)[2][2]
+    def radial(p):
+        d = p - centre
+        return np.linalg.norm(d - np.outer(d @ normal, normal), axis=1)
+    for k in range(6):
+        mine = petal == k
+        r = radial(v[mine])
+        assert radial(v[tip[k]][None])[0] > np.percentile(r, 95)  # the tip is the far end
+        assert radial(v[base & mine]).mean() < np.percentile(r, 15)  # the base is the near end
+        assert s[mine].min() == 0 and s[mine].max() == 1

@@ -8,10 +8,19 @@ so a model in centimetres and the same model in metres give the same answer.
 - :func:`pipeline.mesh.thickness.thickness`: per-face distance to the surface behind,
   and whether a part is a thin shell;
 - :func:`pipeline.mesh.midsurface.midsurface`: the open sheet halfway between the two
-  sides of a thin shell (a solidified, boxed, tubular or two-layer petal).
+  sides of a thin shell (a solidified, boxed, tubular or two-layer petal);
+- :func:`pipeline.mesh.lobes.lobes`: which petal of a ring each face belongs to, for
+  petals joined in one surface at a hub;
+- :func:`pipeline.mesh.heightfield.height_sheet`: a petal's sheet sampled as heights over
+  its plane, for surfaces with no clean mid-surface (a coarse cage, hems, a crumpled shell);
+- :mod:`pipeline.mesh.repair`: small repairs (fans split at pinched vertices, non-manifold
+  edges resolved, slits zipped, bowtie fans dropped).
 """
 
+from .heightfield import HeightSheet, height_sheet
+from .lobes import Lobes, lobes
 from .midsurface import Midsurface, midsurface
 from .thickness import Thickness, thickness
 
-__all__ = ["Midsurface", "Thickness", "midsurface", "thickness"]
+__all__ = ["HeightSheet", "Lobes", "Midsurface", "Thickness", "height_sheet", "lobes", "midsurface",
+           "thickness"]

@@ -9,7 +9,7 @@ import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components
 
 from .. import clean, topology
-from .repair import corner_fans
+from .repair import manifold_fans
 from .thickness import thickness as measure_thickness
 
 #: least fraction of the area with a parallel layer behind it for a part to be a shell
@@ -96,36 +96,6 @@ def _pick_largest(area: np.ndarray, centroid: np.ndarray, size: float) -> int:
         if big.size and diff[big[0]] > 0:
             best = c
     return best
-
-
-def _manifold_fans(faces: np.ndarray, vertex_count: int) -> np.ndarray:
-    """(F,) bool: faces to keep so that every vertex has a single fan (no bowties).
-
-    At a vertex where faces meet only at that vertex, the fan of largest face count is
-    kept (ties: the one with the lowest face index).
-    """
-    nf = len(faces)
-    keep = np.ones(nf, dtype=bool)
-    for _ in range(10):
-        idx = np.flatnonzero(keep)
-        f = faces[idx]
-        corner_vertex = f.T.ravel()  # corner k*nf' + i: vertex k of face i
-        m = len(f)
-        fan = corner_fans(f)
-        fans_per_vertex = np.zeros(vertex_count, dtype=np.int64)
-        uniq = np.unique(np.stack([corner_vertex, fan], axis=1), axis=0)
-        np.add.at(fans_per_vertex, uniq[:, 0], 1)
-        bad_vertices = np.flatnonzero(fans_per_vertex > 1)
-        if bad_vertices.size == 0:
-            break
-        fan_size = np.bincount(fan, minlength=3 * m)
-        for vert in bad_vertices:
-            corners = np.flatnonzero(corner_vertex == vert)
-            fans = fan[corners]
-            # the largest fan wins; among equals the one whose first corner comes first
-            best = fans[np.lexsort((corners % m, -fan_size[fans]))[0]]
-            keep[idx[corners[fans != best] % m]] = False
-    return keep
 
 
 def midsurface(vertices: np.ndarray, faces: np.ndarray) -> Midsurface:
@@ -312,7 +282,7 @@ def midsurface(vertices: np.ndarray, faces: np.ndarray) -> Midsurface:
     signed = np.einsum("ij,ij->i", new, old) / np.maximum(old_area2, np.finfo(float).tiny)
     good = signed > MIN_AREA_RATIO * old_area2
     local = local[good]
-    local = local[_manifold_fans(local, len(used))]
+    local = local[manifold_fans(local, len(used))]
     if len(local) == 0:
         raise ValueError("the projection onto the middle collapsed every face")
     link = _adjacent_faces(local)

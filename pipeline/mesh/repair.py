@@ -194,3 +194,33 @@ def zip_slits(vertices: np.ndarray, faces: np.ndarray, tolerance: float | None =
     used[f.ravel()] = True
     remap = np.cumsum(used) - 1
     return v[used], remap[f], merged
+
+
+def manifold_fans(faces: np.ndarray, vertex_count: int) -> np.ndarray:
+    """(F,) bool: faces to keep so that every vertex has a single fan (no bowties).
+
+    At a vertex where faces meet only at that vertex, the fan of largest face count is
+    kept (ties: the one with the lowest face index).
+    """
+    nf = len(faces)
+    keep = np.ones(nf, dtype=bool)
+    for _ in range(10):
+        idx = np.flatnonzero(keep)
+        f = faces[idx]
+        corner_vertex = f.T.ravel()  # corner k*nf' + i: vertex k of face i
+        m = len(f)
+        fan = corner_fans(f)
+        fans_per_vertex = np.zeros(vertex_count, dtype=np.int64)
+        uniq = np.unique(np.stack([corner_vertex, fan], axis=1), axis=0)
+        np.add.at(fans_per_vertex, uniq[:, 0], 1)
+        bad_vertices = np.flatnonzero(fans_per_vertex > 1)
+        if bad_vertices.size == 0:
+            break
+        fan_size = np.bincount(fan, minlength=3 * m)
+        for vert in bad_vertices:
+            corners = np.flatnonzero(corner_vertex == vert)
+            fans = fan[corners]
+            # the largest fan wins; among equals the one whose first corner comes first
+            best = fans[np.lexsort((corners % m, -fan_size[fans]))[0]]
+            keep[idx[corners[fans != best] % m]] = False
+    return keep
