@@ -252,7 +252,6 @@ def _lobe_sheets(v, f):
     (``MAX_RELATIVE_THICKNESS`` of its width: a box, a sphere, a block of voxels)."""
     from .mesh.heightfield import height_sheet
     from .mesh.lobes import lobes
-
     from .mesh.midsurface import MAX_RELATIVE_THICKNESS
 
     split = lobes(v, f)
