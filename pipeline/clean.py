@@ -24,6 +24,7 @@ class CleanReport:
     dust_faces: int = 0  #: their faces
     midsurfaces: int = 0  #: thick petals replaced by their mid-surface
     height_sheets: int = 0  #: petals sampled as height fields over their lobes (no mid-surface)
+    ring_splits: int = 0  #: sheets that were several petals joined at a hub, split into them
     nonmanifold_edges: int = 0  #: edges of 3+ faces repaired (the remesh stage, per part)
     nonmanifold_faces: int = 0  #: faces dropped to repair them
     split_vertices: int = 0  #: vertex copies made where separate fans of faces met

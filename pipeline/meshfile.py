@@ -141,8 +141,37 @@ def read_parts(path: str | Path) -> MeshFile:
                  for k, m in enumerate(meshes)]
         mesh_file = MeshFile(parts, None, None)
     if not mesh_file.parts:
-        raise BloomError("mesh has no triangles", where=where)
+        raise BloomError(_no_triangles(path), where=where)
     return mesh_file
+
+
+#: vertex properties of a 3D Gaussian splatting PLY (Kerbl et al. 2023)
+SPLAT_PROPERTIES = ("opacity", "scale_0", "rot_0", "f_dc_0")
+
+
+def _no_triangles(path: Path) -> str:
+    """Why a file with no faces is not a flower model: a Gaussian splat, a point cloud, or
+    nothing at all."""
+    points, splat = 0, False
+    if path.suffix.lower() == ".ply":
+        try:
+            with open(path, "rb") as fh:
+                header = fh.read(65536).split(b"end_header")[0].decode("ascii", "replace")
+        except OSError:
+            header = ""
+        for line in header.splitlines():
+            words = line.split()
+            if words[:2] == ["element", "vertex"] and len(words) > 2 and words[2].isdigit():
+                points = int(words[2])
+            if words[:1] == ["property"] and words[-1] in SPLAT_PROPERTIES:
+                splat = True
+    if splat:
+        return (f"a Gaussian splat ({points} splats with opacity, scale and rotation, no faces), "
+                "not a mesh: there are no petal surfaces to simulate; export the petals as a mesh")
+    if points:
+        return (f"a point cloud ({points} points, no faces), not a mesh: there are no petal surfaces "
+                "to simulate; reconstruct a surface first (e.g. Poisson) or export the mesh")
+    return "mesh has no triangles"
 
 
 def _obj_keys(text: str) -> tuple[list[tuple], list[str]]:

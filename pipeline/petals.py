@@ -36,6 +36,9 @@ SNAP, SNAP_REMESHED = 0.2, 0.05
 #: a remesh (souki202's needle tips, 0.15 off the plane, made a 142 deg notch between two
 #: tips whose one triangle cannot have both other angles at 20 deg)
 SNAP_CORNER = 0.5
+#: a petal with fewer vertices than this (and no remesh.target_edge or petal_vertices set)
+#: is remeshed to about this many: a coarse model has too few hinges to bend smoothly
+MIN_PETAL_VERTICES = 100
 DUST = 0.01  #: connected pieces under this fraction of their part's area are dropped
 LAYERED = 0.5  #: a sheet this much of whose area has a second layer behind it is a slab
 #: a mid-surface must cover at least this fraction of half its shell's area (a shell's
@@ -129,6 +132,10 @@ def _build(v, f, petal, report, *, target_edge, petal_vertices, symmetrize, drop
         before.append(err)
         h = (target_edge * scale if target_edge > 0 else
              remesh.target_for_vertices(pts, lf, petal_vertices) if petal_vertices > 0 else 0.0)
+        if h == 0.0 and len(pts) < MIN_PETAL_VERTICES:  # a coarse model: too few hinges to bend
+            h = remesh.target_for_vertices(pts, lf, MIN_PETAL_VERTICES)
+            notes.append(f"{labels[p]}: {len(pts)} vertices: remeshed to about {MIN_PETAL_VERTICES} "
+                         "(remesh.petal_vertices sets it)")
         pts, lf, h, note, mirrored = _petal(pts, lf, plane, h, symmetrize, labels[p], scale)
         notes += note
         if symmetrize and not mirrored:
@@ -273,6 +280,46 @@ def _lobe_sheets(v, f):
     return [m for m, a in zip(made, areas, strict=True) if a >= DUST * areas.max()] if made else []
 
 
+#: the petals of a ring split from one sheet differ in area by at most this factor
+ALIKE_LOBES = 4.0
+
+
+def _ring_petals(v, f):
+    """The petals of one sheet that is a ring of them joined at a hub
+    (:func:`pipeline.mesh.lobes.lobes`), or None when it is not (fewer than three lobes, or
+    lobes unlike in area by more than ``ALIKE_LOBES``). The hub is left out, and so is
+    every face touching a vertex of another petal, so that no two petals share a point."""
+    from .mesh.lobes import lobes
+
+    split = lobes(v, f)
+    if split.count < 3:
+        return None
+    d = v - split.centre
+    radius = np.linalg.norm(d - np.outer(d @ split.axis, split.axis), axis=1)
+    # cut along the mesh's own edges: a face is out when any corner is inside the hub
+    label = np.where(radius[f].min(axis=1) >= split.hub_radius, split.label, -1)
+    pairs = np.unique(np.stack([f[label >= 0].ravel(), np.repeat(label[label >= 0], 3)], 1), axis=0)
+    shared = np.bincount(pairs[:, 0], minlength=len(v)) > 1
+    ok = (label >= 0) & ~shared[f].any(axis=1)
+    near_cut = radius[f].min(axis=1) < split.hub_radius + 3.0 * clean.mean_edge_length(v, f)
+    out = []
+    for k in range(split.count):
+        mine = np.flatnonzero(ok & (label == k))
+        for _ in range(8):  # teeth left along the cut: faces there with two edges on the rim
+            _, he_edge, count = topology.unique_edges(f[mine])
+            tooth = ((count[he_edge] == 1).reshape(3, -1).sum(axis=0) >= 2) & near_cut[mine]
+            if not tooth.any() or tooth.all():
+                break
+            mine = mine[~tooth]
+        if mine.size == 0:
+            return None
+        used = np.unique(f[mine])
+        pieces = _pieces(v[used], np.searchsorted(used, f[mine]))
+        out.append(max(pieces, key=lambda pc: _area(*pc)))
+    areas = np.array([_area(pv, pf) for pv, pf in out])
+    return out if areas.max() <= ALIKE_LOBES * areas.min() else None
+
+
 @dataclass
 class _Judged:
     name: str
@@ -397,6 +444,17 @@ def prepare_parts(mesh_file, *, where: str, target_edge: float = 0.0, petal_vert
         hint = ("; name the petals with scene.petals = [\"glob\"]" if not problems else
                 "; repair the part(s) named and export again, or name the petals with scene.petals")
         raise BloomError("no petals: " + "; ".join(problems + others) + hint, where=where)
+    split_sheets = []
+    for sv, sf, i, t in sheets:  # petals joined in one sheet at a hub (a low-poly star)
+        petals_of = _ring_petals(sv, sf)
+        if petals_of is None:
+            split_sheets.append((sv, sf, i, t))
+            continue
+        total.ring_splits += 1
+        notes.append(f"{names[i]}: one sheet of {len(petals_of)} petals joined at a hub: split into "
+                     "its petals, the hub left out")
+        split_sheets += [(pv, pf, i, t) for pv, pf in petals_of]
+    sheets = split_sheets
     for k, (sv, sf, i, t) in enumerate(sheets):
         sv, sf, zipped = repair.zip_slits(sv, sf)  # a sliver dropped in a mid-surface, a seam
         if zipped:

@@ -36,7 +36,9 @@ def test_blender_imports_the_usd_and_sees_the_same_points(tmp_path):
         assert r.exit_code == 0, r.output
         prev = out
     usd = tmp_path / "bloom.usdc"
-    assert runner.invoke(cli, ["export", str(prev), "--out", str(usd)]).exit_code == 0
+    # the simulation sheet itself (export.mesh = "sheet"); the user's parts are the next test
+    assert runner.invoke(cli, ["export", str(prev), "--out", str(usd),
+                               "--set", "export.mesh=sheet"]).exit_code == 0
     frames = [0, 3, 6]
     r = subprocess.run([sys.executable, str(ROOT / "tests" / "blender" / "evaluated_points.py"),
                         str(usd), ",".join(map(str, frames))], capture_output=True, text=True,
@@ -61,16 +63,37 @@ def test_blender_imports_the_users_parts(tmp_path):
     """export.mesh = "input": Blender sees the input's parts under their (prim) names,
     with the input's vertex counts, UVs per face corner and material names, and the last
     frame's positions are the input deformed by sim.h5 through the binding."""
-    from pipeline import binding, export, userasset
     from tests.test_asset_back import maya_obj, run_chain
 
     mesh = tmp_path / "flower.obj"
     maya_obj(mesh)
     sim = run_chain(mesh, tmp_path, "--set", 'scene.petals=["petal"]')
-    usd = tmp_path / "bloom.usdc"
+    _blender_sees_the_asset(mesh, sim, tmp_path / "bloom.usdc", 8)
+
+
+@pytest.mark.skipif(not _has_bpy(), reason="bpy (Blender as a module) is not installed")
+def test_blender_imports_the_lily_as_its_18_meshes(tmp_path):
+    """The Blender glTF lily (bulat66_lily.glb) back into Blender: its 18 meshes under
+    their names, vertex counts, UVs and materials, the tepals deformed as sim.h5 says."""
+    from tests.test_asset_back import SHARED, run_chain
+
+    lily = SHARED / "bulat66_lily.glb"
+    if not lily.exists():
+        pytest.skip("../shared/external-meshes is not here")
+    sim = run_chain(lily, tmp_path, "--set", "remesh.petal_vertices=300")
+    got = _blender_sees_the_asset(lily, sim, tmp_path / "bloom.usdc", 8)
+    assert len(got) == 18
+
+
+def _blender_sees_the_asset(mesh, sim, usd, frame):
+    """Export sim.h5 to USD, import it in Blender headless and compare every part with the
+    input (names, counts, polygon corners, UVs, materials) and with its frame through the
+    binding. Returns what Blender saw."""
+    from pipeline import binding, export, userasset
+
     assert CliRunner().invoke(cli, ["export", str(sim), "--out", str(usd)]).exit_code == 0
     r = subprocess.run([sys.executable, str(ROOT / "tests" / "blender" / "asset_report.py"),
-                        str(usd), "8"], capture_output=True, text=True, timeout=300)
+                        str(usd), str(frame)], capture_output=True, text=True, timeout=300)
     got = json.loads(next(x for x in r.stdout.splitlines() if x.startswith("JSON"))[4:])
     asset = userasset.read_asset(mesh)
     with h5py.File(sim) as f:
@@ -83,7 +106,9 @@ def test_blender_imports_the_users_parts(tmp_path):
         assert seen["loops"] == part.face_indices.tolist()  # Blender keeps the polygons' order
         assert sorted(seen["materials"]) == sorted(export.prim_names(part.materials))
         if part.uv is not None:
-            np.testing.assert_allclose(seen["uv"], part.uv[part.uv_indices], atol=1e-6)
-        last = pts[-1] if pts.ndim == 3 else pts
+            corners = part.uv_indices if part.uv_indices is not None else part.face_indices  # glTF: per vertex
+            np.testing.assert_allclose(seen["uv"], part.uv[corners], atol=1e-6)
+        last = pts[frame] if pts.ndim == 3 else pts
         # metersPerUnit 0.01: Blender scales the objects, not their local points
         np.testing.assert_allclose(seen["points"], last, atol=1e-5 * np.abs(last).max())
+    return got

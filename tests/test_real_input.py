@@ -324,3 +324,53 @@ def test_the_blender_lily_reaches_growth_with_six_tepals_based_at_its_centre(tmp
         assert radial(v[tip[k]][None])[0] > np.percentile(r, 95)  # the tip is the far end
         assert radial(v[base & mine]).mean() < np.percentile(r, 15)  # the base is the near end
         assert s[mine].min() == 0 and s[mine].max() == 1
+
+
+# --- petals joined in one surface, and what is not a set of petals ----------------------------
+
+def test_a_star_of_petals_in_one_sheet_becomes_its_petals(tmp_path):
+    """A low-poly flower modelled as one sheet (five petals joined at a hub, a stem beside
+    it): five petals that share no point, the hub left out, said in the log and counted."""
+    from tests.test_lobes import star
+
+    v, f = star(k=5, hub=0.2, cup=0.3, rings=12, around=150)
+    stem = trimesh.creation.cylinder(radius=0.03, height=1.0, sections=10)
+    stem.apply_translation([0, 0, -0.5])
+    mesh = write_parts(tmp_path / "star.obj", [("Flower", v, f), ("Stem", stem.vertices, stem.faces)])
+    code, out = run("remesh", mesh, "--out", tmp_path / "r.h5")
+    assert code == 0, out
+    assert "Flower: one sheet of 5 petals joined at a hub: split into its petals" in out
+    with h5py.File(tmp_path / "r.h5") as h:
+        petal, verts = h["mesh/petal"][()], h["mesh/vertices"][()]
+        assert petal.max() + 1 == 5
+        assert json.loads(h.attrs["clean"])["ring_splits"] == 1
+        kinds = {d["name"]: (d["kind"], d["role"]) for d in json.loads(h.attrs["parts"])}
+    assert kinds["Flower"][1] == "petal" and kinds["Stem"] == ("stem", "kept")
+    from scipy.spatial import cKDTree
+
+    for p in range(5):
+        others = cKDTree(verts[petal != p])
+        assert others.query(verts[petal == p])[0].min() > 0.2  # mean edges apart: no shared point
+
+
+@pytest.mark.parametrize("kind", ["cloud", "splat", "voxels"])
+def test_what_is_not_a_set_of_petals_is_named_in_one_line(tmp_path, kind):
+    rng = np.random.default_rng(0)
+    path = tmp_path / f"{kind}.ply"
+    if kind == "voxels":  # MagicaVoxel-style: a ring of five petals of unit cubes
+        cells = {tuple(np.round([i * np.cos(a) - j * np.sin(a), i * np.sin(a) + j * np.cos(a), 0]))
+                 for a in 2 * np.pi * np.arange(5) / 5 for i in range(1, 7) for j in (-1, 0, 1)}
+        trimesh.util.concatenate([trimesh.creation.box(extents=(1, 1, 1)).apply_translation(c)
+                                  for c in sorted(cells)]).export(path)
+        expected = "part_0: other (not a petal: voxel cubes (up to"
+    else:
+        props = ["x", "y", "z"] + (["f_dc_0", "opacity", "scale_0", "rot_0"] if kind == "splat" else [])
+        header = ("ply\nformat binary_little_endian 1.0\nelement vertex 400\n"
+                  + "".join(f"property float {p}\n" for p in props) + "end_header\n")
+        path.write_bytes(header.encode() + rng.normal(size=(400, len(props))).astype("<f4").tobytes())
+        expected = {"cloud": "a point cloud (400 points, no faces)",
+                    "splat": "a Gaussian splat (400 splats with opacity, scale and rotation"}[kind]
+    code, out = run("remesh", path, "--out", tmp_path / "r.h5")
+    assert code == 1 and out.strip().count("\n") == 0, out
+    assert out.startswith(f"bloom remesh: error: {path}: ") and expected in out, out
+    assert not (tmp_path / "r.h5").exists()

@@ -302,6 +302,38 @@ def _round_part(units: list[_Shape], candidates: list[int]) -> _Frame | None:
     return _orient(frame, float(np.median(frame.axial(v[near]))), float(frame.axial(v).mean()))
 
 
+def voxel_cubes(vertices: np.ndarray, faces: np.ndarray) -> tuple[int, float] | None:
+    """``(cubes, side)`` when a part is voxel art: every face axis-aligned and every vertex
+    on one cubic lattice, with more than one cube's worth of lattice points; else None."""
+    v = np.asarray(vertices, dtype=np.float64)
+    f = np.asarray(faces, dtype=np.int64)
+    if len(f) < 12:
+        return None
+    v = v[np.unique(f)]
+    fn = topology.face_normals(np.asarray(vertices, dtype=np.float64), f)
+    n = np.abs(fn) / np.maximum(np.linalg.norm(fn, axis=1), np.finfo(float).tiny)[:, None]
+    if n.max(axis=1).min() < 1.0 - 1e-6:
+        return None
+    size = float(np.ptp(v, axis=0).max())
+    steps = []
+    for axis in range(3):
+        u = np.unique(v[:, axis])
+        gaps = np.diff(u)
+        if gaps.size == 0 or gaps.min() <= 1e-9 * size:
+            return None
+        steps.append(gaps.min())
+    step = min(steps)
+    if max(steps) > step * (1 + 1e-6):
+        return None
+    k = (v - v.min(axis=0)) / step
+    if np.abs(k - np.round(k)).max() > 1e-4:
+        return None
+    points = len(np.unique(np.round(k).astype(np.int64), axis=0))
+    if points <= 8:
+        return None
+    return max(1, len(f) // 12), step
+
+
 def classify(parts) -> list[Verdict]:
     """Tell each part of a flower model what it is.
 
@@ -340,6 +372,12 @@ def classify(parts) -> list[Verdict]:
 
     verdicts = []
     for i, p in enumerate(parts):
+        voxels = voxel_cubes(p.vertices, p.faces)
+        if voxels is not None:
+            verdicts.append(Verdict("other", f"voxel cubes (up to {voxels[0]} cubes of side "
+                                             f"{voxels[1]:.3g}, every face on one lattice): voxel art "
+                                             "has no petal surfaces to simulate"))
+            continue
         mine = [u for u in range(len(units)) if owner[u] == i]
         shape = wholes[i] if len(mine) == 1 else None
         if hinted[i] is not None:
