@@ -237,17 +237,23 @@ def _mid(v, f):
     from .mesh.midsurface import midsurface
 
     m = midsurface(v, f)
-    sv, sf, _ = clean.clean_mesh(m.vertices, m.faces)
+    sv, sf, t = _cleaned_sheet(m.vertices, m.faces, m.thickness)
     kept = _area(sv, sf) / max(0.5 * _area(v, f), 1e-300) if len(sf) else 0.0
     if kept < MIN_MID_AREA:
         raise ValueError(f"its mid-surface covers only {kept:.0%} of one side ({len(sf)} faces); "
                          "the part is not two parallel sides (a low-poly cage, a crumpled or "
                          "self-intersecting shell?)")
-    # clean_mesh keeps the order of the vertices it keeps: match the thickness by position
+    return sv, sf, t
+
+
+def _cleaned_sheet(vertices, faces, thickness):
+    """A made sheet cleaned (:func:`clean.clean_mesh`) with its per-vertex thickness carried
+    to the vertices kept (matched by position: welding merges and reorders)."""
     from scipy.spatial import cKDTree
 
-    _, nearest = cKDTree(m.vertices).query(sv)
-    return sv, sf, np.asarray(m.thickness)[nearest]
+    sv, sf, _ = clean.clean_mesh(vertices, faces)
+    _, nearest = cKDTree(vertices).query(sv)
+    return sv, sf, np.asarray(thickness)[nearest]
 
 
 def _lobe_sheets(v, f):
@@ -270,12 +276,9 @@ def _lobe_sheets(v, f):
         h = height_sheet(v, f[mine])
         if h.two_sided and h.relative_thickness > MAX_RELATIVE_THICKNESS:
             raise ValueError(f"a solid: {h.relative_thickness:.2f} as thick as wide")
-        sv, sf, _ = clean.clean_mesh(h.vertices, h.faces)
+        sv, sf, t = _cleaned_sheet(h.vertices, h.faces, h.thickness)
         if len(sf):
-            from scipy.spatial import cKDTree
-
-            _, nearest = cKDTree(h.vertices).query(sv)
-            made.append((sv, sf, np.asarray(h.thickness)[nearest]))
+            made.append((sv, sf, t))
     areas = np.array([_area(sv, sf) for sv, sf, _ in made])
     return [m for m, a in zip(made, areas, strict=True) if a >= DUST * areas.max()] if made else []
 

@@ -106,7 +106,8 @@ def _blender_sees_the_asset(mesh, sim, usd, frame):
         assert seen["loops"] == part.face_indices.tolist()  # Blender keeps the polygons' order
         assert sorted(seen["materials"]) == sorted(export.prim_names(part.materials))
         if part.uv is not None:
-            corners = part.uv_indices if part.uv_indices is not None else part.face_indices  # glTF: per vertex
+            # glTF's UVs are per vertex: the corners index them through the faces
+            corners = part.uv_indices if part.uv_indices is not None else part.face_indices
             np.testing.assert_allclose(seen["uv"], part.uv[corners], atol=1e-6)
         last = pts[frame] if pts.ndim == 3 else pts
         # metersPerUnit 0.01: Blender scales the objects, not their local points

@@ -304,8 +304,7 @@ def test_the_blender_lily_reaches_growth_with_six_tepals_based_at_its_centre(tmp
         assert clean["height_sheets"] == 6 and clean["nonmanifold_edges"] == 37
         kinds = {d["name"]: d["kind"] for d in json.loads(h.attrs["parts"])}
         assert kinds["Circle.004"] == "stamen" and kinds["Sphere"] == "stamen"
-    for stage, src in (("axis", "r.h5"), ("growth", "a.h5")):
-        dst = {"axis": "a.h5", "growth": "g.h5"}[stage]
+    for stage, src, dst in (("axis", "r.h5", "a.h5"), ("growth", "a.h5", "g.h5")):
         code, out = run(stage, tmp_path / src, "--out", tmp_path / dst)
         assert code == 0, out
     with h5py.File(tmp_path / "g.h5") as h:

@@ -34,11 +34,12 @@ class HeightSheet(NamedTuple):
 
 
 def _frame(v: np.ndarray, f: np.ndarray):
+    """The best-fit plane (:func:`pipeline.mesh.lobes.plane_frame`), right-handed, its
+    normal along the faces' winding."""
+    from .lobes import plane_frame
+
+    centre, axes, _, _ = plane_frame(v, f)
     fn = topology.face_normals(v, f)
-    area = 0.5 * np.linalg.norm(fn, axis=1)
-    centroid = v[f].mean(axis=1)
-    centre = (centroid * area[:, None]).sum(axis=0) / max(area.sum(), np.finfo(float).tiny)
-    _, _, axes = np.linalg.svd((centroid - centre) * np.sqrt(area)[:, None], full_matrices=True)
     axes[2] = np.cross(axes[0], axes[1])  # right-handed: a grid cell's winding gives +normal
     if axes[2] @ fn.sum(axis=0) < 0:  # the normal agrees with most of the faces' winding
         axes = np.array([axes[1], axes[0], -axes[2]])
@@ -155,10 +156,11 @@ def height_sheet(vertices: np.ndarray, faces: np.ndarray, cells: int = CELLS,
     smoother (a single sheet whose edges fold under: its top; folded over: its bottom).
     The footprint is eroded by ``margin`` nodes (so that two petals cut from one surface
     do not touch), and the largest edge-connected piece is kept: the sheet loses a rim of
-    one to two grid cells (measured: 85% of a hemmed test petal's area is kept). The rim, stepped by the grid, is
-    smoothed along itself. ``relative_thickness`` tells a solid (a box, a sphere: as thick
-    as wide) from a petal; the caller decides. Valid where the petal is a height field over its plane: a
-    petal curled past a right angle is flattened onto its plane.
+    one to two grid cells (measured: 85% of a hemmed test petal's area is kept). The rim,
+    stepped by the grid, is smoothed along itself. ``relative_thickness`` tells a solid
+    (a box, a sphere: as thick as wide) from a petal; the caller decides. Valid where the
+    petal is a height field over its plane: a petal curled past a right angle is
+    flattened onto its plane.
     """
     v = np.asarray(vertices, dtype=np.float64)
     f = np.asarray(faces, dtype=np.int64)

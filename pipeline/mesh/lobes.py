@@ -38,9 +38,11 @@ class Lobes(NamedTuple):
     hub_radius: float  #: faces nearer the axis than this are where the lobes join (0 if one)
 
 
-def _frame(v: np.ndarray, f: np.ndarray):
-    fn = topology.face_normals(v, f)
-    area = 0.5 * np.linalg.norm(fn, axis=1)
+def plane_frame(v: np.ndarray, f: np.ndarray):
+    """The area-weighted best-fit plane through the face centroids: ``(centre (3,), axes
+    (3, 3) rows by decreasing spread (the last is the normal), face areas (F,), face
+    centroids (F, 3))``."""
+    area = 0.5 * np.linalg.norm(topology.face_normals(v, f), axis=1)
     centroid = v[f].mean(axis=1)
     centre = (centroid * area[:, None]).sum(axis=0) / max(area.sum(), np.finfo(float).tiny)
     _, _, axes = np.linalg.svd((centroid - centre) * np.sqrt(area)[:, None], full_matrices=True)
@@ -125,7 +127,7 @@ def lobes(vertices: np.ndarray, faces: np.ndarray, deep: float = DEEP) -> Lobes:
     """
     v = np.asarray(vertices, dtype=np.float64)
     f = np.asarray(faces, dtype=np.int64)
-    centre, axes, area, centroid = _frame(v, f)
+    centre, axes, area, centroid = plane_frame(v, f)
     axis, e1 = axes[2], axes[0]
     e2 = np.cross(axis, e1)
     d = centroid - centre
