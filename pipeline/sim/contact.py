@@ -36,6 +36,8 @@ from dataclasses import dataclass, field
 import numpy as np
 import scipy.sparse as sp
 
+from .terms import Term
+
 
 class ContactError(RuntimeError):
     """The bud cannot start under contact: ``key`` is the config key to name."""
@@ -65,8 +67,10 @@ def barrier_curvature(d: float, gap: float, band: float) -> float:
 
 
 @dataclass
-class Contact:
+class Contact(Term):
     """The barrier between petals and its CCD (see the module docstring)."""
+
+    name = "contact"
 
     mesh: object  #: ipctk.CollisionMesh over all vertices, a petal never against itself
     petal: np.ndarray  #: (V,) petal of each vertex
@@ -184,7 +188,7 @@ class Contact:
             self._at = X.copy()
         return self.collisions
 
-    def energy(self, X, F) -> float:
+    def forces(self, X, F) -> float:
         """The barrier's energy at X; subtracts its gradient from the forces ``F``
         (V, 3). Infinite where a pair is at or below the gap."""
         X = np.asfortranarray(X, dtype=np.float64)
@@ -196,7 +200,7 @@ class Contact:
             F -= self.potential.gradient(active, self.mesh, X).reshape(-1, 3)
         return energy
 
-    def hessian(self, X, project: bool = True) -> sp.csc_matrix | None:
+    def hessian(self, X, project: bool = False) -> sp.csc_matrix | None:
         """The barrier's Hessian at X (3V x 3V), each contact's projected to positive
         semi-definite (``project``, as the solver takes it) or exact; None when no pair
         is within the band."""
@@ -266,10 +270,11 @@ def frame_intersections(frames, faces) -> list[bool]:
 
 
 @dataclass
-class Springs:
+class Springs(Term):
     """The connection springs' energy for Newton: the intact ones of an
     :class:`effects.Connections` (which holds ``alive`` and ``broken_step``)."""
 
+    name = "connections"
     connections: object  #: effects.Connections
 
     def _live(self):
@@ -277,7 +282,7 @@ class Springs:
         keep = np.flatnonzero(c.alive)
         return c.pairs[keep, 0], c.pairs[keep, 1], c.rest[keep]
 
-    def energy(self, X, F) -> float:
+    def forces(self, X, F) -> float:
         """Energy of the intact springs; adds their forces to ``F``."""
         i, j, rest = self._live()
         if len(i) == 0:
@@ -292,7 +297,7 @@ class Springs:
         np.subtract.at(F, j, push)
         return float(0.5 * k * np.sum(stretch * stretch))
 
-    def hessian_at(self, X) -> sp.csc_matrix | None:
+    def hessian(self, X, project: bool = False) -> sp.csc_matrix | None:
         """Exact Hessian (3V x 3V) of the intact springs at X: per spring ``K`` on the
         (i, i), (j, j) blocks and ``-K`` on (i, j), (j, i), ``K = k [u u^T + (1 - L/l)
         (I - u u^T)]``."""

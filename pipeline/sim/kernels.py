@@ -8,8 +8,10 @@ runs them; their public names are importable from here too:
 - :mod:`.constraints`: curl's rest angles, the center-plane constraint, connection springs;
 - :mod:`.pushback`: the paper's collision response (grid, push-back, crossing count).
 
-The Newton solver's terms (gradient and Hessian) are :mod:`.hessian` (elastic) and
-:mod:`.contact` (barrier, springs).
+Each physical term is also a unit of :mod:`.terms` with one interface (energy,
+gradient, Hessian, forces) over these same kernels: that is what the Newton solver sums
+and what the tests check against finite differences; its Hessians are :mod:`.hessian`
+(elastic) and :mod:`.contact` (barrier, springs).
 
 These loops are the product: they run hundreds of thousands of times per bloom. They
 work on plain contiguous arrays and write into arrays the caller owns; nothing is

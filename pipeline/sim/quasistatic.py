@@ -66,7 +66,7 @@ import qdldl
 import scipy.sparse as sp
 from scipy.sparse.linalg import spsolve_triangular
 
-from . import hessian, kernels
+from . import hessian, terms
 from .contact import Contact, Springs
 from .effects import CenterPlane, Curl, Effects
 from .model import Control, Model, State
@@ -303,15 +303,15 @@ class _System:
         return all(g.solver is not None and g.positive and g.shift == 0.0 for g in self.groups)
 
     # --- the coupling terms -----------------------------------------------------------------
-    def couple(self, terms: list) -> None:
+    def couple(self, hessians: list) -> None:
         """Set the coupling terms' Hessians (3V x 3V sparse, or None) for the next
         factorizations, restricted to the free directions."""
-        terms = [t for t in terms if t is not None]
-        if not terms:
+        hessians = [t for t in hessians if t is not None]
+        if not hessians:
             self.extra = None
             return
         P = self.project
-        total = terms[0] if len(terms) == 1 else sum(terms[1:], terms[0])
+        total = hessians[0] if len(hessians) == 1 else sum(hessians[1:], hessians[0])
         extra = sp.triu(P @ total @ P, format="coo")
         keep = extra.data != 0.0
         self.extra = sp.coo_matrix((extra.data[keep], (extra.row[keep], extra.col[keep])),
@@ -442,8 +442,11 @@ class QuasiStatic:
     _limited: bool = field(default=False, repr=False)  #: the last line search was cut by CCD
     #: the equilibrium before the last one on the path: (A, X), for the secant predictor
     _behind: tuple | None = field(default=None, repr=False)
-    #: the inertia term of the increment being solved: (x_pred (V, 3), m / dt^2 (V,))
-    _dyn: tuple | None = field(default=None, repr=False)
+    #: the inertia term of the increment being solved (None: the quasi-static path)
+    _dyn: terms.Inertia | None = field(default=None, repr=False)
+    #: the scene's terms (:func:`terms.build`); the elastic unit at the growth last set
+    _terms: terms.Terms | None = field(default=None, repr=False)
+    _elastic: terms.Elastic | None = field(default=None, repr=False)
 
     def diagnostics(self) -> dict:
         # (the same names at every frame, the first included: coupling is built later)
@@ -513,6 +516,8 @@ class QuasiStatic:
         """:meth:`advance` for one connected mesh."""
         if self._system is None:
             self._system = _System.build(model, effects)
+            self._terms = terms.build(model, effects, contact=self._contact,
+                                      springs=self._springs)
         if not self._started:  # settle at the start so that a tangent exists
             self._started = True
             a0 = control.growth_at(state.step * h)
@@ -563,11 +568,11 @@ class QuasiStatic:
                 a_now, a_next = control.growth_at(t_now), control.growth_at(t_next)
                 start = state.positions.copy()
                 weight = model.vertex_mass / (dt * dt)
-                self._dyn = (start + dt * state.velocities, weight)
-                self._system.inertia = np.repeat(weight, 3)
+                self._dyn = terms.Inertia(start + dt * state.velocities, weight)
+                self._system.inertia = self._dyn.diagonal()
                 try:
                     self._predict(model, state, effects, a_now, a_next,
-                                  guess=self._dyn[0] - start)
+                                  guess=self._dyn.predicted - start)
                     failure = self._newton(model, state, effects, a_next)
                 finally:
                     self._dyn, self._system.inertia = None, None
@@ -698,21 +703,20 @@ class QuasiStatic:
             gr.moved = length * float(np.abs(step[gr.dofs]).max(initial=0.0))
 
     def _rest_angles(self, model: Model, effects: Effects, A: float):
-        if effects.curl is None:
-            return model.hinge_rest_cos, model.hinge_rest_sin
-        c = effects.curl
-        kernels.curl_rest_angles(c.theta0, A * c.beta, c.cos_t, c.sin_t)
-        return c.cos_t, c.sin_t
+        """Set the elastic unit (stretch and bending, curl's rest angles) to growth A;
+        returns the rest angles' cos and sin there. Every evaluation below is of the
+        growth last set here."""
+        self._elastic = terms.Elastic.of(model, effects.curl).at(A)
+        return self._elastic.bending.cos0, self._elastic.bending.sin0
 
     def _assemble(self, model, X, A, cos0, sin0) -> None:
         """The constrained Hessian at X into the system's blocks."""
         s = self._system
         H = s.blocks
-        H.assemble(model, X, A, cos0, sin0)
+        self._elastic.assemble(X, H)
         hessian.constrain(H.indptr, H.indices, H.data, s.pinned, s.plane_row, s.normals)
         if s.project is not None:
-            s.couple([self._contact.hessian(X) if self._contact else None,
-                      self._springs.hessian_at(X) if self._springs else None])
+            s.couple([t.hessian(X, project=True) for t in self._terms.coupling])
 
     def _links(self, X) -> np.ndarray:
         """(k, 2) vertex pairs the coupling terms join at X: the contacts within the
@@ -728,25 +732,19 @@ class QuasiStatic:
     def _energy(self, model, X, A, cos0, sin0, scratch) -> float:
         """The energy at X; the forces into ``scratch``. With coupling terms, their
         forces are also kept (``_coupling``) for :meth:`_rounding`."""
-        energy = kernels.internal_forces(X, model.edge_indices, model.edge_rest_length,
-                                         model.edge_growth, model.edge_stiffness,
-                                         model.hinge_indices, cos0, sin0,
-                                         model.hinge_stiffness, A, scratch)
+        scratch[:] = 0.0
+        energy = self._elastic.forces(X, scratch)
         if self._dyn is not None:
-            x_pred, weight = self._dyn
-            d = X - x_pred
-            energy += 0.5 * float(np.sum(weight[:, None] * d * d))
-            scratch -= weight[:, None] * d
-        if self._contact is None and self._springs is None:
+            energy += self._dyn.forces(X, scratch)
+        coupled = self._terms.coupling if self._terms is not None else []
+        if not coupled:
             return energy
         coupling = self._coupling
         if coupling is None or coupling.shape != X.shape:
             coupling = self._coupling = np.empty_like(X)
         coupling[:] = 0.0
-        if self._contact is not None:
-            energy += self._contact.energy(X, coupling)
-        if self._springs is not None:
-            energy += self._springs.energy(X, coupling)
+        for term in coupled:
+            energy += term.forces(X, coupling)
         scratch += coupling
         return energy
 
@@ -886,12 +884,9 @@ class QuasiStatic:
         per_vertex = self._scale_work
         if per_vertex is None or len(per_vertex) != len(X):
             per_vertex = self._scale_work = np.empty(len(X))
-        energy = hessian.rounding_scale(X, model.edge_indices, model.edge_rest_length,
-                                        model.edge_growth, model.edge_stiffness,
-                                        model.hinge_indices, cos0, sin0, model.hinge_stiffness,
-                                        A, per_vertex)
+        energy = self._elastic.rounding(X, per_vertex)
         if self._dyn is not None:  # the inertia term's force w (x - x_pred)
-            x_pred, weight = self._dyn
+            x_pred, weight = self._dyn.predicted, self._dyn.weight
             size = np.abs(X).max(axis=1) + np.abs(x_pred).max(axis=1)
             per_vertex += weight * size
             energy += float(np.sum(weight * size * size))
@@ -912,13 +907,9 @@ class QuasiStatic:
     def _constrained(self, vec: np.ndarray) -> np.ndarray:
         """``vec`` (per vertex) without what the constraints forbid: nothing for a fixed
         vertex, no normal part for a center-plane vertex. Flattened copy."""
-        s = self._system
         out = np.array(vec, dtype=np.float64).reshape(-1, 3)
-        out[s.pinned] = 0.0
-        rows = np.flatnonzero(s.plane_row >= 0)
-        if len(rows):
-            n = s.normals[s.plane_row[rows]]
-            out[rows] -= np.einsum("ij,ij->i", out[rows], n)[:, None] * n
+        for constraint in self._terms.constraints:
+            constraint.project(out)
         return out.ravel()
 
     def _line_search(self, model, X, A, cos0, sin0, scratch, energy, g, step) -> float:
