@@ -159,19 +159,33 @@ def petal_layers(count: int) -> np.ndarray:
     return layers
 
 
-def bud(petals: int = 6, vertices: int = 1800, seed: int = 0, shape: BudShape = BudShape()):
+def bud(petals: int = 6, vertices: int = 1800, seed: int = 0, shape: BudShape = BudShape(),
+        *, crossing: bool = False):
     """A closed bud of ``petals`` petals and about ``vertices`` vertices in all.
 
     Returns ``(vertices (V, 3), faces (F, 3), petal (V,))``; petal ``p`` is a separate
     connected component, mirror-symmetric about its own center plane. The same seed
     gives the same mesh.
+
+    No two petals pass through each other (ipctk's exact test), so that contact can
+    start from the bud: where the bud of ``shape`` would have them cross (dense buds,
+    whose neighbours overlap more than two deep, and coarse ones, whose cups turn about
+    other centres near base and tip), it is rebuilt untangled (:func:`_untangled`).
+    ``crossing=True`` keeps the crossings (a bud made to be crossed, for tests).
     """
     if petals < 1:
         raise ValueError("a bud needs at least one petal")
+    v, f, labels = _bud(petals, vertices, seed, shape, petal_layers(petals))
+    if crossing or petals == 1 or not _crossed(v, f, labels):
+        return v, f, labels
+    return _bud(petals, vertices, seed, *_untangled(petals, shape), untangled=True)
+
+
+def _bud(petals: int, vertices: int, seed: int, shape: BudShape, layers: np.ndarray,
+         untangled: bool = False):
     rng = np.random.default_rng(seed)
     outline = Outline()
     spacing = _spacing_for(outline, vertices // petals, seed)
-    layers = petal_layers(petals)
     verts, faces, labels = [], [], []
     offset = 0
     for p in range(petals):
@@ -181,12 +195,67 @@ def bud(petals: int = 6, vertices: int = 1800, seed: int = 0, shape: BudShape = 
         flat, tri = flat_petal(jitter, spacing, rng)
         azimuth = 2.0 * np.pi * p / petals + rng.uniform(-0.04, 0.04)
         length = 1.0 + rng.uniform(-0.04, 0.04)
+        if untangled:  # one profile for all: each whorl on a surface of its own
+            azimuth, length = 2.0 * np.pi * p / petals, 1.0
         v = bend_into_bud(flat, azimuth, layers[p], shape, length)
         verts.append(v)
         faces.append(tri + offset)
         labels.append(np.full(len(v), p))
         offset += len(v)
     return np.concatenate(verts), np.concatenate(faces), np.concatenate(labels)
+
+
+def _crossed(vertices, faces, petal) -> bool:
+    """Whether two petals pass through each other (ipctk's exact test)."""
+    import ipctk
+
+    X = np.asfortranarray(vertices, dtype=np.float64)
+    F = np.asfortranarray(faces, dtype=np.int32)
+    mesh = ipctk.CollisionMesh(X, ipctk.edges(F), F)
+    mesh.can_collide = ipctk.make_vertex_patches_filter(np.ascontiguousarray(petal, np.int32))
+    return bool(ipctk.has_intersections(mesh, X))
+
+
+#: petals of one whorl leave this fraction of their spacing free between them
+WHORL_MARGIN = 0.85
+
+
+def _untangled(petals: int, shape: BudShape) -> tuple[BudShape, np.ndarray]:
+    """A shape and layers whose bud cannot cross: every cross-section an arc about the
+    flower's axis (no cup tighter than that), so each whorl lies on a surface of
+    revolution of its own, the whorls nested ``layer_gap`` apart; as many whorls as it
+    takes, and a receptacle wide enough, that petals of one whorl do not overlap
+    (angular width at most ``WHORL_MARGIN`` of their spacing, the widest outline
+    allowed for: the jitter adds up to 4%)."""
+    outline = Outline(max_half_width=1.04 * Outline().max_half_width, widest_at=0.63)
+    s = np.linspace(0.0, 1.0, 401)
+    width = 2.0 * np.maximum(outline.half_width(s), Outline(widest_at=0.57).half_width(s))
+    for whorls in range(1, petals + 1):
+        room = WHORL_MARGIN * 2.0 * np.pi * whorls / petals
+        for receptacle in np.linspace(shape.receptacle_radius, 0.25, 39):
+            trial = BudShape(float(receptacle), shape.bulge, shape.closure, 0.0, shape.layer_gap)
+            radius, _ = bud_profile(s, trial)
+            if np.all(width / radius <= room):
+                return trial, _whorl_layers(petals, whorls)
+    raise ValueError(f"no untangled bud of {petals} petals")
+
+
+def _whorl_layers(petals: int, whorls: int) -> np.ndarray:
+    """Layer of each petal: petal p in whorl ``p % whorls``, except where the circle
+    closes unevenly (``petals % whorls``): a petal fewer than ``whorls`` places from one
+    of its whorl goes to a whorl of its own, outside the others."""
+    layers = np.zeros(petals)
+    members: dict[int, list[int]] = {}
+    extra = whorls
+    for p in range(petals):
+        layer = p % whorls
+        near = [q for q in members.get(layer, []) if min((p - q) % petals, (q - p) % petals)
+                < whorls]
+        if near:
+            layer, extra = extra, extra + 1
+        members.setdefault(layer, []).append(p)
+        layers[p] = layer
+    return layers
 
 
 @dataclass(frozen=True)

@@ -2,8 +2,11 @@
 a reference bloom (``bloom study accuracy``, ``make accuracy``).
 
 - Scene: a procedural bud (``asset.bud``) at growth ``0.2 x^2``, K_s 0.1, K_b 0.0005,
-  no collisions (the quasi-static solver does not model them), a smootherstep ramp
-  and, for the dynamic integrators, a hold of half the ramp after it.
+  a smootherstep ramp and, for the dynamic integrators, a hold of half the ramp after
+  it. First without collisions; then (a bud of several petals) with them: Newton with
+  the contact barrier against the semi-implicit scheme with the paper's push-back,
+  each against a contact reference, with whether the bloom ends with two triangles
+  through each other (ipctk's exact test).
 - Reference: the quasi-static path with many growth increments and a tight tolerance;
   :func:`reference` also measures how much halving the increments and tightening the
   tolerance again changes it (it must be < 0.1% of the petal length).
@@ -41,6 +44,15 @@ class Scene:
     petal: np.ndarray  #: (V,) petal of each vertex
     planes: np.ndarray  #: (P, 4) each petal's center plane at rest
     partner: np.ndarray | None  #: (V,) each vertex's mirror partner, if the petals pair up
+    prep: Prepared | None = None  #: the arrays the effects are built from
+
+    def effects(self, names=()):
+        """The effects ``names`` at the scene's defaults (None: none)."""
+        if not names:
+            return None
+        from .config import load_config
+
+        return self.prep.effects(names, load_config().nested()["effects"])
 
     @classmethod
     def bud(cls, petals: int = 6, vertices: int = 2133, curve: str = "0.2*x**2",
@@ -90,7 +102,7 @@ class Scene:
                 partner = None
                 break
             partner[idx] = idx[pairs]
-        return cls(v, f, model, frames, length, petal, np.asarray(axes_plane), partner)
+        return cls(v, f, model, frames, length, petal, np.asarray(axes_plane), partner, prep)
 
     def mirrored(self, X) -> np.ndarray:
         """Each petal's shape reflected across its center plane (vertex by vertex)."""
@@ -109,20 +121,28 @@ class Run:
     wall: float
     positions: np.ndarray
     iterations: int = 0
+    crossed: bool = False  #: two triangles intersect at the end (ipctk's exact test)
 
 
 def simulate(scene: Scene, integrator: str, *, ramp: int, hold: int = 0, h: float = 1.0,
              eta: float = 0.1, damping: float = 0.9999, stages: int = 20,
-             tolerance: float = 1e-6, schedule: str = "smootherstep") -> Run:
-    """One run: growth over ``ramp`` steps, then ``hold`` steps at full growth."""
+             tolerance: float = 1e-6, schedule: str = "smootherstep", effects=()) -> Run:
+    """One run: growth over ``ramp`` steps, then ``hold`` steps at full growth, with the
+    ``effects`` named."""
+    from .sim.contact import frame_intersections
+
     model = scene.model
     steps = ramp + hold
     control = Control(schedule, ramp * h)
     state = State.at_rest(model, scene.vertices, control)
     stepper = make_integrator(integrator, eta, damping, speed_limit=10.0, stages=stages,
                               tolerance=tolerance)
+    built = scene.effects(effects)
     t0 = time.perf_counter()
-    stepper.advance(model, state, control, steps, h)
+    if built is None:
+        stepper.advance(model, state, control, steps, h)
+    else:
+        stepper.advance(model, state, control, steps, h, built)
     wall = time.perf_counter() - t0
     if integrator == "quasi-static":
         params = f"stages={stages} tol={tolerance:g}"
@@ -130,8 +150,11 @@ def simulate(scene: Scene, integrator: str, *, ramp: int, hold: int = 0, h: floa
         params = f"d={damping:g} h={h:g} ramp={ramp}"
     else:
         params = f"eta={eta:g} h={h:g} ramp={ramp}"
+    if "collisions" in effects:
+        params += " contact" if integrator == "quasi-static" else " push-back"
     return Run(integrator, params, steps, wall, state.positions.copy(),
-               stepper.diagnostics().get("newton_iterations", 0))
+               stepper.diagnostics().get("newton_iterations", 0),
+               frame_intersections([state.positions], scene.faces)[0])
 
 
 def shape_error(scene: Scene, X, reference) -> tuple[float, float]:
@@ -176,11 +199,13 @@ def surface_error(scene: Scene, X, ref_scene: Scene, reference) -> tuple[float, 
     return float(np.sqrt(total / len(X))) / ref_scene.length, angle
 
 
-def reference(scene: Scene, stages: int = 40, tolerance: float = 1e-8):
+def reference(scene: Scene, stages: int = 40, tolerance: float = 1e-8, effects=()):
     """The reference bloom and the change that refining it once more makes (fraction of
     the petal length): ``2 stages`` and ``tolerance / 10``."""
-    ref = simulate(scene, "quasi-static", ramp=1, stages=stages, tolerance=tolerance)
-    finer = simulate(scene, "quasi-static", ramp=1, stages=2 * stages, tolerance=tolerance / 10)
+    ref = simulate(scene, "quasi-static", ramp=1, stages=stages, tolerance=tolerance,
+                   effects=effects)
+    finer = simulate(scene, "quasi-static", ramp=1, stages=2 * stages, tolerance=tolerance / 10,
+                     effects=effects)
     change, _ = shape_error(scene, finer.positions, ref.positions)
     return ref, change
 
@@ -205,6 +230,17 @@ def plan(quick: bool = False) -> list[dict]:
     return runs
 
 
+def contact_plan(quick: bool = False) -> list[dict]:
+    """The runs with collisions: Newton with the contact barrier over a range of
+    increments, and the semi-implicit scheme with the paper's push-back over a range of
+    growth durations."""
+    ramps = (4_000, 16_000) if quick else (20_000, 80_000, 160_000)
+    runs = [dict(integrator="quasi-static", stages=s, tolerance=t)
+            for s, t in ((5, 1e-4), (10, 1e-6), (20, 1e-8))]
+    runs += [dict(integrator="semi-implicit", eta=0.1, ramp=r, hold=r // 2) for r in ramps]
+    return [dict(r, effects=("collisions",)) for r in runs]
+
+
 FLOOR = 1e-6  #: errors below this are drawn at it (the reference's own rounding is ~1e-12)
 
 
@@ -212,8 +248,9 @@ def label(run: Run) -> str:
     if run.integrator == "semi-implicit":
         eta, h = run.params.split()[:2]
         name = "Verlet (eta=0.5)" if eta == "eta=0.5" else f"semi-implicit {eta}"
-        return name if h == "h=1" else f"{name} {h}"
-    return run.integrator
+        name = name if h == "h=1" else f"{name} {h}"
+        return f"{name}, push-back" if "push-back" in run.params else name
+    return f"{run.integrator}, contact" if "contact" in run.params else run.integrator
 
 
 def warm_up(scene: Scene, runs: list[dict]) -> None:
@@ -221,10 +258,10 @@ def warm_up(scene: Scene, runs: list[dict]) -> None:
     row's wall time includes compiling a kernel it is the first to use."""
     seen = set()
     for spec in runs:
-        key = (spec["integrator"], spec.get("h", 1.0))
+        key = (spec["integrator"], spec.get("h", 1.0), spec.get("effects", ()))
         if key not in seen:
             seen.add(key)
-            extra = {k: spec[k] for k in ("eta", "damping", "h") if k in spec}
+            extra = {k: spec[k] for k in ("eta", "damping", "h", "effects") if k in spec}
             simulate(scene, spec["integrator"], ramp=4, hold=2, **extra)
 
 
@@ -235,36 +272,25 @@ def accuracy(out_dir, *, petals: int = 6, vertices: int = 2133, quick: bool = Fa
 
     source = asset.bud(petals, vertices, 0)
     scene = Scene.from_mesh(*source)
-    ref, change = reference(scene)
-    echo(f"reference: quasi-static, 40 increments, tolerance 1e-8: {ref.wall:.2f} s; "
-         f"refining it changes it by {100 * change:.4f}% of the petal length")
-    if change > 1e-3:
-        echo("WARNING: the reference is not converged to 0.1% of the petal length")
-    warm_up(scene, plan(quick))
+    sections = [((), plan(quick))]
+    if petals > 1:  # contact is between petals
+        sections.append((("collisions",), contact_plan(quick)))
     rows = []
-    for spec in plan(quick):
-        spec = dict(spec)
-        name = spec.pop("integrator")
-        size = spec.pop("vertices", None)
-        if name == "quasi-static":
-            ramp = 1
-        else:
-            ramp = spec.pop("ramp")
-        if size is None:
-            run = simulate(scene, name, ramp=ramp, **spec)
-            err, dangle = shape_error(scene, run.positions, ref.positions)
-            name = label(run)
-        else:  # the same bud remeshed: distances to the reference's surface
-            other = Scene.remeshed(source, size)
-            run = simulate(other, name, ramp=ramp, **spec)
-            err, dangle = surface_error(other, run.positions, scene, ref.positions)
-            run.params += f" V={other.model.vertex_count}"
-            name = f"{label(run)}, mesh resolution"
-        rows.append({"integrator": name, "params": run.params, "steps": run.steps,
-                     "newton_iterations": run.iterations, "wall_seconds": run.wall,
-                     "error": err, "opening_difference_deg": dangle})
-        echo(f"{name:34s} {run.params:28s} {run.wall:8.2f} s  error {100 * err:8.3f}%  "
-             f"opening {dangle:+7.2f} deg")
+    for effects, runs in sections:
+        ref, change = reference(scene, effects=effects)
+        what = " with contact" if effects else ""
+        echo(f"reference{what}: quasi-static, 40 increments, tolerance 1e-8: {ref.wall:.2f} s; "
+             f"refining it changes it by {100 * change:.4f}% of the petal length"
+             + ("; it ends with petals through each other" if ref.crossed else ""))
+        if change > 1e-3:
+            echo("WARNING: the reference is not converged to 0.1% of the petal length")
+        warm_up(scene, runs)
+        for spec in runs:
+            rows.append(_row(scene, source, dict(spec), ref))
+            r = rows[-1]
+            echo(f"{r['integrator']:34s} {r['params']:36s} {r['wall_seconds']:8.2f} s  error "
+                 f"{100 * r['error']:8.3f}%  opening {r['opening_difference_deg']:+7.2f} deg"
+                 + ("  INTERSECTING" if r["intersecting_at_end"] else ""))
     with atomic_path(out_dir / "accuracy.csv") as tmp, open(tmp, "w", newline="") as fh:
         writer = csv.DictWriter(fh, fieldnames=list(rows[0]))
         writer.writeheader()
@@ -272,6 +298,28 @@ def accuracy(out_dir, *, petals: int = 6, vertices: int = 2133, quick: bool = Fa
     plot(rows, out_dir / "accuracy.png",
          f"What accuracy costs: {petals}-petal bud, {scene.model.vertex_count} vertices")
     return rows
+
+
+def _row(scene: Scene, source, spec: dict, ref: Run) -> dict:
+    """One run of a plan, measured against the reference ``ref``."""
+    name = spec.pop("integrator")
+    size = spec.pop("vertices", None)
+    ramp = 1 if name == "quasi-static" else spec.pop("ramp")
+    if size is None:
+        run = simulate(scene, name, ramp=ramp, **spec)
+        err, dangle = shape_error(scene, run.positions, ref.positions)
+        name = label(run)
+    else:  # the same bud remeshed: distances to the reference's surface
+        other = Scene.remeshed(source, size)
+        run = simulate(other, name, ramp=ramp, **spec)
+        err, dangle = surface_error(other, run.positions, scene, ref.positions)
+        run.params += f" V={other.model.vertex_count}"
+        name = f"{label(run)}, mesh resolution"
+    return {"integrator": name, "params": run.params, "steps": run.steps,
+            "newton_iterations": run.iterations, "wall_seconds": run.wall, "error": err,
+            "opening_difference_deg": dangle,
+            "effects": "+".join(spec.get("effects", ())) or "none",
+            "intersecting_at_end": int(run.crossed)}
 
 
 PAPER_LILY_SECONDS = 44.0  #: the paper's time for its Fig. 12 lily (2133 vertices)

@@ -106,7 +106,8 @@ class Contact(Term):
     # --- the start ----------------------------------------------------------------------
     def check_start(self, X) -> None:
         """Refuse a bud the barrier cannot start from: petals through each other, or
-        closer than the gap. Names the petal pairs."""
+        touching; names the petal pairs. Petals closer than the gap (but apart) make the
+        gap half their distance (logged)."""
         ipctk = _ipctk()
         X = np.asfortranarray(X, dtype=np.float64)
         if ipctk.has_intersections(self.mesh, X):
@@ -118,10 +119,33 @@ class Contact(Term):
         close = self.close_pairs(X, self.gap)
         if close:
             worst = min(d for _, _, d in close)
-            raise ContactError(
-                f"petals {_pairs([(a, b) for a, b, _ in close])} start closer than the gap "
-                f"effects.collisions.thickness = {self.gap:g} (down to {worst:.3g}); use a "
-                "smaller thickness", key="effects.collisions.thickness")
+            if worst <= 1e-6 * self.gap:  # (a distance the barrier cannot keep)
+                raise ContactError(
+                    f"petals {_pairs([(a, b) for a, b, _ in close])} touch in the bud "
+                    f"(down to {worst:.3g} apart): contact cannot start from petals that "
+                    "touch; fix the input mesh, or disable effects.collisions",
+                    key="effects.collisions.thickness")
+            # petals that start closer than the gap: the gap is what they start with, halved
+            # (the barrier then acts from there down), and the log says so
+            import logging
+
+            gap = 0.5 * worst
+            logging.getLogger("bloom").warning(
+                "petals %s start closer than effects.collisions.thickness = %g (down to %.3g "
+                "apart): contact keeps a gap of %.3g instead",
+                _pairs([(a, b) for a, b, _ in close]), self.gap, worst, gap)
+            self._regap(gap)
+
+    def _regap(self, gap: float) -> None:
+        """Keep ``gap`` (band as wide), with the barrier as stiff at its band's middle as
+        before."""
+        ipctk = _ipctk()
+        stiffness = self.kappa * barrier_curvature(self.gap + 0.5 * self.band, self.gap,
+                                                   self.band)
+        self.gap = self.band = float(gap)
+        self.kappa = float(stiffness / barrier_curvature(gap + 0.5 * gap, gap, gap))
+        self.potential = ipctk.BarrierPotential(self.band, self.kappa)
+        self.collisions, self._at, self.candidates = None, None, None
 
     def intersecting_pairs(self, X) -> list[tuple[int, int]]:
         """Petal pairs that intersect at X (one exact test per pair)."""
