@@ -1,5 +1,6 @@
 """Contact and connection springs in the quasi-static (Newton) solver: the barrier's
-derivatives, no iterate ever crossing (CCD), the gap kept, springs that break."""
+derivatives and its projection (the connection springs' are in test_terms.py), no
+iterate ever crossing (CCD), the gap kept, springs that break, buds that start clean."""
 
 import math
 
@@ -109,30 +110,6 @@ def test_barrier_stiffness_scales_with_the_springs():
     for stiffness, gap in ((0.1, 0.01), (3.0, 0.05)):
         c = ct.Contact.build(*_grid(2, 2, 0.0), np.zeros(4, int), gap=gap, stiffness=stiffness)
         assert c.kappa * ct.barrier_curvature(1.5 * gap, gap, gap) == pytest.approx(stiffness)
-
-
-def test_connection_spring_gradient_and_hessian_match_finite_differences():
-    rng = np.random.default_rng(0)
-    X = rng.normal(size=(6, 3))
-    pairs = np.array([[0, 3], [1, 4], [2, 5], [0, 5]])
-    rest = np.linalg.norm(X[pairs[:, 0]] - X[pairs[:, 1]], axis=1) * [0.7, 1.3, 1.0, 0.9]
-    conn = fx.Connections(pairs, rest, 10 * rest, 0.2, np.array([True, True, True, False]),
-                          np.full(4, -1))
-    s = ct.Springs(conn)
-    F = np.zeros_like(X)
-    s.forces(X, F)
-    H = s.hessian(X).toarray()
-    step = 1e-6  # positions of order 1
-    for k in range(X.size):
-        plus, minus = X.copy().ravel(), X.copy().ravel()
-        plus[k] += step
-        minus[k] -= step
-        Fp, Fm = np.zeros_like(X), np.zeros_like(X)
-        ep, em = s.forces(plus.reshape(-1, 3), Fp), s.forces(minus.reshape(-1, 3), Fm)
-        assert (ep - em) / (2 * step) == pytest.approx(-F.ravel()[k], abs=1e-7 * np.abs(F).max())
-        np.testing.assert_allclose((Fm - Fp).ravel() / (2 * step), H[k],
-                                   atol=1e-7 * np.abs(H).max())
-    assert np.abs(H[:, 3 * 5:]).max() > 0  # an intact spring reaches vertex 5
 
 
 def test_newton_with_contact_never_crosses_and_keeps_the_gap(monkeypatch):
