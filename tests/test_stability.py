@@ -18,6 +18,14 @@ def test_hard_case_is_stable_or_stops_cleanly(case, tmp_path):
     if r.outcome == "finished":
         assert r.max_speed < 1.0 and r.escape < stability.MAX_ESCAPE
         assert r.drift < stability.MAX_DRIFT
+        with h5py.File(tmp_path / "sim.h5") as h5:
+            contact = (h5.attrs["integrator"] == "quasi-static"
+                       and "collisions" in str(h5.attrs["effects"]))
+            if contact:  # (the dense 12-petal bud): no frame has an intersection
+                from pipeline.sim.contact import frame_intersections
+
+                frames = h5["frames/positions"][()]
+                assert not any(frame_intersections(frames, h5["mesh/faces"][()]))
     else:
         assert r.outcome == "stopped" and "simulate." in r.message
         assert not (tmp_path / "sim.h5").exists()
