@@ -175,34 +175,46 @@ def bud(petals: int = 6, vertices: int = 1800, seed: int = 0, shape: BudShape = 
     """
     if petals < 1:
         raise ValueError("a bud needs at least one petal")
-    v, f, labels = _bud(petals, vertices, seed, shape, petal_layers(petals))
-    if crossing or petals == 1 or not _crossed(v, f, labels):
-        return v, f, labels
-    return _bud(petals, vertices, seed, *_untangled(petals, shape), untangled=True)
-
-
-def _bud(petals: int, vertices: int, seed: int, shape: BudShape, layers: np.ndarray,
-         untangled: bool = False):
-    rng = np.random.default_rng(seed)
     outline = Outline()
     spacing = _spacing_for(outline, vertices // petals, seed)
-    verts, faces, labels = [], [], []
-    offset = 0
-    for p in range(petals):
+
+    def flat(p, rng):
         jitter = Outline(outline.base_half_width,
                          outline.max_half_width * (1.0 + rng.uniform(-0.04, 0.04)),
                          outline.widest_at + rng.uniform(-0.03, 0.03))
-        flat, tri = flat_petal(jitter, spacing, rng)
+        return flat_petal(jitter, spacing, rng)
+
+    return bend_bud(flat, petals, seed, shape, crossing=crossing)
+
+
+def bend_bud(flat, petals: int, seed: int = 0, shape: BudShape = BudShape(), *,
+             crossing: bool = False, untangled: bool = False):
+    """The flat petals ``flat(p, rng) -> (points (V, 2), faces)`` bent into a closed bud
+    (:func:`bend_into_bud`), each at its azimuth and layer (:func:`petal_layers`), its
+    length jittered by up to 4%. Where two petals would cross (ipctk's exact test) the
+    bud is made again untangled (:func:`_untangled`: one profile for all, each whorl on
+    a surface of revolution of its own), unless ``crossing``."""
+    rng = np.random.default_rng(seed)
+    layers = petal_layers(petals)
+    if untangled:
+        shape, layers = _untangled(petals, shape)
+    verts, faces, labels = [], [], []
+    offset = 0
+    for p in range(petals):
+        pts, tri = flat(p, rng)
         azimuth = 2.0 * np.pi * p / petals + rng.uniform(-0.04, 0.04)
         length = 1.0 + rng.uniform(-0.04, 0.04)
-        if untangled:  # one profile for all: each whorl on a surface of its own
+        if untangled:  # (the draws stay, so each petal's own jitter is as before)
             azimuth, length = 2.0 * np.pi * p / petals, 1.0
-        v = bend_into_bud(flat, azimuth, layers[p], shape, length)
+        v = bend_into_bud(pts, azimuth, layers[p], shape, length)
         verts.append(v)
         faces.append(tri + offset)
         labels.append(np.full(len(v), p))
         offset += len(v)
-    return np.concatenate(verts), np.concatenate(faces), np.concatenate(labels)
+    out = np.concatenate(verts), np.concatenate(faces), np.concatenate(labels)
+    if crossing or untangled or petals == 1 or not _crossed(*out):
+        return out
+    return bend_bud(flat, petals, seed, shape, untangled=True)
 
 
 def _crossed(vertices, faces, petal) -> bool:

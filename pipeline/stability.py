@@ -190,29 +190,10 @@ def jittered_petal(vertices: int = 320, seed: int = 0, amount: float = 0.3):
     return pts, f
 
 
-def bud_of(flat, petals: int, seed: int = 0, shape=SHAPE, untangled: bool = False):
+def bud_of(flat, petals: int, seed: int = 0, shape=SHAPE):
     """Bend the flat petals ``flat(p)`` into a closed bud, as :func:`asset.bud` does
     (untangled, as it does, where they would cross)."""
-    rng = np.random.default_rng(seed)
-    layers = asset.petal_layers(petals)
-    if untangled:
-        shape, layers = asset._untangled(petals, shape)
-    verts, faces, labels, offset = [], [], [], 0
-    for p in range(petals):
-        pts, f = flat(p)
-        azimuth = 2.0 * np.pi * p / petals + rng.uniform(-0.04, 0.04)
-        length = 1.0 + rng.uniform(-0.04, 0.04)
-        if untangled:
-            azimuth, length = 2.0 * np.pi * p / petals, 1.0
-        v = asset.bend_into_bud(pts, azimuth, layers[p], shape, length)
-        verts.append(v)
-        faces.append(f + offset)
-        labels.append(np.full(len(v), p))
-        offset += len(v)
-    out = np.concatenate(verts), np.concatenate(faces), np.concatenate(labels)
-    if not untangled and petals > 1 and asset._crossed(*out):
-        return bud_of(flat, petals, seed, shape, untangled=True)
-    return out
+    return asset.bend_bud(lambda p, rng: flat(p), petals, seed, shape)
 
 
 def three_vertex_base(seed: int = 0):

@@ -27,11 +27,15 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import asset
+from .config import load_config
 from .measure import PetalFrames
 from .sim.build import Prepared
 from .sim.integrators import make_integrator
 from .sim.model import Control, Model, State
 from .symmetry import mirror_pairs, reflect
+
+#: the ``effects`` section of a scene at its defaults
+DEFAULT_EFFECTS = load_config().nested()["effects"]
 
 
 @dataclass
@@ -47,12 +51,8 @@ class Scene:
     prep: Prepared | None = None  #: the arrays the effects are built from
 
     def effects(self, names=()):
-        """The effects ``names`` at the scene's defaults (None: none)."""
-        if not names:
-            return None
-        from .config import load_config
-
-        return self.prep.effects(names, load_config().nested()["effects"])
+        """The effects ``names`` (none: an empty set) at the defaults of the config."""
+        return self.prep.effects(names, DEFAULT_EFFECTS)
 
     @classmethod
     def bud(cls, petals: int = 6, vertices: int = 2133, curve: str = "0.2*x**2",
@@ -139,10 +139,7 @@ def simulate(scene: Scene, integrator: str, *, ramp: int, hold: int = 0, h: floa
                               tolerance=tolerance)
     built = scene.effects(effects)
     t0 = time.perf_counter()
-    if built is None:
-        stepper.advance(model, state, control, steps, h)
-    else:
-        stepper.advance(model, state, control, steps, h, built)
+    stepper.advance(model, state, control, steps, h, built)
     wall = time.perf_counter() - t0
     if integrator == "quasi-static":
         params = f"stages={stages} tol={tolerance:g}"

@@ -152,8 +152,9 @@ def _bloom(name, curve="0.2*x**2", steps=30000, frames=4):
 
 @pytest.mark.parametrize("name", list(INTEGRATORS))
 def test_every_integrator_keeps_the_base_and_opens_the_petal(name):
-    """Fixed base to the bit; boundary-dominant growth opens the petal outward (the
-    semi-implicit scheme measured 57 deg here); the same run twice gives the same bits."""
+    """Fixed base to the bit; boundary-dominant growth opens the petal outward (measured
+    at the end: 56.2, 59.8, 59.8 and 59.6 deg in the order of INTEGRATORS); the same run
+    twice gives the same bits."""
     v, model, rec = _bloom(name)
     pos = np.asarray(rec.positions)
     base = model.pinned

@@ -30,6 +30,7 @@ with a spring past its limit breaks it and is redone).
 
 from __future__ import annotations
 
+import logging
 import math
 from dataclasses import dataclass, field
 
@@ -127,8 +128,6 @@ class Contact(Term):
                     key="effects.collisions.thickness")
             # petals that start closer than the gap: the gap is what they start with, halved
             # (the barrier then acts from there down), and the log says so
-            import logging
-
             gap = 0.5 * worst
             logging.getLogger("bloom").warning(
                 "petals %s start closer than effects.collisions.thickness = %g (down to %.3g "

@@ -444,9 +444,8 @@ class QuasiStatic:
     _behind: tuple | None = field(default=None, repr=False)
     #: the inertia term of the increment being solved (None: the quasi-static path)
     _dyn: terms.Inertia | None = field(default=None, repr=False)
-    #: the scene's terms (:func:`terms.build`); the elastic unit at the growth last set
+    #: the scene's terms (:func:`terms.build`), at the growth last set (:meth:`_at`)
     _terms: terms.Terms | None = field(default=None, repr=False)
-    _elastic: terms.Elastic | None = field(default=None, repr=False)
 
     def diagnostics(self) -> dict:
         # (the same names at every frame, the first included: coupling is built later)
@@ -492,10 +491,8 @@ class QuasiStatic:
                 for k in ("iterations", "increments", "shifted", "descents"))
         if not self.inertia:
             state.velocities[:] = 0.0
-        cos0, sin0 = self._rest_angles(model, effects, control.growth_at(state.step * h))
-        state.potential_energy = self._energy(model, state.positions,
-                                              control.growth_at(state.step * h), cos0, sin0,
-                                              state.forces)
+        self._at(model, effects, control.growth_at(state.step * h))
+        state.potential_energy = self._energy(state.positions, state.forces)
         effects.constrain(state.forces)
         if self._contact is not None:  # the frame's contacts: pairs within the barrier's band
             effects.counters[0] = self._contact.active_count(state.positions)
@@ -516,8 +513,6 @@ class QuasiStatic:
         """:meth:`advance` for one connected mesh."""
         if self._system is None:
             self._system = _System.build(model, effects)
-            self._terms = terms.build(model, effects, contact=self._contact,
-                                      springs=self._springs)
         if not self._started:  # settle at the start so that a tangent exists
             self._started = True
             a0 = control.growth_at(state.step * h)
@@ -679,9 +674,9 @@ class QuasiStatic:
         the step ``H^-1 f(x, A_next)``. ``guess``: a step to try first (with inertia,
         where the velocity carries the vertices: ``dt v``)."""
         X = state.positions
-        cos0, sin0 = self._rest_angles(model, effects, a_next)
+        self._at(model, effects, a_next)
         scratch = np.empty_like(X)
-        energy, g = self._gradient(model, X, a_next, cos0, sin0, scratch)
+        energy, g = self._gradient(X, scratch)
         step = None
         behind = self._behind
         if guess is not None:
@@ -698,22 +693,24 @@ class QuasiStatic:
                 return
             step = self._system.solve(-g)
         self.iterations += 1
-        length = self._line_search(model, X, a_next, cos0, sin0, scratch, energy, g, step)
+        length = self._line_search(X, scratch, energy, g, step)
         for gr in self._system.groups:
             gr.moved = length * float(np.abs(step[gr.dofs]).max(initial=0.0))
 
-    def _rest_angles(self, model: Model, effects: Effects, A: float):
-        """Set the elastic unit (stretch and bending, curl's rest angles) to growth A;
-        returns the rest angles' cos and sin there. Every evaluation below is of the
-        growth last set here."""
-        self._elastic = terms.Elastic.of(model, effects.curl).at(A)
-        return self._elastic.bending.cos0, self._elastic.bending.sin0
+    def _at(self, model: Model, effects: Effects, A: float) -> None:
+        """Set the scene's terms (built once per model, :func:`terms.build`) to growth A:
+        every evaluation below (energy, gradient, Hessian, rounding) is of the growth
+        last set here."""
+        if self._terms is None or self._terms.model is not model:
+            self._terms = terms.build(model, effects, contact=self._contact,
+                                      springs=self._springs)
+        self._terms.elastic.at(A)
 
-    def _assemble(self, model, X, A, cos0, sin0) -> None:
+    def _assemble(self, X) -> None:
         """The constrained Hessian at X into the system's blocks."""
         s = self._system
         H = s.blocks
-        self._elastic.assemble(X, H)
+        self._terms.elastic.assemble(X, H)
         hessian.constrain(H.indptr, H.indices, H.data, s.pinned, s.plane_row, s.normals)
         if s.project is not None:
             s.couple([t.hessian(X, project=True) for t in self._terms.coupling])
@@ -729,14 +726,14 @@ class QuasiStatic:
             links.append(np.asarray(c.pairs, dtype=np.int64)[np.asarray(c.alive, dtype=bool)])
         return np.concatenate(links)
 
-    def _energy(self, model, X, A, cos0, sin0, scratch) -> float:
+    def _energy(self, X, scratch) -> float:
         """The energy at X; the forces into ``scratch``. With coupling terms, their
         forces are also kept (``_coupling``) for :meth:`_rounding`."""
         scratch[:] = 0.0
-        energy = self._elastic.forces(X, scratch)
+        energy = self._terms.elastic.forces(X, scratch)
         if self._dyn is not None:
             energy += self._dyn.forces(X, scratch)
-        coupled = self._terms.coupling if self._terms is not None else []
+        coupled = self._terms.coupling
         if not coupled:
             return energy
         coupling = self._coupling
@@ -775,7 +772,7 @@ class QuasiStatic:
         the gradient flow, time step ``1/sqrt(mu)``).
         """
         X = state.positions
-        cos0, sin0 = self._rest_angles(model, effects, A)
+        self._at(model, effects, A)
         scratch = np.empty_like(X)
         residual = np.inf
         floor = 1e-3 * float(model.hinge_stiffness.max(initial=0.0) or model.edge_stiffness.max())
@@ -787,10 +784,10 @@ class QuasiStatic:
         fresh: set = set()  #: groups factored in this solve
         chord: dict = {}  #: whether a group's step reuses its factorization
         for _ in range(self.max_iterations):
-            energy, g = self._gradient(model, X, A, cos0, sin0, scratch)
+            energy, g = self._gradient(X, scratch)
             residual = float(np.abs(g).max())
             self.residuals.append(residual)
-            scale, self._energy_rounding = self._rounding(model, X, A, cos0, sin0)
+            scale, self._energy_rounding = self._rounding(X)
             rounding = ROUNDING_FACTOR * EPS * scale
             if residual <= rounding:
                 return None  # at rounding: no step can do better
@@ -824,7 +821,7 @@ class QuasiStatic:
                 if chord[gr.key]:
                     continue
                 if not assembled:
-                    self._assemble(model, X, A, cos0, sin0)
+                    self._assemble(X)
                     assembled = True
                 positive, down = system.factor(gr)
                 fresh.add(gr.key)
@@ -833,10 +830,10 @@ class QuasiStatic:
                     lost.append(gr)
                     if down is not None:
                         self.descents += 1
-                        energy = self._descend(model, X, A, cos0, sin0, scratch, energy, g,
+                        energy = self._descend(X, scratch, energy, g,
                                                self._constrained(down))
             if lost:
-                energy, g = self._gradient(model, X, A, cos0, sin0, scratch)
+                energy, g = self._gradient(X, scratch)
                 for gr in lost:
                     mu = floor
                     while not system.factor(gr, mu)[0]:
@@ -846,7 +843,7 @@ class QuasiStatic:
                             # no shift makes it positive: not finite?
                             return _Failure(residual, scale, "shift", self._inertia())
             step = system.solve(-g, moving)
-            length = self._line_search(model, X, A, cos0, sin0, scratch, energy, g, step)
+            length = self._line_search(X, scratch, energy, g, step)
             if length == 0.0:
                 reused = [gr.key for gr in moving if chord[gr.key]]
                 if reused:  # an old factorization is no excuse: factor afresh
@@ -874,7 +871,7 @@ class QuasiStatic:
             return "singular"
         return "definite" if all(g.positive for g in groups) else "indefinite"
 
-    def _rounding(self, model, X, A, cos0, sin0) -> tuple[float, float]:
+    def _rounding(self, X) -> tuple[float, float]:
         """The force scale (the largest, over the vertices, of what the force kernel adds
         and subtracts there: :func:`hessian.rounding_scale`) and the rounding level of
         the energy. ``eps`` times the force scale bounds the gradient that rounding
@@ -884,7 +881,7 @@ class QuasiStatic:
         per_vertex = self._scale_work
         if per_vertex is None or len(per_vertex) != len(X):
             per_vertex = self._scale_work = np.empty(len(X))
-        energy = self._elastic.rounding(X, per_vertex)
+        energy = self._terms.elastic.rounding(X, per_vertex)
         if self._dyn is not None:  # the inertia term's force w (x - x_pred)
             x_pred, weight = self._dyn.predicted, self._dyn.weight
             size = np.abs(X).max(axis=1) + np.abs(x_pred).max(axis=1)
@@ -898,10 +895,10 @@ class QuasiStatic:
         force = float(per_vertex[free].max()) if free.any() else 0.0
         return force, EPS * energy
 
-    def _gradient(self, model, X, A, cos0, sin0, scratch) -> tuple[float, np.ndarray]:
+    def _gradient(self, X, scratch) -> tuple[float, np.ndarray]:
         """Energy and gradient (flattened) with the constraints applied, from the force
         kernel."""
-        energy = self._energy(model, X, A, cos0, sin0, scratch)
+        energy = self._energy(X, scratch)
         return energy, self._constrained(-scratch)
 
     def _constrained(self, vec: np.ndarray) -> np.ndarray:
@@ -912,7 +909,7 @@ class QuasiStatic:
             constraint.project(out)
         return out.ravel()
 
-    def _line_search(self, model, X, A, cos0, sin0, scratch, energy, g, step) -> float:
+    def _line_search(self, X, scratch, energy, g, step) -> float:
         """Backtracking (Armijo) along ``step``, from the longest step that continuous
         collision detection allows (1 without contact); moves X and returns the step
         length taken (0: none found). A change within rounding of the energy is accepted
@@ -932,7 +929,7 @@ class QuasiStatic:
         blind = 2.0 * self._energy_rounding
         while length >= 1e-6:
             X[:] = base + length * step.reshape(-1, 3)
-            trial = self._energy(model, X, A, cos0, sin0, scratch)
+            trial = self._energy(X, scratch)
             change = abs(trial - energy)
             if (trial <= energy + 1e-4 * length * slope or change <= 1e-14 * abs(energy)
                     or (change <= blind and length * abs(slope) <= blind)):
@@ -941,7 +938,7 @@ class QuasiStatic:
         X[:] = base
         return 0.0
 
-    def _descend(self, model, X, A, cos0, sin0, scratch, energy, g, down) -> float:
+    def _descend(self, X, scratch, energy, g, down) -> float:
         """Move X along the negative-curvature direction ``down`` (downhill sign), by
         the length (doubling from 1e-3, at most 2 mesh units) that lowers the energy
         most; returns the energy there."""
@@ -955,7 +952,7 @@ class QuasiStatic:
             top *= self._contact.max_step(base, base + top * d)
         while length <= top:
             X[:] = base + length * d
-            trial = self._energy(model, X, A, cos0, sin0, scratch)
+            trial = self._energy(X, scratch)
             if trial >= best:
                 break
             best, best_length = trial, length

@@ -256,8 +256,9 @@ class Terms:
     """What a scene's energy is made of: the elastic unit, the coupling terms (contact,
     connection springs) the scene has, and its constraints. Built by :func:`build`."""
 
-    def __init__(self, elastic: Elastic, coupling: list, constraints: list):
+    def __init__(self, elastic: Elastic, coupling: list, constraints: list, model=None):
         self.elastic, self.coupling, self.constraints = elastic, coupling, constraints
+        self.model = model  #: the model they were built of
 
     def __iter__(self):
         """The energy terms (the constraints are not)."""
@@ -277,4 +278,4 @@ def build(model, effects, *, contact=None, springs=None) -> Terms:
         constraints.append(CenterPlane(effects.center_plane.vertices,
                                        effects.center_plane.normals))
     coupling = [t for t in (contact, springs) if t is not None]
-    return Terms(Elastic.of(model, effects.curl), coupling, constraints)
+    return Terms(Elastic.of(model, effects.curl), coupling, constraints, model)
