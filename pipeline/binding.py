@@ -193,12 +193,48 @@ def bind_parts(asset, scale: float, vertices: np.ndarray, faces: np.ndarray,
     petals) get no binding: they stay where they are."""
     F = np.asarray(faces, dtype=np.int64)
     face_part = np.asarray(vertex_part)[F[:, 0]] if len(F) else np.zeros(0, dtype=np.int64)
+    face_piece = _pieces(len(vertices), F)[F[:, 0]] if len(F) else np.zeros(0, dtype=np.int64)
     out = {}
     for i, part in enumerate(asset.parts):
         allowed = face_part == i
         if allowed.any():
-            out[i] = bind(np.asarray(part.points) * scale, vertices, F, allowed)
+            points = np.asarray(part.points) * scale
+            b = bind(points, vertices, F, allowed)
+            _keep_to_own_petal(b, points, part.triangles(), vertices, F, allowed, face_piece)
+            out[i] = b
     return out
+
+
+def _pieces(count: int, triangles: np.ndarray) -> np.ndarray:
+    """``(count,)`` connected piece of each vertex of a triangle mesh."""
+    import scipy.sparse as sp
+    from scipy.sparse.csgraph import connected_components
+
+    T = np.asarray(triangles, dtype=np.int64).reshape(-1, 3)
+    graph = sp.coo_matrix((np.ones(2 * len(T)), (T[:, [0, 1]].ravel(), T[:, [1, 2]].ravel())),
+                          shape=(count, count))
+    return connected_components(graph, directed=False)[1]
+
+
+def _keep_to_own_petal(b: Binding, points, triangles, vertices, faces, allowed,
+                       face_piece) -> None:
+    """Where most of a connected piece of the input is bound to one sheet petal, bind
+    all of it to that petal (in place): a piece is one petal's surface (both sides of a
+    thick one), and its points that lay closer to another petal, where petals overlap
+    or meet at the hub, would otherwise follow that petal through the bloom and tear
+    the surface. A piece no petal has most of (a sheet that was several petals, split
+    by remesh) keeps each point's closest petal."""
+    piece = _pieces(len(points), triangles)
+    petal_of = face_piece[b.face]
+    for c in np.unique(piece):
+        idx = np.flatnonzero(piece == c)
+        values, counts = np.unique(petal_of[idx], return_counts=True)
+        main = values[np.argmax(counts)]
+        if len(values) == 1 or 2 * counts.max() <= len(idx):
+            continue
+        stray = idx[petal_of[idx] != main]
+        again = bind(points[stray], vertices, faces, allowed & (face_piece == main))
+        b.face[stray], b.bary[stray], b.offset[stray] = again.face, again.bary, again.offset
 
 
 def write_bindings(h5, bindings: dict[int, Binding]) -> None:
@@ -223,21 +259,53 @@ def read_bindings(src) -> dict[int, Binding]:
             for k, g in f[BIND_GROUP].items()}
 
 
-def thickness(points: np.ndarray, triangles: np.ndarray, offset_normal: np.ndarray,
-              inside: np.ndarray) -> np.ndarray:
-    """``(k,)`` a thick part's thickness at its points on the sheet's positive side that are
-    bound ``inside`` a sheet triangle (not past its rim): each one's distance to the
-    nearest point of the part's negative side (its triangles with every corner on that
-    side, by the sign of ``offset_normal``). Empty when the part has no two sides."""
+#: a point faces the other side across the sheet when its distance to it at rest is the
+#: sum of the two offsets within this fraction, and their places on the sheet are closer
+#: than this fraction of that distance
+ACROSS = 0.2
+
+
+def two_sided(points: np.ndarray, triangles: np.ndarray, b: Binding, sheet: np.ndarray,
+              sheet_faces: np.ndarray, scale: float) -> np.ndarray:
+    """Indices of a part's points that measure its thickness: on the sheet's positive
+    side, bound inside a sheet triangle (:func:`interior`), and facing the part's
+    negative side across the sheet at rest: the nearest point there is as far as the two
+    offsets added (within ``ACROSS``) and lies over the same place of the sheet
+    (``sheet``: its rest vertices, in the points' units; ``scale``: mesh units per
+    those, the offsets' unit). A solidified petal's points are; a one-sided sheet's are not
+    (its offsets are small and its nearest other faces lie beside it, not across), nor
+    a hem's or a fold's. Empty: the part has no thickness to measure."""
     P = np.asarray(points, dtype=np.float64)
     T = np.asarray(triangles, dtype=np.int64)
-    up = np.asarray(offset_normal) > 0.0
+    o = np.asarray(b.offset[:, 2], dtype=np.float64) / scale
+    up = o > 0.0
     down_faces = np.all(~up[T], axis=1)
-    mine = np.flatnonzero(up & inside)
+    mine = np.flatnonzero(up & interior(b))
     if len(mine) == 0 or not down_faces.any():
-        return np.zeros(0)
+        return mine
+    S, SF = np.asarray(sheet, dtype=np.float64), np.asarray(sheet_faces, dtype=np.int64)
+    on = np.einsum("ij,ijk->ik", b.bary, S[SF[b.face]])  # each point's place on the sheet
     face, bary = closest_points(P[mine], P, T, down_faces)
-    return np.linalg.norm(np.einsum("ij,ijk->ik", bary, P[T[face]]) - P[mine], axis=1)
+    distance = np.linalg.norm(np.einsum("ij,ijk->ik", bary, P[T[face]]) - P[mine], axis=1)
+    across = o[mine] - np.einsum("ij,ij->i", bary, o[T[face]])
+    apart = np.linalg.norm(np.einsum("ij,ijk->ik", bary, on[T[face]]) - on[mine], axis=1)
+    keep = ((across > 0.0) & (np.abs(distance - across) <= ACROSS * across)
+            & (apart <= ACROSS * distance))
+    return mine[keep]
+
+
+def thickness(points: np.ndarray, triangles: np.ndarray, offset_normal: np.ndarray,
+              which: np.ndarray) -> np.ndarray:
+    """``(k,)`` a thick part's thickness at its points ``which`` (:func:`two_sided`):
+    each one's distance to the nearest point of the part's negative side (its triangles
+    with every corner on that side, by the sign of ``offset_normal``)."""
+    P = np.asarray(points, dtype=np.float64)
+    T = np.asarray(triangles, dtype=np.int64)
+    down_faces = np.all(~(np.asarray(offset_normal) > 0.0)[T], axis=1)
+    if len(which) == 0:
+        return np.zeros(0)
+    face, bary = closest_points(P[which], P, T, down_faces)
+    return np.linalg.norm(np.einsum("ij,ijk->ik", bary, P[T[face]]) - P[which], axis=1)
 
 
 def interior(b: Binding, margin: float = 1e-6) -> np.ndarray:

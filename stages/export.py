@@ -58,7 +58,7 @@ def command(sim_h5: str, config_path, overrides, fmt: str, out: str, overwrite: 
         if use_input:
             bindings = binding.read_bindings(src)
             frames = export.asset_frames(sheet, faces, asset, bindings, scale)
-            _report(asset, bindings, frames, sheet / scale, faces)
+            _report(asset, bindings, frames, sheet / scale, faces, scale)
         if fmt == "usd":
             if out.suffix.lower() not in USD_SUFFIXES:
                 raise BloomError("--out: a USD file must end in .usd, .usdc or .usda",
@@ -124,7 +124,7 @@ def _turns(sheet, faces, asset, bindings) -> dict:
     return out
 
 
-def _report(asset, bindings, frames, sheet, faces) -> None:
+def _report(asset, bindings, frames, sheet, faces, scale: float) -> None:
     """Log what the binding did: the largest frame-to-frame jump of a bound point against
     the sheet's own, and how a thick part's thickness changed through the frames."""
     from pipeline import binding
@@ -138,11 +138,12 @@ def _report(asset, bindings, frames, sheet, faces) -> None:
              jump, sheet_jump)
     for i, b in sorted(bindings.items()):
         part = asset.parts[i]
-        tris, inside = part.triangles(), binding.interior(b)
-        rest = binding.thickness(part.points, tris, b.offset[:, 2], inside)
-        if len(rest) == 0:
+        tris = part.triangles()
+        which = binding.two_sided(part.points, tris, b, sheet[0], faces, scale)
+        if len(which) == 0:  # (a one-sided part: no thickness to keep)
             continue
-        last = binding.thickness(frames[i][-1], tris, b.offset[:, 2], inside)
+        rest = binding.thickness(part.points, tris, b.offset[:, 2], which)
+        last = binding.thickness(frames[i][-1], tris, b.offset[:, 2], which)
         change = np.abs(last / np.maximum(rest, 1e-300) - 1.0)
         log.info("part %r: thickness (median %.4g) changed by at most %.2f%% at the last frame",
                  part.name, float(np.median(rest)), 100 * float(change.max()))

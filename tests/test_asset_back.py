@@ -126,10 +126,10 @@ def test_a_thick_petal_keeps_its_thickness_and_does_not_pop(gltf_chain):
     part, b = asset.parts[0], bindings[0]
     assert frames[0].shape == (len(sheet), len(part.points), 3)
     np.testing.assert_allclose(frames[0][0], part.points, rtol=0, atol=1e-12)
-    inside = binding.interior(b)
-    rest = binding.thickness(part.points, part.triangles(), b.offset[:, 2], inside)
+    which = binding.two_sided(part.points, part.triangles(), b, sheet[0] / scale, faces, scale)
+    rest = binding.thickness(part.points, part.triangles(), b.offset[:, 2], which)
     assert len(rest) > 50 and np.allclose(np.median(rest), 0.0015, rtol=0.05)
-    worst = max(np.abs(binding.thickness(P, part.triangles(), b.offset[:, 2], inside) / rest - 1).max()
+    worst = max(np.abs(binding.thickness(P, part.triangles(), b.offset[:, 2], which) / rest - 1).max()
                 for P in frames[0])
     assert worst < 0.05, worst
     jump = np.linalg.norm(np.diff(frames[0], axis=0), axis=2).max()
@@ -276,6 +276,59 @@ def test_a_rigid_motion_of_the_sheet_moves_the_bound_points_rigidly():
     order = rng.permutation(len(F))
     b2 = binding.bind(P, V, F[order])
     np.testing.assert_allclose(binding.deform(V @ R.T + t, F[order], b2), P @ R.T + t, atol=1e-12)
+
+
+def _grid(nx, ny, z=0.0, x0=0.0):
+    x, y = np.meshgrid(x0 + np.arange(nx, dtype=float), np.arange(ny, dtype=float), indexing="ij")
+    V = np.c_[x.ravel(), y.ravel(), np.full(x.size, z)]
+    idx = np.arange(nx * ny).reshape(nx, ny)
+    a, b, c, d = idx[:-1, :-1].ravel(), idx[1:, :-1].ravel(), idx[1:, 1:].ravel(), idx[:-1, 1:].ravel()
+    return V, np.concatenate([np.c_[a, b, c], np.c_[a, c, d]])
+
+
+def _part(points, triangles):
+    return userasset.AssetPart("p", np.asarray(points, float), np.full(len(triangles), 3),
+                               np.asarray(triangles).ravel())
+
+
+def test_a_petal_stays_bound_to_its_own_sheet_where_petals_overlap():
+    """Two petals of one input part overlap 0.4 apart; petal 0 has a bump 0.3 high, its
+    points closer to petal 1's sheet than to its own. Each input piece is bound to the
+    sheet petal most of it lies on: petal 1's rising does not take the bump with it."""
+    va, fa = _grid(6, 4)
+    vb, fb = _grid(4, 4, 0.4, x0=3.0)
+    sheet = np.concatenate([va, vb])
+    sheet_faces = np.concatenate([fa, fb + len(va)])
+    points = np.concatenate([va, vb])
+    bump = np.flatnonzero((va[:, 0] == 4.0) & (va[:, 1] >= 1.0) & (va[:, 1] <= 2.0))
+    points[bump, 2] = 0.3
+    asset = userasset.Asset([_part(points, sheet_faces)], None, None)
+    b = binding.bind_parts(asset, 1.0, sheet, sheet_faces, np.zeros(len(sheet), dtype=int))[0]
+    assert np.all(b.face[bump] < len(fa))  # petal 0's triangles (a plain bind takes petal 1's)
+    assert np.all(binding.bind(points, sheet, sheet_faces).face[bump] >= len(fa))
+    raised = sheet.copy()
+    raised[len(va):, 2] += 5.0  # petal 1 moves away
+    np.testing.assert_allclose(binding.deform(raised, sheet_faces, b)[bump], points[bump],
+                               atol=1e-12)
+
+
+def test_only_a_part_with_two_sides_has_a_thickness_to_measure():
+    """A one-sided sheet whose points stray off it by up to a tenth of an edge (a
+    remeshed surface) has no thickness; the same sheet solidified (two sides 0.2 apart)
+    is measured at the points inside it, each 0.2."""
+    rng = np.random.default_rng(0)
+    sheet, faces = _grid(8, 8)
+    wavy = sheet + np.c_[np.zeros((len(sheet), 2)), rng.uniform(-0.1, 0.1, len(sheet))]
+    b = binding.bind(wavy, sheet, faces)
+    assert len(binding.two_sided(wavy, faces, b, sheet, faces, 1.0)) == 0
+    shift = np.array([0.3, 0.2, 0.0])  # (so that its points lie inside sheet triangles)
+    top, bottom = sheet + shift + [0, 0, 0.1], sheet + shift - [0, 0, 0.1]
+    solid = np.concatenate([top, bottom])
+    solid_faces = np.concatenate([faces, faces[:, ::-1] + len(sheet)])
+    b = binding.bind(solid, sheet, faces)
+    which = binding.two_sided(solid, solid_faces, b, sheet, faces, 1.0)
+    assert len(which) == 49 and np.all(which < len(sheet))  # the top's 7 x 7 over the sheet
+    np.testing.assert_allclose(binding.thickness(solid, solid_faces, b.offset[:, 2], which), 0.2)
 
 
 # --- a real flower -------------------------------------------------------------------------------
