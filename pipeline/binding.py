@@ -24,6 +24,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from numba import njit
 
 from .topology import vertex_normals
 
@@ -38,51 +39,77 @@ class Binding:
     offset: np.ndarray  #: (n, 3) from the closest point, in the local frame (t1, t2, n)
 
 
+@njit(cache=True)
+def _closest_bary(p, a, b, c):
+    """Barycentric coordinates of the point of triangle ``a, b, c`` closest to ``p``
+    (Ericson, Real-Time Collision Detection, 5.1.5); a degenerate triangle gives its
+    nearest corner."""
+    ab0, ab1, ab2 = b[0] - a[0], b[1] - a[1], b[2] - a[2]
+    ac0, ac1, ac2 = c[0] - a[0], c[1] - a[1], c[2] - a[2]
+    ap0, ap1, ap2 = p[0] - a[0], p[1] - a[1], p[2] - a[2]
+    d1 = ab0 * ap0 + ab1 * ap1 + ab2 * ap2
+    d2 = ac0 * ap0 + ac1 * ap1 + ac2 * ap2
+    if d1 <= 0.0 and d2 <= 0.0:
+        return 1.0, 0.0, 0.0
+    bp0, bp1, bp2 = p[0] - b[0], p[1] - b[1], p[2] - b[2]
+    d3 = ab0 * bp0 + ab1 * bp1 + ab2 * bp2
+    d4 = ac0 * bp0 + ac1 * bp1 + ac2 * bp2
+    if d3 >= 0.0 and d4 <= d3:
+        return 0.0, 1.0, 0.0
+    vc = d1 * d4 - d3 * d2
+    if vc <= 0.0 and d1 >= 0.0 and d3 <= 0.0 and d1 - d3 != 0.0:
+        t = d1 / (d1 - d3)
+        return 1.0 - t, t, 0.0
+    cp0, cp1, cp2 = p[0] - c[0], p[1] - c[1], p[2] - c[2]
+    d5 = ab0 * cp0 + ab1 * cp1 + ab2 * cp2
+    d6 = ac0 * cp0 + ac1 * cp1 + ac2 * cp2
+    if d6 >= 0.0 and d5 <= d6:
+        return 0.0, 0.0, 1.0
+    vb = d5 * d2 - d1 * d6
+    if vb <= 0.0 and d2 >= 0.0 and d6 <= 0.0 and d2 - d6 != 0.0:
+        t = d2 / (d2 - d6)
+        return 1.0 - t, 0.0, t
+    va = d3 * d6 - d5 * d4
+    if va <= 0.0 and d4 - d3 >= 0.0 and d5 - d6 >= 0.0 and (d4 - d3) + (d5 - d6) != 0.0:
+        t = (d4 - d3) / ((d4 - d3) + (d5 - d6))
+        return 0.0, 1.0 - t, t
+    denom = va + vb + vc
+    if denom != 0.0 and np.isfinite(denom):
+        v, w = vb / denom, vc / denom
+        return 1.0 - v - w, v, w
+    best, k = np.inf, 0  # degenerate: the nearest corner
+    for j, corner in enumerate((a, b, c)):
+        d = (p[0] - corner[0]) ** 2 + (p[1] - corner[1]) ** 2 + (p[2] - corner[2]) ** 2
+        if d < best:
+            best, k = d, j
+    return (1.0 if k == 0 else 0.0), (1.0 if k == 1 else 0.0), (1.0 if k == 2 else 0.0)
+
+
+@njit(cache=True)
+def _nearest_kernel(q, X, F, rows, cand, face, bary, dist, has):
+    for k in range(len(rows)):
+        r, f = rows[k], cand[k]
+        a, b, c = X[F[f, 0]], X[F[f, 1]], X[F[f, 2]]
+        u, v, w = _closest_bary(q[r], a, b, c)
+        d = 0.0
+        for i in range(3):
+            d += (u * a[i] + v * b[i] + w * c[i] - q[r, i]) ** 2
+        d = np.sqrt(d)
+        if not has[r] or d < dist[r] or (d == dist[r] and f < face[r]):
+            has[r] = True
+            face[r], dist[r] = f, d
+            bary[r, 0], bary[r, 1], bary[r, 2] = u, v, w
+
+
 def closest_on_triangles(p: np.ndarray, a: np.ndarray, b: np.ndarray, c: np.ndarray) -> np.ndarray:
     """``(n, 3)`` barycentric coordinates of the point of triangle ``a, b, c`` (each
-    ``(n, 3)``) closest to ``p`` (Ericson, Real-Time Collision Detection, 5.1.5), for
-    each row. A degenerate triangle gives one of its closest corners or edges."""
-    ab, ac, ap = b - a, c - a, p - a
-    d1 = np.einsum("ij,ij->i", ab, ap)
-    d2 = np.einsum("ij,ij->i", ac, ap)
-    bp = p - b
-    d3 = np.einsum("ij,ij->i", ab, bp)
-    d4 = np.einsum("ij,ij->i", ac, bp)
-    cp = p - c
-    d5 = np.einsum("ij,ij->i", ab, cp)
-    d6 = np.einsum("ij,ij->i", ac, cp)
-    va = d3 * d6 - d5 * d4
-    vb = d5 * d2 - d1 * d6
-    vc = d1 * d4 - d3 * d2
+    ``(n, 3)``) closest to ``p``, for each row. A degenerate triangle gives one of its
+    closest corners or edges."""
     n = len(p)
-    out = np.zeros((n, 3))
-    done = np.zeros(n, dtype=bool)
-
-    def take(mask, u, v, w):
-        m = mask & ~done
-        out[m, 0], out[m, 1], out[m, 2] = u[m], v[m], w[m]
-        done[m] = True
-
-    zero, one = np.zeros(n), np.ones(n)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        take((d1 <= 0) & (d2 <= 0), one, zero, zero)  # vertex a
-        take((d3 >= 0) & (d4 <= d3), zero, one, zero)  # vertex b
-        t = d1 / (d1 - d3)
-        take((vc <= 0) & (d1 >= 0) & (d3 <= 0), 1 - t, t, zero)  # edge ab
-        take((d6 >= 0) & (d5 <= d6), zero, zero, one)  # vertex c
-        t = d2 / (d2 - d6)
-        take((vb <= 0) & (d2 >= 0) & (d6 <= 0), 1 - t, zero, t)  # edge ac
-        t = (d4 - d3) / ((d4 - d3) + (d5 - d6))
-        take((va <= 0) & ((d4 - d3) >= 0) & ((d5 - d6) >= 0), zero, 1 - t, t)  # edge bc
-        denom = va + vb + vc
-        v, w = vb / denom, vc / denom
-        take(np.ones(n, dtype=bool), 1 - v - w, v, w)  # inside
-    bad = ~np.all(np.isfinite(out), axis=1)  # a degenerate triangle: its nearest corner
-    if bad.any():
-        corners = np.stack([a[bad], b[bad], c[bad]], axis=1)
-        k = np.argmin(np.linalg.norm(corners - p[bad, None], axis=2), axis=1)
-        out[bad] = np.eye(3)[k]
-    return out
+    X = np.ascontiguousarray(np.concatenate([a, b, c]), dtype=np.float64)
+    F = np.arange(3 * n, dtype=np.int64).reshape(3, n).T.copy()
+    rows = np.arange(n, dtype=np.int64)
+    return nearest_among(np.asarray(p, dtype=np.float64), X, F, rows, rows)[2]
 
 
 def closest_points(points: np.ndarray, vertices: np.ndarray, faces: np.ndarray,
@@ -94,6 +121,7 @@ def closest_points(points: np.ndarray, vertices: np.ndarray, faces: np.ndarray,
     Exact: the closest vertex is at distance d0, so the closest point lies in a
     triangle with a vertex within ``d0 + longest edge`` of the point; all of those are
     measured."""
+    import scipy.sparse as sp
     from scipy.spatial import cKDTree
 
     P = np.asarray(points, dtype=np.float64)
@@ -105,30 +133,46 @@ def closest_points(points: np.ndarray, vertices: np.ndarray, faces: np.ndarray,
     used = np.unique(F[ids])
     tree = cKDTree(X[used])
     longest = float(np.max(np.linalg.norm(X[F[ids]] - X[F[ids][:, [1, 2, 0]]], axis=2)))
-    incident = [[] for _ in range(len(X))]
-    for f in ids.tolist():
-        for k in F[f].tolist():
-            incident[k].append(f)
+    # the allowed triangles at each of the tree's vertices
+    slot = np.searchsorted(used, F[ids])
+    incident = sp.csr_matrix((np.ones(slot.size, dtype=np.int8), (slot.ravel(), np.repeat(ids, 3))),
+                             shape=(len(used), len(F)))
     face = np.empty(len(P), dtype=np.int64)
     bary = np.empty((len(P), 3))
     for lo in range(0, len(P), CHUNK):
         q = P[lo:lo + CHUNK]
         d0, _ = tree.query(q)
-        near = tree.query_ball_point(q, d0 * (1 + 1e-9) + longest + 1e-12)
-        rows, cand = [], []
-        for r, vs in enumerate(near):
-            fs = sorted({f for k in vs for f in incident[used[k]]})
-            rows += [r] * len(fs)
-            cand += fs
-        rows, cand = np.asarray(rows, dtype=np.int64), np.asarray(cand, dtype=np.int64)
-        tri = X[F[cand]]
-        b = closest_on_triangles(q[rows], tri[:, 0], tri[:, 1], tri[:, 2])
-        dist = np.linalg.norm(np.einsum("ij,ijk->ik", b, tri) - q[rows], axis=1)
-        order = np.lexsort((cand, dist, rows))  # per row: nearest first, then lowest face
-        first = order[np.r_[True, rows[order][1:] != rows[order][:-1]]]
-        face[lo + rows[first]] = cand[first]
-        bary[lo + rows[first]] = b[first]
+        near = tree.query_ball_point(q, (d0 + longest) * (1 + 1e-9))
+        count = np.fromiter((len(v) for v in near), dtype=np.int64, count=len(near))
+        hits = sp.csr_matrix((np.ones(count.sum(), dtype=np.int8),
+                              np.fromiter((k for v in near for k in v), dtype=np.int64,
+                                          count=int(count.sum())),
+                              np.r_[0, np.cumsum(count)]), shape=(len(q), len(used)))
+        pairs = (hits @ incident).tocoo()
+        r, f, b, _ = nearest_among(q, X, F, pairs.row.astype(np.int64), pairs.col.astype(np.int64))
+        face[lo + r], bary[lo + r] = f, b
     return face, bary
+
+
+def nearest_among(q: np.ndarray, vertices: np.ndarray, faces: np.ndarray, rows: np.ndarray,
+                  cand: np.ndarray):
+    """The nearest of some candidate triangles to each query point: the pairs
+    ``(rows[k], cand[k])`` say that triangle ``cand[k]`` is a candidate for point
+    ``q[rows[k]]``. Returns ``(row, face, bary, distance)``, one entry per row that has
+    candidates, in row order; ties go to the lower face index (so the answer does not
+    depend on the candidates' order)."""
+    n = len(q)
+    face = np.zeros(n, dtype=np.int64)
+    bary = np.zeros((n, 3))
+    dist = np.zeros(n)
+    has = np.zeros(n, dtype=np.bool_)
+    _nearest_kernel(np.ascontiguousarray(q, dtype=np.float64),
+                    np.ascontiguousarray(vertices, dtype=np.float64),
+                    np.ascontiguousarray(faces, dtype=np.int64),
+                    np.asarray(rows, dtype=np.int64), np.asarray(cand, dtype=np.int64),
+                    face, bary, dist, has)
+    r = np.flatnonzero(has)
+    return r, face[r], bary[r], dist[r]
 
 
 def local_frames(vertices: np.ndarray, faces: np.ndarray, face: np.ndarray, bary: np.ndarray,
@@ -263,35 +307,134 @@ def read_bindings(src) -> dict[int, Binding]:
 #: sum of the two offsets within this fraction, and their places on the sheet are closer
 #: than this fraction of that distance
 ACROSS = 0.2
+#: Gauss-Newton steps that restore a thick part's thickness in a frame (see keep_thickness)
+KEEP_STEPS = 3
+#: their damping: the least-squares system's diagonal is raised by this (its entries are
+#: dot products of unit vectors weighted by barycentric coordinates, so it is scale-free)
+KEEP_DAMPING = 1e-3
+
+
+@dataclass
+class Sides:
+    """A thick part's two sides, facing each other across the sheet (:func:`sides`)."""
+    point: np.ndarray  #: (k,) the part's points that face its other side across the sheet
+    positive: np.ndarray  #: (k,) bool: the point is on the sheet's positive side
+    rest: np.ndarray  #: (k,) its distance to the other side at rest (the thickness there)
+    rows: np.ndarray  #: (m,) a row of ``point`` ...
+    faces: np.ndarray  #: (m,) ... and a triangle of the other side near it (candidates)
+
+
+def sides(points: np.ndarray, triangles: np.ndarray, b: Binding, sheet: np.ndarray,
+          sheet_faces: np.ndarray, scale: float) -> Sides:
+    """The points of a part (``points``, ``triangles``: the input's, bound by ``b``) that
+    face the part's other side across the sheet at rest, on both sides: bound inside a
+    sheet triangle (:func:`interior`), their nearest point of the other side (its
+    triangles with every corner there, by the sign of the normal offset) as far as the
+    two offsets added (within ``ACROSS``) and over the same place of the sheet
+    (``sheet``: its rest vertices, in the points' units; ``scale``: mesh units per
+    those, the offsets' unit). A solidified petal's points are; a one-sided sheet's are
+    not (its offsets are small and its nearest other faces lie beside it, not across),
+    nor a hem's or a fold's. Each point's candidates for its nearest point in a frame
+    are the other side's triangles within two rings of its nearest one at rest."""
+    import scipy.sparse as sp
+
+    P = np.asarray(points, dtype=np.float64)
+    T = np.asarray(triangles, dtype=np.int64)
+    o = np.asarray(b.offset[:, 2], dtype=np.float64) / scale
+    S, SF = np.asarray(sheet, dtype=np.float64), np.asarray(sheet_faces, dtype=np.int64)
+    on = np.einsum("ij,ijk->ik", b.bary, S[SF[b.face]])  # each point's place on the sheet
+    point, positive, rest, rows, faces = [], [], [], [], []
+    count = 0
+    for positive_side in (True, False):
+        up = (o > 0.0) == positive_side
+        other = np.flatnonzero(np.all(~up[T], axis=1))
+        mine = np.flatnonzero(up & interior(b))
+        if len(mine) == 0 or len(other) == 0:
+            continue
+        face, bary = closest_points(P[mine], P, T, np.isin(np.arange(len(T)), other))
+        near = np.einsum("ij,ijk->ik", bary, P[T[face]])
+        distance = np.linalg.norm(near - P[mine], axis=1)
+        across = np.abs(o[mine] - np.einsum("ij,ij->i", bary, o[T[face]]))
+        apart = np.linalg.norm(np.einsum("ij,ijk->ik", bary, on[T[face]]) - on[mine], axis=1)
+        keep = ((across > 0.0) & (np.abs(distance - across) <= ACROSS * across)
+                & (apart <= ACROSS * distance))
+        if not keep.any():
+            continue
+        # two rings of the other side's triangles (sharing a corner) about the nearest
+        corner = sp.csr_matrix((np.ones(3 * len(other)), (np.repeat(other, 3), T[other].ravel())),
+                               shape=(len(T), len(P)))
+        ring = (corner @ corner.T).astype(bool).astype(np.int8)
+        ring2 = (ring @ ring).tocsr()[face[keep]]
+        ring2.sort_indices()
+        point.append(mine[keep])
+        positive.append(np.full(int(keep.sum()), positive_side))
+        rest.append(distance[keep])
+        rows.append(count + np.repeat(np.arange(ring2.shape[0]), np.diff(ring2.indptr)))
+        faces.append(ring2.indices.astype(np.int64))
+        count += int(keep.sum())
+    if not point:
+        e = np.zeros(0, dtype=np.int64)
+        return Sides(e, np.zeros(0, dtype=bool), np.zeros(0), e, e)
+    return Sides(*(np.concatenate(a) for a in (point, positive, rest, rows, faces)))
 
 
 def two_sided(points: np.ndarray, triangles: np.ndarray, b: Binding, sheet: np.ndarray,
               sheet_faces: np.ndarray, scale: float) -> np.ndarray:
-    """Indices of a part's points that measure its thickness: on the sheet's positive
-    side, bound inside a sheet triangle (:func:`interior`), and facing the part's
-    negative side across the sheet at rest: the nearest point there is as far as the two
-    offsets added (within ``ACROSS``) and lies over the same place of the sheet
-    (``sheet``: its rest vertices, in the points' units; ``scale``: mesh units per
-    those, the offsets' unit). A solidified petal's points are; a one-sided sheet's are not
-    (its offsets are small and its nearest other faces lie beside it, not across), nor
-    a hem's or a fold's. Empty: the part has no thickness to measure."""
-    P = np.asarray(points, dtype=np.float64)
+    """Indices of a part's points that measure its thickness: those of :func:`sides` on
+    the sheet's positive side. Empty: the part has no thickness to measure."""
+    s = sides(points, triangles, b, sheet, sheet_faces, scale)
+    return np.sort(s.point[s.positive])
+
+
+def keep_thickness(points: np.ndarray, triangles: np.ndarray, s: Sides,
+                   steps: int = KEEP_STEPS) -> np.ndarray:
+    """A thick part's points in a frame (``points``, deformed through the binding) moved
+    so that each point of ``s`` is again as far from the other side as at rest.
+
+    The binding offsets both sides along the sheet's normals, which keeps each point's
+    distance to the other side's *points*; but a coarse thick petal bent across few of its
+    faces has flat faces that cut chords across the bend, so its sides' *surfaces* come
+    closer (a point is t cos(theta/2) from the opposite chord) or part where it unbends.
+    Each Gauss-Newton step linearises every point's distance to its nearest point of the
+    other side (among its candidates), moving the point along the line to that nearest
+    point and the other side's triangle corners with their own, and solves the damped
+    least-squares system for the moves (damping ``KEEP_DAMPING`` on the moves from the
+    deformed points, so the smallest move that restores the thickness is taken). Points
+    not in ``s`` (rims, one-sided parts) are not moved. Deterministic: a fixed number of
+    steps, a direct solve."""
+    import scipy.sparse as sp
+    from scipy.sparse.linalg import spsolve
+
+    Q0 = np.asarray(points, dtype=np.float64)
+    if len(s.point) == 0:
+        return Q0
     T = np.asarray(triangles, dtype=np.int64)
-    o = np.asarray(b.offset[:, 2], dtype=np.float64) / scale
-    up = o > 0.0
-    down_faces = np.all(~up[T], axis=1)
-    mine = np.flatnonzero(up & interior(b))
-    if len(mine) == 0 or not down_faces.any():
-        return mine
-    S, SF = np.asarray(sheet, dtype=np.float64), np.asarray(sheet_faces, dtype=np.int64)
-    on = np.einsum("ij,ijk->ik", b.bary, S[SF[b.face]])  # each point's place on the sheet
-    face, bary = closest_points(P[mine], P, T, down_faces)
-    distance = np.linalg.norm(np.einsum("ij,ijk->ik", bary, P[T[face]]) - P[mine], axis=1)
-    across = o[mine] - np.einsum("ij,ij->i", bary, o[T[face]])
-    apart = np.linalg.norm(np.einsum("ij,ijk->ik", bary, on[T[face]]) - on[mine], axis=1)
-    keep = ((across > 0.0) & (np.abs(distance - across) <= ACROSS * across)
-            & (apart <= ACROSS * distance))
-    return mine[keep]
+    Q = Q0.copy()
+    n = len(s.point)
+    col = np.full(len(Q), -1, dtype=np.int64)
+    col[s.point] = np.arange(n)
+    identity = sp.identity(n, format="csc")
+    for _ in range(steps):
+        _, face, bary, distance = nearest_among(Q[s.point], Q, T, s.rows, s.faces)
+        live = distance > 1e-9 * s.rest  # a point on the other side: no direction to move
+        u = np.zeros((n, 3))
+        u[live] = (Q[s.point[live]] - np.einsum("ij,ijk->ik", bary[live], Q[T[face[live]]])) \
+            / distance[live, None]
+        r = np.where(live, s.rest - distance, 0.0)
+        I, J, V = [np.arange(n)], [np.arange(n)], [np.ones(n)]
+        for k in range(3):
+            c = col[T[face, k]]
+            ok = np.flatnonzero((c >= 0) & live)
+            I.append(ok)
+            J.append(c[ok])
+            V.append(-bary[ok, k] * np.einsum("ij,ij->i", u[ok], u[c[ok]]))
+        A = sp.csr_matrix((np.concatenate(V), (np.concatenate(I), np.concatenate(J))),
+                          shape=(n, n))
+        moved = np.einsum("ij,ij->i", Q[s.point] - Q0[s.point], u)
+        step = spsolve((A.T @ A + KEEP_DAMPING * identity).tocsc(),
+                       A.T @ r - KEEP_DAMPING * moved)
+        Q[s.point] += step[:, None] * u
+    return Q
 
 
 def thickness(points: np.ndarray, triangles: np.ndarray, offset_normal: np.ndarray,

@@ -213,6 +213,10 @@ SCHEMA: dict[str, Any] = {
                     "names, polygons, UVs, normals and materials, the petals deformed by the "
                     "simulated sheet through their binding, the other parts in place) or "
                     "sheet (the simulated sheet, one mesh per petal)", choices=("input", "sheet")),
+        "keep_thickness": Key(bool, True, "a thick petal's two sides are kept as far apart as "
+                              "in the input in every frame (where its flat faces would cut "
+                              "chords across a bend); false: the binding alone, as Blender's "
+                              "Surface Deform"),
         "meters_per_unit": Key(float, 1.0, "USD metersPerUnit: how many meters one unit of the "
                                "input mesh is (Blender, Houdini scale by it), where the input "
                                "file does not say (glTF: metres; a Maya OBJ's unit comment)", low=0.0,

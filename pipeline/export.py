@@ -135,19 +135,28 @@ def write_xdmf(folder, positions: np.ndarray, faces: np.ndarray, petal: np.ndarr
 # --- the user's asset, deformed by the sheet (export.mesh = "input") -------------------------
 
 def asset_frames(positions: np.ndarray, faces: np.ndarray, asset, bindings: dict,
-                 scale: float) -> list[np.ndarray]:
+                 scale: float, keep_thickness: bool = True) -> list[np.ndarray]:
     """Each part's points through the frames, at the input's scale: ``(T, n, 3)`` for a
     part bound to the sheet (``bindings``: part -> :class:`pipeline.binding.Binding`),
-    deformed by each frame of ``positions (T, V, 3)`` (mesh units); ``(n, 3)``, its own
-    points, for a part that stays where it is."""
-    from .binding import deform
+    deformed by each frame of ``positions (T, V, 3)`` (mesh units), a thick part's sides
+    then kept as far apart as at rest (:func:`pipeline.binding.keep_thickness`, unless
+    ``keep_thickness`` is off: the binding alone, as Surface Deform does); ``(n, 3)``,
+    its own points, for a part that stays where it is."""
+    from .binding import deform, keep_thickness as keep, sides
 
     out = []
     normals = [topology.vertex_normals(X, faces) for X in positions] if bindings else []
     for i, part in enumerate(asset.parts):
         if i in bindings:
-            out.append(np.stack([deform(X, faces, bindings[i], N) / scale
-                                 for X, N in zip(positions, normals, strict=True)]))
+            b = bindings[i]
+            frames = np.stack([deform(X, faces, b, N) / scale
+                               for X, N in zip(positions, normals, strict=True)])
+            if keep_thickness:
+                tris = part.triangles()
+                s = sides(part.points, tris, b, positions[0] / scale, faces, scale)
+                if len(s.point):
+                    frames = np.stack([keep(F, tris, s) for F in frames])
+            out.append(frames)
         else:
             out.append(np.asarray(part.points, dtype=np.float64))
     return out

@@ -331,6 +331,52 @@ def test_only_a_part_with_two_sides_has_a_thickness_to_measure():
     np.testing.assert_allclose(binding.thickness(solid, solid_faces, b.offset[:, 2], which), 0.2)
 
 
+def _bent(sheet, angle):
+    """The flat sheet (along x from 0) rolled about the y axis through ``angle`` over its
+    length."""
+    if angle == 0.0:
+        return sheet.copy()
+    R = sheet[:, 0].max() / angle
+    return np.c_[R * np.sin(sheet[:, 0] / R), sheet[:, 1], R * (1 - np.cos(sheet[:, 0] / R))]
+
+
+def test_a_coarse_thick_petal_bent_keeps_its_thickness():
+    """A slab 0.2 thick whose two sides were modelled apart (faces 0.9 long, 4.5x the
+    thickness, one side's vertices over the middle of the other's faces), bound to a fine
+    sheet that rolls through 2 rad. Through the binding alone each side's flat faces cut
+    chords across the bend: the other side's points come over 20% closer to them. With
+    keep_thickness every measured point is within 5% of its rest distance at every
+    angle (the sides' flat faces cannot all be exactly 0.2 apart: the rest is a
+    least-squares compromise), no point jumps between two angles more than 1.5x the
+    binding alone, and the rest pose is given back."""
+    sheet, faces = _grid(41, 9)
+    sheet *= 0.1
+    top, top_tris = _grid(5, 3)
+    bottom, bottom_tris = _grid(4, 3)
+    points = np.concatenate([top * [0.9, 0.3, 0.0] + [0.23, 0.16, 0.1],  # (inside sheet
+                             bottom * [0.9, 0.3, 0.0] + [0.68, 0.16, -0.1]])  # triangles)
+    triangles = np.concatenate([top_tris, bottom_tris[:, ::-1] + len(top)])
+    b = binding.bind(points, sheet, faces)
+    s = binding.sides(points, triangles, b, sheet, faces, 1.0)
+    which = binding.two_sided(points, triangles, b, sheet, faces, 1.0)
+    # the top's 3 x 3 inner points (its end columns lie past the bottom), all the bottom's
+    assert len(which) == 9 and len(s.point) == 21 and np.sum(~s.positive) == 12
+    rest = binding.thickness(points, triangles, b.offset[:, 2], which)
+    np.testing.assert_allclose(rest, 0.2, rtol=1e-12)
+    np.testing.assert_allclose(binding.keep_thickness(binding.deform(sheet, faces, b), triangles, s),
+                               points, rtol=0, atol=1e-12)
+    plain, kept = [], []
+    for angle in np.linspace(0.0, 2.0, 31):
+        P = binding.deform(_bent(sheet, angle), faces, b)
+        plain.append(P)
+        kept.append(binding.keep_thickness(P, triangles, s))
+    change = [[np.abs(binding.thickness(P, triangles, b.offset[:, 2], which) / rest - 1).max()
+               for P in frames] for frames in (plain, kept)]
+    assert change[0][-1] > 0.2 and max(change[1]) < 0.05, (change[0][-1], max(change[1]))
+    jumps = [np.linalg.norm(np.diff(np.stack(F), axis=0), axis=2).max() for F in (plain, kept)]
+    assert jumps[1] <= 1.5 * jumps[0], jumps
+
+
 # --- a real flower -------------------------------------------------------------------------------
 
 def test_the_blender_lily_comes_back_as_18_meshes(tmp_path):
