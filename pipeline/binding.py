@@ -401,9 +401,10 @@ def keep_thickness(points: np.ndarray, triangles: np.ndarray, s: Sides,
     least-squares system for the moves (damping ``KEEP_DAMPING`` on the moves from the
     deformed points, so the smallest move that restores the thickness is taken). Points
     not in ``s`` (rims, one-sided parts) are not moved. Deterministic: a fixed number of
-    steps, a direct solve."""
+    steps, a direct solve (qdldl's LDL^T of the damped normal equations, positive
+    definite)."""
+    import qdldl
     import scipy.sparse as sp
-    from scipy.sparse.linalg import spsolve
 
     Q0 = np.asarray(points, dtype=np.float64)
     if len(s.point) == 0:
@@ -431,8 +432,9 @@ def keep_thickness(points: np.ndarray, triangles: np.ndarray, s: Sides,
         A = sp.csr_matrix((np.concatenate(V), (np.concatenate(I), np.concatenate(J))),
                           shape=(n, n))
         moved = np.einsum("ij,ij->i", Q[s.point] - Q0[s.point], u)
-        step = spsolve((A.T @ A + KEEP_DAMPING * identity).tocsc(),
-                       A.T @ r - KEEP_DAMPING * moved)
+        normal = sp.triu(A.T @ A + KEEP_DAMPING * identity, format="csc")
+        normal.sort_indices()
+        step = qdldl.Solver(normal).solve(A.T @ r - KEEP_DAMPING * moved)
         Q[s.point] += step[:, None] * u
     return Q
 
