@@ -182,6 +182,13 @@ class NotConverged(RuntimeError):
         super().__init__(f"{text}; {detail}" if detail else text)
 
 
+def _positions(known: np.ndarray, keys: np.ndarray) -> np.ndarray:
+    """Where each of ``keys`` is in the ascending ``known``; -1 where it is not."""
+    at = np.searchsorted(known, keys)
+    at[at == len(known)] = 0
+    return np.where(known[at] == keys, at, -1) if len(known) else np.full(len(keys), -1)
+
+
 @dataclass
 class _Group:
     """Pieces (petals) that are one linear system: a piece alone, or pieces joined by
@@ -194,9 +201,14 @@ class _Group:
     take: np.ndarray  #: elastic.data = blocks.data.ravel()[take]
     diagonal: np.ndarray  #: positions of the diagonal in elastic.data
     local: np.ndarray  #: (3V,) index in dofs of each unknown of the whole, -1 outside
+    keys: np.ndarray  #: column * n + row of each entry of ``elastic`` (ascending)
     solver: object = None  #: qdldl's LDL^T of the last factorization (None: none, or singular)
-    #: (indptr, indices, keys) of the pattern ``solver`` was set up for (:meth:`_System._fit`)
-    pattern: tuple | None = None
+    #: the matrix ``solver`` was set up for, on its pattern (:meth:`_System._fit`): its
+    #: data is overwritten in place at each factorization
+    matrix: sp.csc_matrix | None = None
+    pattern: np.ndarray | None = None  #: column * n + row of each entry of ``matrix``
+    #: where each entry of ``elastic`` is in ``matrix.data`` (-1: not in its pattern)
+    at_elastic: np.ndarray | None = None
     positive: bool = False  #: the last factorization is positive definite
     shift: float = 0.0  #: the mu of the last factorization
     moved: float = 0.0  #: how far its last step (Newton's, or the predictor's) moved it
@@ -293,8 +305,9 @@ class _System:
             rows = np.repeat(np.arange(len(dofs)), np.diff(sub.indptr))
             local = np.full(self.upper.shape[0], -1, dtype=np.int64)
             local[dofs] = np.arange(len(dofs))
+            keys = rows * len(dofs) + sub.indices  # (rows: the column of each entry)
             group = self._known[key] = _Group(key, dofs, sub, take,
-                                              np.flatnonzero(sub.indices == rows), local)
+                                              np.flatnonzero(sub.indices == rows), local, keys)
         return group
 
     @property
@@ -329,27 +342,24 @@ class _System:
         ``z^T L D L^T z = D_k``. A group whose matrix has the pattern of its last one
         (a petal alone always has) reuses qdldl's ordering and symbolic analysis.
         """
-        M = group.elastic
-        M.data = self.blocks.data.ravel()[group.take]
-        M.data[group.diagonal] += mu
+        values = self.blocks.data.ravel()[group.take]  # on group.elastic's pattern
+        values[group.diagonal] += mu
         if self.inertia is not None:
-            M.data[group.diagonal] += self.inertia[group.dofs]
+            values[group.diagonal] += self.inertia[group.dofs]
+        extra = None
         if self.extra is not None:
             x = self.extra
             r, c = group.local[x.row], group.local[x.col]
             inside = r >= 0
             if inside.any():
-                n = len(group.dofs)
-                M = (M + sp.csc_matrix((x.data[inside], (r[inside], c[inside])),
-                                       shape=(n, n))).tocsc()
-                M.sort_indices()
+                extra = (c[inside] * len(group.dofs) + r[inside], x.data[inside])
         group.shift = mu
-        M = self._fit(group, M)
+        M = self._fit(group, values, extra)
         try:
             if group.solver is not None:  # (_fit keeps it only while the pattern holds)
-                group.solver.update(M)
+                group.solver.update(M, upper=True)
             else:
-                group.solver = qdldl.Solver(M)
+                group.solver = qdldl.Solver(M, upper=True)
         except (ValueError, RuntimeError):  # a zero pivot: singular
             group.solver, group.pattern, group.positive = None, None, False
             return False, None
@@ -373,33 +383,65 @@ class _System:
         return False, out
 
     @staticmethod
-    def _fit(group: _Group, M: sp.csc_matrix) -> sp.csc_matrix:
-        """``M`` on the group's pattern: the union of every pattern its matrices have had
-        (contacts come and go; an entry not in M is an explicit zero), so that qdldl's
-        ordering and symbolic analysis are redone only when a new entry appears (then
-        the group's solver is dropped, to be set up anew)."""
-        n = M.shape[0]
-        cols = np.repeat(np.arange(n, dtype=np.int64), np.diff(M.indptr))
-        keys = cols * n + M.indices
-        if group.pattern is not None:
-            indptr, indices, known = group.pattern
-            at = np.searchsorted(known, keys)
-            if np.all(at < len(known)) and np.array_equal(known[np.minimum(at, len(known) - 1)],
-                                                          keys):
-                data = np.zeros(len(known))
-                data[at] = M.data
-                return sp.csc_matrix((data, indices, indptr), shape=M.shape)
-            keys = np.sort(np.concatenate([known, keys]), kind="stable")
-            keys = keys[np.concatenate([[True], keys[1:] != keys[:-1]])]
-            data = np.zeros(len(keys))
-            data[np.searchsorted(keys, cols * n + M.indices)] = M.data
+    def _fit(group: _Group, values: np.ndarray, extra) -> sp.csc_matrix:
+        """The group's matrix, the elastic ``values`` (on ``group.elastic``'s pattern)
+        plus the coupling terms' entries ``extra`` (``(keys, values)``, or None), on the
+        group's pattern: the union of every pattern its matrices have had (contacts come
+        and go; an entry not there is an explicit zero), so that qdldl's ordering and
+        symbolic analysis are redone only when a new entry appears (then the group's
+        solver is dropped, to be set up anew). A sum with coupling entries has only its
+        nonzero entries (an elastic one that is zero, as at a fixed vertex, included),
+        one without them every elastic entry. The matrix is the group's own, its data
+        overwritten."""
+        n = len(group.dofs)
+        known = group.pattern
+        if known is not None and group.at_elastic is None:  # (once per pattern)
+            group.at_elastic = _positions(known, group.keys)
+        if extra is None:
+            keys, data = group.keys, values
+            if known is not None and np.all(group.at_elastic >= 0):
+                M = group.matrix
+                if len(known) == len(keys):  # (the pattern is the elastic one)
+                    M.data[:] = values
+                else:
+                    M.data[:] = 0.0
+                    M.data[group.at_elastic] = values
+                return M
         else:
-            data = M.data.copy()
+            xkeys, xvalues = extra
+            data = values.copy()
+            at = _positions(group.keys, xkeys)
+            hit = at >= 0
+            data[at[hit]] += xvalues[hit]  # (the coupling entries are distinct)
+            nz = data != 0.0
+            xout = ~hit & (xvalues != 0.0)
+            if known is not None:
+                ae = group.at_elastic[nz]
+                ax = _positions(known, xkeys[xout])
+                if np.all(ae >= 0) and np.all(ax >= 0):
+                    M = group.matrix
+                    M.data[:] = 0.0
+                    M.data[ae] = data[nz]
+                    M.data[ax] = xvalues[xout]
+                    return M
+            keys = np.concatenate([group.keys[nz], xkeys[xout]])
+            data = np.concatenate([data[nz], xvalues[xout]])
+            order = np.argsort(keys, kind="stable")
+            keys, data = keys[order], data[order]
+        if known is not None:
+            union = np.sort(np.concatenate([known, keys]))
+            union = union[np.concatenate([[True], union[1:] != union[:-1]])]
+            full = np.zeros(len(union))
+            full[np.searchsorted(union, keys)] = data
+            keys, data = union, full
+        else:
+            data = data.copy()
         indices = (keys % n).astype(np.int32)
         indptr = np.searchsorted(keys // n, np.arange(n + 1)).astype(np.int32)
-        group.pattern = (indptr, indices, keys)
+        group.pattern, group.at_elastic = keys, None
+        group.matrix = sp.csc_matrix((data, indices, indptr), shape=(n, n))
         group.solver = None  # (a new pattern: qdldl's analysis is redone)
-        return sp.csc_matrix((data, indices, indptr), shape=M.shape)
+        return group.matrix
 
     def solve(self, rhs: np.ndarray, groups=None) -> np.ndarray:
         """The step of each group's last factorization for ``rhs`` (3V); zero in the
