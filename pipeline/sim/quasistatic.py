@@ -212,6 +212,9 @@ class _Group:
     positive: bool = False  #: the last factorization is positive definite
     shift: float = 0.0  #: the mu of the last factorization
     moved: float = 0.0  #: how far its last step (Newton's, or the predictor's) moved it
+    #: a shift mu of the H last assembled that cannot make it positive definite (a
+    #: direction of negative curvature found shows it: :meth:`_System.factor`)
+    need: float = 0.0
 
 
 @dataclass
@@ -331,11 +334,13 @@ class _System:
                                    shape=extra.shape)
 
     # --- factorization --------------------------------------------------------------------
-    def factor(self, group: _Group, mu: float = 0.0):
+    def factor(self, group: _Group, mu: float = 0.0, direction: bool = True):
         """LDL^T of the group's ``H + mu I`` (H as last assembled). Returns
-        ``(positive, down)``: whether it is positive definite and, if not, a direction
-        of negative curvature ``d^T H d < 0`` (3V, zero outside the group; None if none
-        was found).
+        ``(positive, down)``: whether it is positive definite and, if not (and
+        ``direction``), a direction of negative curvature ``d^T H d < 0`` (3V, zero
+        outside the group; None if none was found). A direction found also bounds the
+        shift that can make H positive definite: ``mu <= -d^T H d / d^T d`` cannot
+        (``group.need``, the largest such bound for the H last assembled).
 
         ``P (H + mu I) P^T = L D L^T``: the signs of D are those of the eigenvalues
         (Sylvester's law of inertia); for ``D_k < 0``, ``z = L^-T e_k`` has
@@ -354,6 +359,8 @@ class _System:
             if inside.any():
                 extra = (c[inside] * len(group.dofs) + r[inside], x.data[inside])
         group.shift = mu
+        if mu == 0.0:  # (a new H: what is known of its shifts is of the last one)
+            group.need = 0.0
         M = self._fit(group, values, extra)
         try:
             if group.solver is not None:  # (_fit keeps it only while the pattern holds)
@@ -365,8 +372,8 @@ class _System:
             return False, None
         L, D, perm = group.solver.factors()
         group.positive = bool(np.all(D > 0.0))
-        if group.positive:
-            return True, None
+        if group.positive or not direction:
+            return group.positive, None
         k = int(np.argmin(D))
         e = np.zeros(len(D))
         e[k] = 1.0
@@ -376,7 +383,10 @@ class _System:
         d = np.empty(n)
         d[perm] = z
         full = M + sp.triu(M, k=1).T
-        if not d @ (full @ d) < mu * (d @ d):
+        curvature, size = d @ (full @ d), d @ d
+        if size > 0.0:
+            group.need = max(group.need, mu - curvature / size)
+        if not curvature < mu * size:
             return False, None
         out = np.zeros(self.upper.shape[0])
         out[group.dofs] = d
@@ -878,7 +888,10 @@ class QuasiStatic:
                 energy, g = self._gradient(X, scratch)
                 for gr in lost:
                     mu = floor
-                    while not system.factor(gr, mu)[0]:
+                    # (a shift that a direction of negative curvature rules out is
+                    # rejected unfactored)
+                    while (mu * (1.0 + 1e-6) < gr.need
+                           or not system.factor(gr, mu, direction=False)[0]):
                         self.shifted += 1
                         mu *= 10.0
                         if mu > 1e6 * float(model.edge_stiffness.max()):
