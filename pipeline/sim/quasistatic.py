@@ -453,12 +453,15 @@ class _System:
         group.solver = None  # (a new pattern: qdldl's analysis is redone)
         return group.matrix
 
-    def solve(self, rhs: np.ndarray, groups=None) -> np.ndarray:
+    def solve(self, rhs: np.ndarray, groups=None, known=None) -> np.ndarray:
         """The step of each group's last factorization for ``rhs`` (3V); zero in the
-        groups not given (default: all) and in a group with no factorization."""
+        groups not given (default: all) and in a group with no factorization. ``known``:
+        steps already solved for this ``rhs``, by group key."""
         out = np.zeros_like(rhs)
         for g in self.groups if groups is None else groups:
-            if g.solver is not None:
+            if known is not None and g.key in known:
+                out[g.dofs] = known[g.key]
+            elif g.solver is not None:
                 out[g.dofs] = g.solver.solve(rhs[g.dofs])
         return out
 
@@ -850,6 +853,7 @@ class QuasiStatic:
                 done &= {gr.key for gr in system.groups}
                 fresh &= {gr.key for gr in system.groups}
             moving = []
+            solved = {}  #: the chord steps found, by group
             for gr in system.groups:
                 r = float(np.abs(g[gr.dofs]).max()) if len(gr.dofs) else 0.0
                 if (gr.key in done or r <= rounding
@@ -860,10 +864,13 @@ class QuasiStatic:
                 # a chord step (the factorization made at an earlier iteration of this
                 # solve, unshifted and positive) if it is a tenth of the group's last step
                 # or less: then the Hessian has barely changed where it matters
-                chord[gr.key] = (gr.key in fresh and gr.positive and gr.shift == 0.0
-                                 and gr.key not in stale
-                                 and float(np.abs(gr.solver.solve(-g[gr.dofs])).max())
-                                 <= CHORD * gr.moved)
+                chord[gr.key] = False
+                if (gr.key in fresh and gr.positive and gr.shift == 0.0
+                        and gr.key not in stale):
+                    trial = gr.solver.solve(-g[gr.dofs])
+                    chord[gr.key] = float(np.abs(trial).max()) <= CHORD * gr.moved
+                    if chord[gr.key]:
+                        solved[gr.key] = trial  # (the step, unless g changes below)
             if not moving:
                 return None
             self.iterations += 1
@@ -897,7 +904,7 @@ class QuasiStatic:
                         if mu > 1e6 * float(model.edge_stiffness.max()):
                             # no shift makes it positive: not finite?
                             return _Failure(residual, scale, "shift", self._inertia())
-            step = system.solve(-g, moving)
+            step = system.solve(-g, moving, None if lost else solved)
             length = self._line_search(X, scratch, energy, g, step)
             if length == 0.0:
                 reused = [gr.key for gr in moving if chord[gr.key]]
