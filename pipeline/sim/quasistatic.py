@@ -201,6 +201,8 @@ class _Group:
     take: np.ndarray  #: elastic.data = blocks.data.ravel()[take]
     diagonal: np.ndarray  #: positions of the diagonal in elastic.data
     local: np.ndarray  #: (3V,) index in dofs of each unknown of the whole, -1 outside
+    #: (edges, hinges, blocks) of its pieces: what assembling its Hessian alone touches
+    part: tuple
     keys: np.ndarray  #: column * n + row of each entry of ``elastic`` (ascending)
     solver: object = None  #: qdldl's LDL^T of the last factorization (None: none, or singular)
     #: the matrix ``solver`` was set up for, on its pattern (:meth:`_System._fit`): its
@@ -230,6 +232,8 @@ class _System:
     take: np.ndarray  #: upper.data = data.ravel()[take]
     diagonal: np.ndarray  #: positions of the diagonal in upper.data
     piece: np.ndarray  #: (V,) connected piece (petal) of each vertex
+    edge_piece: np.ndarray  #: (E,) piece of each edge
+    hinge_piece: np.ndarray  #: (H,) piece of each hinge
     #: (3V, 3V) the constraints as a projection: 0 for a fixed vertex, I - n n^T for a
     #: center-plane vertex, I for the others (applied to the coupling terms' Hessian)
     project: sp.csr_matrix | None = None
@@ -266,7 +270,7 @@ class _System:
         graph = sp.coo_matrix((np.ones(len(e)), (e[:, 0], e[:, 1])), shape=(n, n))
         piece = connected_components(graph, directed=False)[1].astype(np.int64)
         system = cls(blocks, model.pinned.copy(), plane_row, normals, upper, take, diagonal,
-                     piece)
+                     piece, piece[e[:, 0]], piece[model.hinge_indices[:, 0]])
         if effects.collisions is not None or effects.connections is not None:
             P = np.broadcast_to(np.eye(3), (n, 3, 3)).copy()
             P[model.pinned] = 0.0
@@ -309,8 +313,13 @@ class _System:
             local = np.full(self.upper.shape[0], -1, dtype=np.int64)
             local[dofs] = np.arange(len(dofs))
             keys = rows * len(dofs) + sub.indices  # (rows: the column of each entry)
+            indptr = self.blocks.indptr
+            part = (np.flatnonzero(np.isin(self.edge_piece, key)),
+                    np.flatnonzero(np.isin(self.hinge_piece, key)),
+                    np.concatenate([np.arange(indptr[v], indptr[v + 1]) for v in vertices]))
             group = self._known[key] = _Group(key, dofs, sub, take,
-                                              np.flatnonzero(sub.indices == rows), local, keys)
+                                              np.flatnonzero(sub.indices == rows), local, part,
+                                              keys)
         return group
 
     @property
@@ -761,11 +770,17 @@ class QuasiStatic:
                                       springs=self._springs)
         self._terms.elastic.at(A)
 
-    def _assemble(self, X) -> None:
-        """The constrained Hessian at X into the system's blocks."""
+    def _assemble(self, X, groups=None) -> None:
+        """The constrained Hessian at X into the system's blocks; its elastic part only
+        in the blocks of ``groups`` if given (the others' are not read until they are
+        assembled again)."""
         s = self._system
         H = s.blocks
-        self._terms.elastic.assemble(X, H)
+        if groups is None or len(groups) == len(s.groups):
+            self._terms.elastic.assemble(X, H)
+        else:
+            for gr in groups:
+                self._terms.elastic.assemble(X, H, gr.part)
         hessian.constrain(H.indptr, H.indices, H.data, s.pinned, s.plane_row, s.normals)
         if s.project is not None:
             s.couple([t.hessian(X, project=True) for t in self._terms.coupling])
@@ -874,14 +889,11 @@ class QuasiStatic:
             if not moving:
                 return None
             self.iterations += 1
-            assembled = False
             lost = []  # groups whose Hessian is not positive definite
-            for gr in moving:
-                if chord[gr.key]:
-                    continue
-                if not assembled:
-                    self._assemble(X)
-                    assembled = True
+            factored = [gr for gr in moving if not chord[gr.key]]
+            if factored:
+                self._assemble(X, factored)
+            for gr in factored:
                 positive, down = system.factor(gr)
                 fresh.add(gr.key)
                 stale.discard(gr.key)
