@@ -245,6 +245,7 @@ class _System:
     inertia: np.ndarray | None = None
     groups: list = field(default_factory=list)  #: the current groups (:class:`_Group`)
     _known: dict = field(default_factory=dict)  #: every group met so far, by key
+    _joined: np.ndarray | None = None  #: the piece pairs the groups were made of
 
     @classmethod
     def build(cls, model: Model, effects: Effects) -> _System:
@@ -291,6 +292,10 @@ class _System:
 
         count = int(self.piece.max()) + 1 if len(self.piece) else 0
         a, b = self.piece[links[:, 0]], self.piece[links[:, 1]]
+        joined = np.unique(np.minimum(a, b) * count + np.maximum(a, b))
+        if self._joined is not None and np.array_equal(joined, self._joined):
+            return False  # (the same pieces joined: the same groups)
+        self._joined = joined
         graph = sp.coo_matrix((np.ones(len(a)), (a, b)), shape=(count, count))
         label = connected_components(graph, directed=False)[1]
         keys = [tuple(np.flatnonzero(label == c).tolist()) for c in range(label.max() + 1)]
