@@ -182,6 +182,13 @@ class NotConverged(RuntimeError):
         super().__init__(f"{text}; {detail}" if detail else text)
 
 
+def _positions(known: np.ndarray, keys: np.ndarray) -> np.ndarray:
+    """Where each of ``keys`` is in the ascending ``known``; -1 where it is not."""
+    at = np.searchsorted(known, keys)
+    at[at == len(known)] = 0
+    return np.where(known[at] == keys, at, -1) if len(known) else np.full(len(keys), -1)
+
+
 @dataclass
 class _Group:
     """Pieces (petals) that are one linear system: a piece alone, or pieces joined by
@@ -194,12 +201,22 @@ class _Group:
     take: np.ndarray  #: elastic.data = blocks.data.ravel()[take]
     diagonal: np.ndarray  #: positions of the diagonal in elastic.data
     local: np.ndarray  #: (3V,) index in dofs of each unknown of the whole, -1 outside
+    #: (edges, hinges, blocks) of its pieces: what assembling its Hessian alone touches
+    part: tuple
+    keys: np.ndarray  #: column * n + row of each entry of ``elastic`` (ascending)
     solver: object = None  #: qdldl's LDL^T of the last factorization (None: none, or singular)
-    #: (indptr, indices, keys) of the pattern ``solver`` was set up for (:meth:`_System._fit`)
-    pattern: tuple | None = None
+    #: the matrix ``solver`` was set up for, on its pattern (:meth:`_System._fit`): its
+    #: data is overwritten in place at each factorization
+    matrix: sp.csc_matrix | None = None
+    pattern: np.ndarray | None = None  #: column * n + row of each entry of ``matrix``
+    #: where each entry of ``elastic`` is in ``matrix.data`` (-1: not in its pattern)
+    at_elastic: np.ndarray | None = None
     positive: bool = False  #: the last factorization is positive definite
     shift: float = 0.0  #: the mu of the last factorization
     moved: float = 0.0  #: how far its last step (Newton's, or the predictor's) moved it
+    #: a shift mu of the H last assembled that cannot make it positive definite (a
+    #: direction of negative curvature found shows it: :meth:`_System.factor`)
+    need: float = 0.0
 
 
 @dataclass
@@ -215,6 +232,8 @@ class _System:
     take: np.ndarray  #: upper.data = data.ravel()[take]
     diagonal: np.ndarray  #: positions of the diagonal in upper.data
     piece: np.ndarray  #: (V,) connected piece (petal) of each vertex
+    edge_piece: np.ndarray  #: (E,) piece of each edge
+    hinge_piece: np.ndarray  #: (H,) piece of each hinge
     #: (3V, 3V) the constraints as a projection: 0 for a fixed vertex, I - n n^T for a
     #: center-plane vertex, I for the others (applied to the coupling terms' Hessian)
     project: sp.csr_matrix | None = None
@@ -226,6 +245,7 @@ class _System:
     inertia: np.ndarray | None = None
     groups: list = field(default_factory=list)  #: the current groups (:class:`_Group`)
     _known: dict = field(default_factory=dict)  #: every group met so far, by key
+    _joined: np.ndarray | None = None  #: the piece pairs the groups were made of
 
     @classmethod
     def build(cls, model: Model, effects: Effects) -> _System:
@@ -251,7 +271,7 @@ class _System:
         graph = sp.coo_matrix((np.ones(len(e)), (e[:, 0], e[:, 1])), shape=(n, n))
         piece = connected_components(graph, directed=False)[1].astype(np.int64)
         system = cls(blocks, model.pinned.copy(), plane_row, normals, upper, take, diagonal,
-                     piece)
+                     piece, piece[e[:, 0]], piece[model.hinge_indices[:, 0]])
         if effects.collisions is not None or effects.connections is not None:
             P = np.broadcast_to(np.eye(3), (n, 3, 3)).copy()
             P[model.pinned] = 0.0
@@ -272,6 +292,10 @@ class _System:
 
         count = int(self.piece.max()) + 1 if len(self.piece) else 0
         a, b = self.piece[links[:, 0]], self.piece[links[:, 1]]
+        joined = np.unique(np.minimum(a, b) * count + np.maximum(a, b))
+        if self._joined is not None and np.array_equal(joined, self._joined):
+            return False  # (the same pieces joined: the same groups)
+        self._joined = joined
         graph = sp.coo_matrix((np.ones(len(a)), (a, b)), shape=(count, count))
         label = connected_components(graph, directed=False)[1]
         keys = [tuple(np.flatnonzero(label == c).tolist()) for c in range(label.max() + 1)]
@@ -293,8 +317,14 @@ class _System:
             rows = np.repeat(np.arange(len(dofs)), np.diff(sub.indptr))
             local = np.full(self.upper.shape[0], -1, dtype=np.int64)
             local[dofs] = np.arange(len(dofs))
+            keys = rows * len(dofs) + sub.indices  # (rows: the column of each entry)
+            indptr = self.blocks.indptr
+            part = (np.flatnonzero(np.isin(self.edge_piece, key)),
+                    np.flatnonzero(np.isin(self.hinge_piece, key)),
+                    np.concatenate([np.arange(indptr[v], indptr[v + 1]) for v in vertices]))
             group = self._known[key] = _Group(key, dofs, sub, take,
-                                              np.flatnonzero(sub.indices == rows), local)
+                                              np.flatnonzero(sub.indices == rows), local, part,
+                                              keys)
         return group
 
     @property
@@ -318,45 +348,46 @@ class _System:
                                    shape=extra.shape)
 
     # --- factorization --------------------------------------------------------------------
-    def factor(self, group: _Group, mu: float = 0.0):
+    def factor(self, group: _Group, mu: float = 0.0, direction: bool = True):
         """LDL^T of the group's ``H + mu I`` (H as last assembled). Returns
-        ``(positive, down)``: whether it is positive definite and, if not, a direction
-        of negative curvature ``d^T H d < 0`` (3V, zero outside the group; None if none
-        was found).
+        ``(positive, down)``: whether it is positive definite and, if not (and
+        ``direction``), a direction of negative curvature ``d^T H d < 0`` (3V, zero
+        outside the group; None if none was found). A direction found also bounds the
+        shift that can make H positive definite: ``mu <= -d^T H d / d^T d`` cannot
+        (``group.need``, the largest such bound for the H last assembled).
 
         ``P (H + mu I) P^T = L D L^T``: the signs of D are those of the eigenvalues
         (Sylvester's law of inertia); for ``D_k < 0``, ``z = L^-T e_k`` has
         ``z^T L D L^T z = D_k``. A group whose matrix has the pattern of its last one
         (a petal alone always has) reuses qdldl's ordering and symbolic analysis.
         """
-        M = group.elastic
-        M.data = self.blocks.data.ravel()[group.take]
-        M.data[group.diagonal] += mu
+        values = self.blocks.data.ravel()[group.take]  # on group.elastic's pattern
+        values[group.diagonal] += mu
         if self.inertia is not None:
-            M.data[group.diagonal] += self.inertia[group.dofs]
+            values[group.diagonal] += self.inertia[group.dofs]
+        extra = None
         if self.extra is not None:
             x = self.extra
             r, c = group.local[x.row], group.local[x.col]
             inside = r >= 0
             if inside.any():
-                n = len(group.dofs)
-                M = (M + sp.csc_matrix((x.data[inside], (r[inside], c[inside])),
-                                       shape=(n, n))).tocsc()
-                M.sort_indices()
+                extra = (c[inside] * len(group.dofs) + r[inside], x.data[inside])
         group.shift = mu
-        M = self._fit(group, M)
+        if mu == 0.0:  # (a new H: what is known of its shifts is of the last one)
+            group.need = 0.0
+        M = self._fit(group, values, extra)
         try:
             if group.solver is not None:  # (_fit keeps it only while the pattern holds)
-                group.solver.update(M)
+                group.solver.update(M, upper=True)
             else:
-                group.solver = qdldl.Solver(M)
+                group.solver = qdldl.Solver(M, upper=True)
         except (ValueError, RuntimeError):  # a zero pivot: singular
             group.solver, group.pattern, group.positive = None, None, False
             return False, None
         L, D, perm = group.solver.factors()
         group.positive = bool(np.all(D > 0.0))
-        if group.positive:
-            return True, None
+        if group.positive or not direction:
+            return group.positive, None
         k = int(np.argmin(D))
         e = np.zeros(len(D))
         e[k] = 1.0
@@ -366,47 +397,85 @@ class _System:
         d = np.empty(n)
         d[perm] = z
         full = M + sp.triu(M, k=1).T
-        if not d @ (full @ d) < mu * (d @ d):
+        curvature, size = d @ (full @ d), d @ d
+        if size > 0.0:
+            group.need = max(group.need, mu - curvature / size)
+        if not curvature < mu * size:
             return False, None
         out = np.zeros(self.upper.shape[0])
         out[group.dofs] = d
         return False, out
 
     @staticmethod
-    def _fit(group: _Group, M: sp.csc_matrix) -> sp.csc_matrix:
-        """``M`` on the group's pattern: the union of every pattern its matrices have had
-        (contacts come and go; an entry not in M is an explicit zero), so that qdldl's
-        ordering and symbolic analysis are redone only when a new entry appears (then
-        the group's solver is dropped, to be set up anew)."""
-        n = M.shape[0]
-        cols = np.repeat(np.arange(n, dtype=np.int64), np.diff(M.indptr))
-        keys = cols * n + M.indices
-        if group.pattern is not None:
-            indptr, indices, known = group.pattern
-            at = np.searchsorted(known, keys)
-            if np.all(at < len(known)) and np.array_equal(known[np.minimum(at, len(known) - 1)],
-                                                          keys):
-                data = np.zeros(len(known))
-                data[at] = M.data
-                return sp.csc_matrix((data, indices, indptr), shape=M.shape)
-            keys = np.sort(np.concatenate([known, keys]), kind="stable")
-            keys = keys[np.concatenate([[True], keys[1:] != keys[:-1]])]
-            data = np.zeros(len(keys))
-            data[np.searchsorted(keys, cols * n + M.indices)] = M.data
+    def _fit(group: _Group, values: np.ndarray, extra) -> sp.csc_matrix:
+        """The group's matrix, the elastic ``values`` (on ``group.elastic``'s pattern)
+        plus the coupling terms' entries ``extra`` (``(keys, values)``, or None), on the
+        group's pattern: the union of every pattern its matrices have had (contacts come
+        and go; an entry not there is an explicit zero), so that qdldl's ordering and
+        symbolic analysis are redone only when a new entry appears (then the group's
+        solver is dropped, to be set up anew). A sum with coupling entries has only its
+        nonzero entries (an elastic one that is zero, as at a fixed vertex, included),
+        one without them every elastic entry. The matrix is the group's own, its data
+        overwritten."""
+        n = len(group.dofs)
+        known = group.pattern
+        if known is not None and group.at_elastic is None:  # (once per pattern)
+            group.at_elastic = _positions(known, group.keys)
+        if extra is None:
+            keys, data = group.keys, values
+            if known is not None and np.all(group.at_elastic >= 0):
+                M = group.matrix
+                if len(known) == len(keys):  # (the pattern is the elastic one)
+                    M.data[:] = values
+                else:
+                    M.data[:] = 0.0
+                    M.data[group.at_elastic] = values
+                return M
         else:
-            data = M.data.copy()
+            xkeys, xvalues = extra
+            data = values.copy()
+            at = _positions(group.keys, xkeys)
+            hit = at >= 0
+            data[at[hit]] += xvalues[hit]  # (the coupling entries are distinct)
+            nz = data != 0.0
+            xout = ~hit & (xvalues != 0.0)
+            if known is not None:
+                ae = group.at_elastic[nz]
+                ax = _positions(known, xkeys[xout])
+                if np.all(ae >= 0) and np.all(ax >= 0):
+                    M = group.matrix
+                    M.data[:] = 0.0
+                    M.data[ae] = data[nz]
+                    M.data[ax] = xvalues[xout]
+                    return M
+            keys = np.concatenate([group.keys[nz], xkeys[xout]])
+            data = np.concatenate([data[nz], xvalues[xout]])
+            order = np.argsort(keys, kind="stable")
+            keys, data = keys[order], data[order]
+        if known is not None:
+            union = np.sort(np.concatenate([known, keys]))
+            union = union[np.concatenate([[True], union[1:] != union[:-1]])]
+            full = np.zeros(len(union))
+            full[np.searchsorted(union, keys)] = data
+            keys, data = union, full
+        else:
+            data = data.copy()
         indices = (keys % n).astype(np.int32)
         indptr = np.searchsorted(keys // n, np.arange(n + 1)).astype(np.int32)
-        group.pattern = (indptr, indices, keys)
+        group.pattern, group.at_elastic = keys, None
+        group.matrix = sp.csc_matrix((data, indices, indptr), shape=(n, n))
         group.solver = None  # (a new pattern: qdldl's analysis is redone)
-        return sp.csc_matrix((data, indices, indptr), shape=M.shape)
+        return group.matrix
 
-    def solve(self, rhs: np.ndarray, groups=None) -> np.ndarray:
+    def solve(self, rhs: np.ndarray, groups=None, known=None) -> np.ndarray:
         """The step of each group's last factorization for ``rhs`` (3V); zero in the
-        groups not given (default: all) and in a group with no factorization."""
+        groups not given (default: all) and in a group with no factorization. ``known``:
+        steps already solved for this ``rhs``, by group key."""
         out = np.zeros_like(rhs)
         for g in self.groups if groups is None else groups:
-            if g.solver is not None:
+            if known is not None and g.key in known:
+                out[g.dofs] = known[g.key]
+            elif g.solver is not None:
                 out[g.dofs] = g.solver.solve(rhs[g.dofs])
         return out
 
@@ -706,11 +775,17 @@ class QuasiStatic:
                                       springs=self._springs)
         self._terms.elastic.at(A)
 
-    def _assemble(self, X) -> None:
-        """The constrained Hessian at X into the system's blocks."""
+    def _assemble(self, X, groups=None) -> None:
+        """The constrained Hessian at X into the system's blocks; its elastic part only
+        in the blocks of ``groups`` if given (the others' are not read until they are
+        assembled again)."""
         s = self._system
         H = s.blocks
-        self._terms.elastic.assemble(X, H)
+        if groups is None or len(groups) == len(s.groups):
+            self._terms.elastic.assemble(X, H)
+        else:
+            for gr in groups:
+                self._terms.elastic.assemble(X, H, gr.part)
         hessian.constrain(H.indptr, H.indices, H.data, s.pinned, s.plane_row, s.normals)
         if s.project is not None:
             s.couple([t.hessian(X, project=True) for t in self._terms.coupling])
@@ -798,6 +873,7 @@ class QuasiStatic:
                 done &= {gr.key for gr in system.groups}
                 fresh &= {gr.key for gr in system.groups}
             moving = []
+            solved = {}  #: the chord steps found, by group
             for gr in system.groups:
                 r = float(np.abs(g[gr.dofs]).max()) if len(gr.dofs) else 0.0
                 if (gr.key in done or r <= rounding
@@ -808,21 +884,21 @@ class QuasiStatic:
                 # a chord step (the factorization made at an earlier iteration of this
                 # solve, unshifted and positive) if it is a tenth of the group's last step
                 # or less: then the Hessian has barely changed where it matters
-                chord[gr.key] = (gr.key in fresh and gr.positive and gr.shift == 0.0
-                                 and gr.key not in stale
-                                 and float(np.abs(gr.solver.solve(-g[gr.dofs])).max())
-                                 <= CHORD * gr.moved)
+                chord[gr.key] = False
+                if (gr.key in fresh and gr.positive and gr.shift == 0.0
+                        and gr.key not in stale):
+                    trial = gr.solver.solve(-g[gr.dofs])
+                    chord[gr.key] = float(np.abs(trial).max()) <= CHORD * gr.moved
+                    if chord[gr.key]:
+                        solved[gr.key] = trial  # (the step, unless g changes below)
             if not moving:
                 return None
             self.iterations += 1
-            assembled = False
             lost = []  # groups whose Hessian is not positive definite
-            for gr in moving:
-                if chord[gr.key]:
-                    continue
-                if not assembled:
-                    self._assemble(X)
-                    assembled = True
+            factored = [gr for gr in moving if not chord[gr.key]]
+            if factored:
+                self._assemble(X, factored)
+            for gr in factored:
                 positive, down = system.factor(gr)
                 fresh.add(gr.key)
                 stale.discard(gr.key)
@@ -836,13 +912,16 @@ class QuasiStatic:
                 energy, g = self._gradient(X, scratch)
                 for gr in lost:
                     mu = floor
-                    while not system.factor(gr, mu)[0]:
+                    # (a shift that a direction of negative curvature rules out is
+                    # rejected unfactored)
+                    while (mu * (1.0 + 1e-6) < gr.need
+                           or not system.factor(gr, mu, direction=False)[0]):
                         self.shifted += 1
                         mu *= 10.0
                         if mu > 1e6 * float(model.edge_stiffness.max()):
                             # no shift makes it positive: not finite?
                             return _Failure(residual, scale, "shift", self._inertia())
-            step = system.solve(-g, moving)
+            step = system.solve(-g, moving, None if lost else solved)
             length = self._line_search(X, scratch, energy, g, step)
             if length == 0.0:
                 reused = [gr.key for gr in moving if chord[gr.key]]

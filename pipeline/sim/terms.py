@@ -175,12 +175,25 @@ class Elastic(Term):
         return _add_forces(X, s.edges, s.rest0, s.growth, s.stiffness, b.hinges, b.cos0, b.sin0,
                            b.stiffness, s.A, F, self._work)
 
-    def assemble(self, X, blocks: hs.Blocks) -> None:
-        """The Hessian at X into ``blocks`` (zeroed first): the solver's layout."""
+    def assemble(self, X, blocks: hs.Blocks, part=None) -> None:
+        """The Hessian at X into ``blocks`` (zeroed first): the solver's layout.
+        ``part``: ``(edges, hinges, blocks)`` index arrays of a part of the mesh that
+        no other element touches (a petal): only its blocks are zeroed and assembled
+        (the same sums, in the same order), the others are left as they are."""
         s, b = self.stretch, self.bending
-        hs.hessian(X, s.edges, s.rest0, s.growth, s.stiffness, b.hinges, b.cos0, b.sin0,
-                   b.stiffness, s.A, blocks.data, blocks.edge_slots, blocks.hinge_slots,
-                   blocks.work)
+        if part is None:
+            hs.hessian(X, s.edges, s.rest0, s.growth, s.stiffness, b.hinges, b.cos0, b.sin0,
+                       b.stiffness, s.A, blocks.data, blocks.edge_slots, blocks.hinge_slots,
+                       blocks.work)
+            return
+        e, h, k = part
+        blocks.data[k] = 0.0
+        if len(e):
+            hs.stretch_terms(X, s.edges[e], s.rest0[e], s.growth[e], s.stiffness[e], s.A,
+                             blocks.data, blocks.edge_slots[e])
+        if len(h):
+            hs.bending_terms(X, b.hinges[h], b.cos0[h], b.sin0[h], b.stiffness[h], blocks.data,
+                             blocks.hinge_slots[h], blocks.work)
 
     def hessian(self, X, project: bool = False) -> sp.csr_matrix:
         s, b = self.stretch, self.bending
