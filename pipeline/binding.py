@@ -26,7 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
-from .topology import vertex_normals
+from .topology import components, vertex_normals
 
 #: points are bound in chunks of this many (bounds the memory of the candidate pairs)
 CHUNK = 4096
@@ -99,17 +99,6 @@ def _nearest_kernel(q, X, F, rows, cand, face, bary, dist, has):
             has[r] = True
             face[r], dist[r] = f, d
             bary[r, 0], bary[r, 1], bary[r, 2] = u, v, w
-
-
-def closest_on_triangles(p: np.ndarray, a: np.ndarray, b: np.ndarray, c: np.ndarray) -> np.ndarray:
-    """``(n, 3)`` barycentric coordinates of the point of triangle ``a, b, c`` (each
-    ``(n, 3)``) closest to ``p``, for each row. A degenerate triangle gives one of its
-    closest corners or edges."""
-    n = len(p)
-    X = np.ascontiguousarray(np.concatenate([a, b, c]), dtype=np.float64)
-    F = np.arange(3 * n, dtype=np.int64).reshape(3, n).T.copy()
-    rows = np.arange(n, dtype=np.int64)
-    return nearest_among(np.asarray(p, dtype=np.float64), X, F, rows, rows)[2]
 
 
 def closest_points(points: np.ndarray, vertices: np.ndarray, faces: np.ndarray,
@@ -237,7 +226,7 @@ def bind_parts(asset, scale: float, vertices: np.ndarray, faces: np.ndarray,
     petals) get no binding: they stay where they are."""
     F = np.asarray(faces, dtype=np.int64)
     face_part = np.asarray(vertex_part)[F[:, 0]] if len(F) else np.zeros(0, dtype=np.int64)
-    face_piece = _pieces(len(vertices), F)[F[:, 0]] if len(F) else np.zeros(0, dtype=np.int64)
+    face_piece = components(F, len(vertices))[F[:, 0]] if len(F) else np.zeros(0, dtype=np.int64)
     out = {}
     for i, part in enumerate(asset.parts):
         allowed = face_part == i
@@ -249,17 +238,6 @@ def bind_parts(asset, scale: float, vertices: np.ndarray, faces: np.ndarray,
     return out
 
 
-def _pieces(count: int, triangles: np.ndarray) -> np.ndarray:
-    """``(count,)`` connected piece of each vertex of a triangle mesh."""
-    import scipy.sparse as sp
-    from scipy.sparse.csgraph import connected_components
-
-    T = np.asarray(triangles, dtype=np.int64).reshape(-1, 3)
-    graph = sp.coo_matrix((np.ones(2 * len(T)), (T[:, [0, 1]].ravel(), T[:, [1, 2]].ravel())),
-                          shape=(count, count))
-    return connected_components(graph, directed=False)[1]
-
-
 def _keep_to_own_petal(b: Binding, points, triangles, vertices, faces, allowed,
                        face_piece) -> None:
     """Where most of a connected piece of the input is bound to one sheet petal, bind
@@ -268,7 +246,7 @@ def _keep_to_own_petal(b: Binding, points, triangles, vertices, faces, allowed,
     or meet at the hub, would otherwise follow that petal through the bloom and tear
     the surface. A piece no petal has most of (a sheet that was several petals, split
     by remesh) keeps each point's closest petal."""
-    piece = _pieces(len(points), triangles)
+    piece = components(np.asarray(triangles, dtype=np.int64).reshape(-1, 3), len(points))
     petal_of = face_piece[b.face]
     for c in np.unique(piece):
         idx = np.flatnonzero(piece == c)
@@ -347,11 +325,11 @@ def sides(points: np.ndarray, triangles: np.ndarray, b: Binding, sheet: np.ndarr
     count = 0
     for positive_side in (True, False):
         up = (o > 0.0) == positive_side
-        other = np.flatnonzero(np.all(~up[T], axis=1))
+        other_side = np.all(~up[T], axis=1)
         mine = np.flatnonzero(up & interior(b))
-        if len(mine) == 0 or len(other) == 0:
+        if len(mine) == 0 or not other_side.any():
             continue
-        face, bary = closest_points(P[mine], P, T, np.isin(np.arange(len(T)), other))
+        face, bary = closest_points(P[mine], P, T, other_side)
         near = np.einsum("ij,ijk->ik", bary, P[T[face]])
         distance = np.linalg.norm(near - P[mine], axis=1)
         across = np.abs(o[mine] - np.einsum("ij,ij->i", bary, o[T[face]]))
@@ -361,6 +339,7 @@ def sides(points: np.ndarray, triangles: np.ndarray, b: Binding, sheet: np.ndarr
         if not keep.any():
             continue
         # two rings of the other side's triangles (sharing a corner) about the nearest
+        other = np.flatnonzero(other_side)
         corner = sp.csr_matrix((np.ones(3 * len(other)), (np.repeat(other, 3), T[other].ravel())),
                                shape=(len(T), len(P)))
         ring = (corner @ corner.T).astype(bool).astype(np.int8)

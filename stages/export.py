@@ -141,10 +141,10 @@ def _report(asset, bindings, frames, sheet, faces, scale: float) -> None:
     for i, b in sorted(bindings.items()):
         part = asset.parts[i]
         tris = part.triangles()
-        which = binding.two_sided(part.points, tris, b, sheet[0], faces, scale)
+        s = binding.sides(part.points, tris, b, sheet[0], faces, scale)
+        which, rest = s.point[s.positive], s.rest[s.positive]
         if len(which) == 0:  # (a one-sided part: no thickness to keep)
             continue
-        rest = binding.thickness(part.points, tris, b.offset[:, 2], which)
         change = [float(np.abs(binding.thickness(X, tris, b.offset[:, 2], which) / rest - 1).max())
                   for X in frames[i]]
         worst = int(np.argmax(change))
