@@ -142,7 +142,8 @@ def asset_frames(positions: np.ndarray, faces: np.ndarray, asset, bindings: dict
     then kept as far apart as at rest (:func:`pipeline.binding.keep_thickness`, unless
     ``keep_thickness`` is off: the binding alone, as Surface Deform does); ``(n, 3)``,
     its own points, for a part that stays where it is."""
-    from .binding import deform, keep_thickness as keep, sides
+    from .binding import deform, sides
+    from .binding import keep_thickness as keep
 
     out = []
     normals = [topology.vertex_normals(X, faces) for X in positions] if bindings else []

@@ -362,3 +362,35 @@ def test_inertia_plays_a_jump_in_growth_out_over_frames_and_comes_to_rest(petal)
     limit = State.at_rest(m, petal.vertices, control)
     QuasiStatic(stages=10, tolerance=1e-9, inertia=True).advance(m, limit, control, 10**12, 1.0)
     assert error(limit.positions) < 1e-5
+
+
+@pytest.mark.parametrize("effects", [(), ("collisions",)], ids=["petals-apart", "contact"])
+def test_threads_give_the_same_arrays_as_one(monkeypatch, effects):
+    """The petals' solves (without coupling) and the groups' factorizations (with
+    contact) overlap in threads: the bloom is the same to the bit with one thread as
+    with three, and the threads are used."""
+    import threading
+    from concurrent.futures import ThreadPoolExecutor
+
+    from pipeline.sim import quasistatic as qs_module
+
+    scene = study.Scene.bud(6, 300)
+    threads = set()
+    factor = _System.factor
+
+    def watched(self, *args, **kwargs):
+        threads.add(threading.get_ident())
+        return factor(self, *args, **kwargs)
+
+    monkeypatch.setattr(_System, "factor", watched)
+    runs = []
+    for workers in (1, 3):
+        pool = ThreadPoolExecutor(workers, initializer=qs_module._mark_worker)
+        monkeypatch.setattr(qs_module, "_POOL", pool)
+        threads.clear()
+        runs.append(study.simulate(scene, "quasi-static", ramp=1, stages=5, effects=effects))
+        used = len(threads - {threading.get_ident()})
+        pool.shutdown()
+        assert used >= 2 if workers > 1 else used == 1
+    assert runs[0].iterations == runs[1].iterations > 0
+    assert np.array_equal(runs[0].positions, runs[1].positions)

@@ -45,7 +45,7 @@ def _spring(length, rest, k):
     return tension, 0.5 * tension * stretch
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy")
 def _stretch_range(X, edges, rest0, growth, stiffness, A, F, lo, hi):
     """Stretch forces of edges ``lo..hi-1`` added to ``F``; returns their energy."""
     energy = 0.0
@@ -66,7 +66,7 @@ def _stretch_range(X, edges, rest0, growth, stiffness, A, F, lo, hi):
     return energy
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def stretch_forces(X, edges, rest0, growth, stiffness, A, F):
     """Add the stretch forces of every edge to ``F``; return the stretch energy (Eq. 2)."""
     return _stretch_range(X, edges, rest0, growth, stiffness, A, F, 0, edges.shape[0])
@@ -127,7 +127,7 @@ _W_ROWS = 13
 _W_SIZE = _W_ROWS * _BLOCK
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy")
 def _hinge_gather(X, edges, rest0, growth, edge_k, hinges, A, lo, n, W, F):
     """Rows 0-8: ``e, a, b`` of hinges ``lo..lo+n-1``; rows 9-10: rest length and
     stiffness of the spring of edge h when it is hinge h's edge ``(i, j)`` (0 if not: such
@@ -168,7 +168,7 @@ def _hinge_gather(X, edges, rest0, growth, edge_k, hinges, A, lo, n, W, F):
     return energy
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy")
 def _hinge_block(W, cos0, sin0, hinge_k, n):
     """Forces on k, l, i, j of ``n`` hinges (and their edges' springs) from the rows of
     :func:`_hinge_gather`, into rows 0-11, and the energy into row 12. ``cos0, sin0,
@@ -245,7 +245,7 @@ def _hinge_block(W, cos0, sin0, hinge_k, n):
         W[12 * _BLOCK + t] = 0.5 * tension * stretch + bend
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy")
 def _hinge_scatter(hinges, lo, n, W, F):
     """Add the forces of :func:`_hinge_block` to ``F``, hinge by hinge; return their
     energy (summed in hinge order)."""
@@ -272,7 +272,7 @@ def _hinge_scatter(hinges, lo, n, W, F):
     return energy
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy")
 def _add_forces(X, edges, rest0, growth, edge_k, hinges, cos0, sin0, hinge_k, A, F, W):
     """Add stretch and bending forces to ``F``; return the potential energy. ``W`` is a
     work array of ``_W_SIZE`` doubles.
@@ -295,7 +295,7 @@ def _add_forces(X, edges, rest0, growth, edge_k, hinges, cos0, sin0, hinge_k, A,
     return energy
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def bending_forces(X, hinges, cos0, sin0, stiffness, F):
     """Add the bending forces of every hinge to ``F``; return the bending energy (Eq. 3).
     See :func:`_hinge_block` for the gradient."""
@@ -304,7 +304,7 @@ def bending_forces(X, hinges, cos0, sin0, stiffness, F):
                        np.empty(_W_SIZE))
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def internal_forces(X, edges, rest0, growth, edge_k, hinges, cos0, sin0, hinge_k, A, F):
     """Zero ``F``, then add stretch and bending forces; return the potential energy."""
     F[:, :] = 0.0
@@ -312,7 +312,7 @@ def internal_forces(X, edges, rest0, growth, edge_k, hinges, cos0, sin0, hinge_k
                        np.empty(_W_SIZE))
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def edge_lengths(X, edges, out):
     """Length of every edge into ``out (E,)``, with the same arithmetic as
     :func:`stretch_forces`, so a mesh at its own rest lengths feels exactly zero force."""
@@ -320,7 +320,7 @@ def edge_lengths(X, edges, out):
         out[e] = _edge_vector(X, edges[e, 0], edges[e, 1])[3]
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def hinge_cos_sin(X, hinges, cos_out, sin_out):
     """cos and sin of every hinge's dihedral angle, with the same arithmetic as
     :func:`bending_forces`, so a mesh at its own rest angles feels exactly zero force."""

@@ -32,7 +32,7 @@ from numba import njit
 from .elastic import _edge_vector, _hinge_angle, _hinge_vectors
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def stretch_terms(X, edges, rest0, growth, stiffness, A, data, slots):
     """Add each spring's Hessian blocks to ``data``. ``slots[e]`` holds the block index
     of (i,i), (i,j), (j,i), (j,j)."""
@@ -74,7 +74,7 @@ def _cross_matrix(M, r, c, s, v0, v1, v2):
     M[r, c, 2, 2] = 0.0
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def hinge_theta_derivatives(X, i, j, k, l, g, H, work):
     """Signed dihedral angle of one hinge as (cos, sin), its gradient ``g (4, 3)`` and
     Hessian ``H (4, 4, 3, 3)`` (blocks in the order i, j, k, l). ``work (7, 4, 3, 3)``
@@ -154,7 +154,7 @@ def hinge_theta_derivatives(X, i, j, k, l, g, H, work):
     return cos_t, sin_t, True
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def bending_terms(X, hinges, cos0, sin0, stiffness, data, slots, work):
     """Add each hinge's Hessian blocks to ``data``. ``slots[h, 4 r + c]`` is the block of
     vertex pair (r, c), r, c in i, j, k, l."""
@@ -176,7 +176,7 @@ def bending_terms(X, hinges, cos0, sin0, stiffness, data, slots, work):
                         data[block, a, b] += d2 * g[r, a] * g[q, b] + d1 * Ht[r, q, a, b]
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def constrain(indptr, indices, data, pinned, plane_row, normals):
     """Restrict the Hessian to the free directions (the gradient is restricted alike by
     the solver): a pinned vertex's rows and columns become the identity; a center-plane
@@ -212,7 +212,7 @@ def constrain(indptr, indices, data, pinned, plane_row, normals):
                         B[a, b] += n[a] * n[b]
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def hessian(X, edges, rest0, growth, edge_k, hinges, cos0, sin0, hinge_k, A, data,
             edge_slots, hinge_slots, work):
     """Zero ``data``, then add the stretch and bending Hessians. (The energy and its
@@ -279,7 +279,7 @@ class Blocks:
         return sp.bsr_matrix((self.data, self.indices, self.indptr), shape=(n, n))
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def rounding_scale(X, edges, rest0, growth, edge_k, hinges, cos0, sin0, hinge_k, A, scale):
     """The size of what the force and energy kernels add and subtract, per vertex into
     ``scale (V,)`` (force units), and for the energy (returned): ``eps`` times these

@@ -59,6 +59,8 @@ velocities stay zero.
 from __future__ import annotations
 
 import math
+import os
+import threading
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -72,6 +74,29 @@ from .effects import CenterPlane, Curl, Effects
 from .model import Control, Model, State
 
 NO_EFFECTS = Effects()
+_POOL = None
+_WORKER = threading.local()  #: set in the pool's threads (they do not submit to it)
+
+
+def _map(fn, items) -> list:
+    """``[fn(x) for x in items]``, the calls overlapping in threads. For work apart (a
+    petal's solve, a group's factorization) whose heavy parts, qdldl and the numba
+    kernels, release the GIL: each call's arithmetic is its own, so the results are the
+    same to the bit with any number of threads, and they come back in order."""
+    global _POOL
+    items = list(items)
+    if len(items) < 2 or getattr(_WORKER, "inside", False):
+        return [fn(x) for x in items]
+    if _POOL is None:
+        from concurrent.futures import ThreadPoolExecutor
+
+        _POOL = ThreadPoolExecutor(max_workers=max(1, min(4, os.cpu_count() or 1)),
+                                   initializer=_mark_worker)
+    return list(_POOL.map(fn, items))
+
+
+def _mark_worker() -> None:
+    _WORKER.inside = True
 
 
 @dataclass
@@ -546,11 +571,21 @@ class QuasiStatic:
         for part in self._parts:  # independent petals: each follows its own path
             part.state.positions[:] = state.positions[part.vertices]
             part.state.velocities[:] = state.velocities[part.vertices]
+
+        def follow(part):
             try:
                 part.solver._advance(part.model, part.state, control, n_steps, h, part.effects)
             except NotConverged as exc:
                 exc.vertex = int(part.vertices[exc.vertex])  # name it in the whole mesh
-                raise
+                return exc
+            return None
+
+        if self._parts:
+            failures = _map(follow, self._parts)
+            for exc in failures:  # (the first petal's, whichever thread failed first)
+                if exc is not None:
+                    raise exc
+        for part in self._parts:
             state.positions[part.vertices] = part.state.positions
             state.velocities[part.vertices] = part.state.velocities
         if self._parts:
@@ -851,6 +886,7 @@ class QuasiStatic:
         scratch = np.empty_like(X)
         residual = np.inf
         floor = 1e-3 * float(model.hinge_stiffness.max(initial=0.0) or model.edge_stiffness.max())
+        top = 1e6 * float(model.edge_stiffness.max())  #: a shift past this: none helps
         system = self._system
         self.residuals = []
         scale = 0.0
@@ -898,8 +934,10 @@ class QuasiStatic:
             factored = [gr for gr in moving if not chord[gr.key]]
             if factored:
                 self._assemble(X, factored)
-            for gr in factored:
-                positive, down = system.factor(gr)
+            # (the groups' factorizations are of H as assembled, apart: they overlap in
+            # threads; the descents below move X in the groups' order, as one at a time)
+            for gr, (positive, down) in zip(factored, _map(system.factor, factored),
+                                            strict=True):
                 fresh.add(gr.key)
                 stale.discard(gr.key)
                 if not positive:
@@ -910,17 +948,25 @@ class QuasiStatic:
                                                self._constrained(down))
             if lost:
                 energy, g = self._gradient(X, scratch)
-                for gr in lost:
-                    mu = floor
+
+                def shift(gr) -> tuple[int, bool]:
+                    """Raise mu tenfold until ``H + mu I`` is positive definite: the
+                    shifts rejected, and whether one was found."""
+                    mu, rejected = floor, 0
                     # (a shift that a direction of negative curvature rules out is
                     # rejected unfactored)
                     while (mu * (1.0 + 1e-6) < gr.need
                            or not system.factor(gr, mu, direction=False)[0]):
-                        self.shifted += 1
+                        rejected += 1
                         mu *= 10.0
-                        if mu > 1e6 * float(model.edge_stiffness.max()):
-                            # no shift makes it positive: not finite?
-                            return _Failure(residual, scale, "shift", self._inertia())
+                        if mu > top:  # no shift makes it positive: not finite?
+                            return rejected, False
+                    return rejected, True
+
+                for rejected, found in _map(shift, lost):  # (the groups' order)
+                    self.shifted += rejected
+                    if not found:
+                        return _Failure(residual, scale, "shift", self._inertia())
             step = system.solve(-g, moving, None if lost else solved)
             length = self._line_search(X, scratch, energy, g, step)
             if length == 0.0:
