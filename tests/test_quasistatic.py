@@ -364,11 +364,9 @@ def test_inertia_plays_a_jump_in_growth_out_over_frames_and_comes_to_rest(petal)
     assert error(limit.positions) < 1e-5
 
 
-@pytest.mark.parametrize("effects", [(), ("collisions",)], ids=["petals-apart", "contact"])
-def test_threads_give_the_same_arrays_as_one(monkeypatch, effects):
-    """The petals' solves (without coupling) and the groups' factorizations (with
-    contact) overlap in threads: the bloom is the same to the bit with one thread as
-    with three, and the threads are used."""
+def test_threads_give_the_same_arrays_as_one(monkeypatch):
+    """Petals that do not interact solve in threads: the bloom is the same to the bit
+    with one thread as with three, and the threads are used."""
     import threading
     from concurrent.futures import ThreadPoolExecutor
 
@@ -388,7 +386,7 @@ def test_threads_give_the_same_arrays_as_one(monkeypatch, effects):
         pool = ThreadPoolExecutor(workers, initializer=qs_module._mark_worker)
         monkeypatch.setattr(qs_module, "_POOL", pool)
         threads.clear()
-        runs.append(study.simulate(scene, "quasi-static", ramp=1, stages=5, effects=effects))
+        runs.append(study.simulate(scene, "quasi-static", ramp=1, stages=5))
         used = len(threads - {threading.get_ident()})
         pool.shutdown()
         assert used >= 2 if workers > 1 else used == 1

@@ -79,10 +79,12 @@ _WORKER = threading.local()  #: set in the pool's threads (they do not submit to
 
 
 def _map(fn, items) -> list:
-    """``[fn(x) for x in items]``, the calls overlapping in threads. For work apart (a
-    petal's solve, a group's factorization) whose heavy parts, qdldl and the numba
+    """``[fn(x) for x in items]``, the calls overlapping in threads. For work apart (the
+    solves of petals that do not interact) whose heavy parts, qdldl and the numba
     kernels, release the GIL: each call's arithmetic is its own, so the results are the
-    same to the bit with any number of threads, and they come back in order."""
+    same to the bit with any number of threads, and they come back in order. (The groups
+    of one coupled Newton step were tried too: no gain beyond this machine's noise on the
+    lily, a few percent lost on lily_open, so they factor one after another.)"""
     global _POOL
     items = list(items)
     if len(items) < 2 or getattr(_WORKER, "inside", False):
@@ -934,10 +936,8 @@ class QuasiStatic:
             factored = [gr for gr in moving if not chord[gr.key]]
             if factored:
                 self._assemble(X, factored)
-            # (the groups' factorizations are of H as assembled, apart: they overlap in
-            # threads; the descents below move X in the groups' order, as one at a time)
-            for gr, (positive, down) in zip(factored, _map(system.factor, factored),
-                                            strict=True):
+            for gr in factored:
+                positive, down = system.factor(gr)
                 fresh.add(gr.key)
                 stale.discard(gr.key)
                 if not positive:
@@ -948,25 +948,16 @@ class QuasiStatic:
                                                self._constrained(down))
             if lost:
                 energy, g = self._gradient(X, scratch)
-
-                def shift(gr) -> tuple[int, bool]:
-                    """Raise mu tenfold until ``H + mu I`` is positive definite: the
-                    shifts rejected, and whether one was found."""
-                    mu, rejected = floor, 0
+                for gr in lost:
+                    mu = floor
                     # (a shift that a direction of negative curvature rules out is
                     # rejected unfactored)
                     while (mu * (1.0 + 1e-6) < gr.need
                            or not system.factor(gr, mu, direction=False)[0]):
-                        rejected += 1
+                        self.shifted += 1
                         mu *= 10.0
                         if mu > top:  # no shift makes it positive: not finite?
-                            return rejected, False
-                    return rejected, True
-
-                for rejected, found in _map(shift, lost):  # (the groups' order)
-                    self.shifted += rejected
-                    if not found:
-                        return _Failure(residual, scale, "shift", self._inertia())
+                            return _Failure(residual, scale, "shift", self._inertia())
             step = system.solve(-g, moving, None if lost else solved)
             length = self._line_search(X, scratch, energy, g, step)
             if length == 0.0:
