@@ -135,16 +135,20 @@ def write_xdmf(folder, positions: np.ndarray, faces: np.ndarray, petal: np.ndarr
 # --- the user's asset, deformed by the sheet (export.mesh = "input") -------------------------
 
 def asset_frames(positions: np.ndarray, faces: np.ndarray, asset, bindings: dict,
-                 scale: float, keep_thickness: bool = True) -> list[np.ndarray]:
+                 scale: float, keep_thickness: bool = True,
+                 sides: dict | None = None) -> list[np.ndarray]:
     """Each part's points through the frames, at the input's scale: ``(T, n, 3)`` for a
     part bound to the sheet (``bindings``: part -> :class:`pipeline.binding.Binding`),
     deformed by each frame of ``positions (T, V, 3)`` (mesh units), a thick part's sides
     then kept as far apart as at rest (:func:`pipeline.binding.keep_thickness`, unless
     ``keep_thickness`` is off: the binding alone, as Surface Deform does); ``(n, 3)``,
-    its own points, for a part that stays where it is."""
-    from .binding import deform, sides
+    its own points, for a part that stays where it is. ``sides``: the bound parts'
+    :func:`part_sides`, if already found."""
+    from .binding import deform
     from .binding import keep_thickness as keep
 
+    if keep_thickness and sides is None:
+        sides = part_sides(asset, bindings, positions[0], faces, scale)
     out = []
     normals = [topology.vertex_normals(X, faces) for X in positions] if bindings else []
     for i, part in enumerate(asset.parts):
@@ -152,15 +156,23 @@ def asset_frames(positions: np.ndarray, faces: np.ndarray, asset, bindings: dict
             b = bindings[i]
             frames = np.stack([deform(X, faces, b, N) / scale
                                for X, N in zip(positions, normals, strict=True)])
-            if keep_thickness:
+            if keep_thickness and len(sides[i].point):
                 tris = part.triangles()
-                s = sides(part.points, tris, b, positions[0] / scale, faces, scale)
-                if len(s.point):
-                    frames = np.stack([keep(F, tris, s) for F in frames])
+                frames = np.stack([keep(F, tris, sides[i]) for F in frames])
             out.append(frames)
         else:
             out.append(np.asarray(part.points, dtype=np.float64))
     return out
+
+
+def part_sides(asset, bindings: dict, rest: np.ndarray, faces: np.ndarray, scale: float) -> dict:
+    """Each bound part's two sides facing each other across the sheet
+    (:func:`pipeline.binding.sides`; none for a one-sided part), by part; ``rest``: the
+    sheet's rest vertices (mesh units)."""
+    from .binding import sides
+
+    return {i: sides(asset.parts[i].points, asset.parts[i].triangles(), b, rest / scale,
+                     faces, scale) for i, b in bindings.items()}
 
 
 def asset_normals(part, points: np.ndarray, turn: np.ndarray | None = None):

@@ -57,9 +57,10 @@ def command(sim_h5: str, config_path, overrides, fmt: str, out: str, overwrite: 
                   else cfg["export.meters_per_unit"])
         if use_input:
             bindings = binding.read_bindings(src)
+            sides = export.part_sides(asset, bindings, sheet[0], faces, scale)
             frames = export.asset_frames(sheet, faces, asset, bindings, scale,
-                                         cfg["export.keep_thickness"])
-            _report(asset, bindings, frames, sheet / scale, faces, scale)
+                                         cfg["export.keep_thickness"], sides)
+            _report(asset, bindings, frames, sheet / scale, sides)
         if fmt == "usd":
             if out.suffix.lower() not in USD_SUFFIXES:
                 raise BloomError("--out: a USD file must end in .usd, .usdc or .usda",
@@ -125,10 +126,10 @@ def _turns(sheet, faces, asset, bindings) -> dict:
     return out
 
 
-def _report(asset, bindings, frames, sheet, faces, scale: float) -> None:
+def _report(asset, bindings, frames, sheet, sides: dict) -> None:
     """Log what the binding did: the largest frame-to-frame jump of a bound point against
     the sheet's own, and how far a thick part's thickness strayed from the input's in any
-    frame."""
+    frame (``sides``: :func:`pipeline.export.part_sides`)."""
     from pipeline import binding
 
     if not bindings:
@@ -141,7 +142,7 @@ def _report(asset, bindings, frames, sheet, faces, scale: float) -> None:
     for i, b in sorted(bindings.items()):
         part = asset.parts[i]
         tris = part.triangles()
-        s = binding.sides(part.points, tris, b, sheet[0], faces, scale)
+        s = sides[i]
         which, rest = s.point[s.positive], s.rest[s.positive]
         if len(which) == 0:  # (a one-sided part: no thickness to keep)
             continue
