@@ -383,7 +383,7 @@ def test_threads_give_the_same_arrays_as_one(monkeypatch):
     monkeypatch.setattr(_System, "factor", watched)
     runs = []
     for workers in (1, 3):
-        pool = ThreadPoolExecutor(workers, initializer=qs_module._mark_worker)
+        pool = ThreadPoolExecutor(workers)
         monkeypatch.setattr(qs_module, "_POOL", pool)
         threads.clear()
         runs.append(study.simulate(scene, "quasi-static", ramp=1, stages=5))

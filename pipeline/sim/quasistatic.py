@@ -60,7 +60,6 @@ from __future__ import annotations
 
 import math
 import os
-import threading
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -75,30 +74,24 @@ from .model import Control, Model, State
 
 NO_EFFECTS = Effects()
 _POOL = None
-_WORKER = threading.local()  #: set in the pool's threads (they do not submit to it)
 
 
-def _map(fn, items) -> list:
+def _map(fn, items: list) -> list:
     """``[fn(x) for x in items]``, the calls overlapping in threads. For work apart (the
     solves of petals that do not interact) whose heavy parts, qdldl and the numba
     kernels, release the GIL: each call's arithmetic is its own, so the results are the
-    same to the bit with any number of threads, and they come back in order. (The groups
-    of one coupled Newton step were tried too: no gain beyond this machine's noise on the
-    lily, a few percent lost on lily_open, so they factor one after another.)"""
+    same to the bit with any number of threads, and they come back in order (an
+    exception: the first item's that raised). (The groups of one coupled Newton step
+    were tried too: no gain beyond this machine's noise on the lily, a few percent lost
+    on lily_open, so they factor one after another.)"""
     global _POOL
-    items = list(items)
-    if len(items) < 2 or getattr(_WORKER, "inside", False):
+    if len(items) < 2:
         return [fn(x) for x in items]
     if _POOL is None:
         from concurrent.futures import ThreadPoolExecutor
 
-        _POOL = ThreadPoolExecutor(max_workers=max(1, min(4, os.cpu_count() or 1)),
-                                   initializer=_mark_worker)
+        _POOL = ThreadPoolExecutor(max_workers=max(1, min(4, os.cpu_count() or 1)))
     return list(_POOL.map(fn, items))
-
-
-def _mark_worker() -> None:
-    _WORKER.inside = True
 
 
 @dataclass
@@ -579,14 +572,9 @@ class QuasiStatic:
                 part.solver._advance(part.model, part.state, control, n_steps, h, part.effects)
             except NotConverged as exc:
                 exc.vertex = int(part.vertices[exc.vertex])  # name it in the whole mesh
-                return exc
-            return None
+                raise
 
-        if self._parts:
-            failures = _map(follow, self._parts)
-            for exc in failures:  # (the first petal's, whichever thread failed first)
-                if exc is not None:
-                    raise exc
+        _map(follow, self._parts)
         for part in self._parts:
             state.positions[part.vertices] = part.state.positions
             state.velocities[part.vertices] = part.state.velocities
