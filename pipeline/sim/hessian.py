@@ -32,7 +32,7 @@ from numba import njit
 from .elastic import _edge_vector, _hinge_angle, _hinge_vectors
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def stretch_terms(X, edges, rest0, growth, stiffness, A, data, slots):
     """Add each spring's Hessian blocks to ``data``. ``slots[e]`` holds the block index
     of (i,i), (i,j), (j,i), (j,j)."""
@@ -74,7 +74,7 @@ def _cross_matrix(M, r, c, s, v0, v1, v2):
     M[r, c, 2, 2] = 0.0
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def hinge_theta_derivatives(X, i, j, k, l, g, H, work):
     """Signed dihedral angle of one hinge as (cos, sin), its gradient ``g (4, 3)`` and
     Hessian ``H (4, 4, 3, 3)`` (blocks in the order i, j, k, l). ``work (7, 4, 3, 3)``
@@ -82,12 +82,12 @@ def hinge_theta_derivatives(X, i, j, k, l, g, H, work):
     hinge (then g and H are zero)."""
     (ex, ey, ez, ax, ay, az, bx, by, bz,
      n1x, n1y, n1z, n2x, n2y, n2z) = _hinge_vectors(X, i, j, k, l)
-    g[:, :] = 0.0
-    H[:, :, :, :] = 0.0
     n1sq = n1x * n1x + n1y * n1y + n1z * n1z
     n2sq = n2x * n2x + n2y * n2y + n2z * n2z
     esq = ex * ex + ey * ey + ez * ez
     if n1sq <= 0.0 or n2sq <= 0.0 or esq <= 0.0:
+        g[:, :] = 0.0
+        H[:, :, :, :] = 0.0
         return 1.0, 0.0, False
     cos_t, sin_t, elen, _, _ = _hinge_angle(bx, by, bz, n1x, n1y, n1z, n2x, n2y, n2z,
                                             n1sq, n2sq, esq)
@@ -106,8 +106,16 @@ def hinge_theta_derivatives(X, i, j, k, l, g, H, work):
         g[1, c] = -lk * gk[c] - ll * gl[c]
         g[2, c] = gk[c]
         g[3, c] = gl[c]
-    # work[0, y] = dn1/dx_y and work[1, y] = dn2/dx_y, as cross-product matrices
-    work[:, :, :, :] = 0.0
+    # work[0, y] = dn1/dx_y and work[1, y] = dn2/dx_y, as cross-product matrices (every
+    # entry below is set, but those that are zero: dn1/dx_l, dn2/dx_k and the rows'
+    # entries of the vertices they do not depend on)
+    work[0, 3] = 0.0
+    work[1, 2] = 0.0
+    for c in range(3):
+        work[2, 2, 0, c] = 0.0
+        work[2, 3, 0, c] = 0.0
+        work[3, 3, 0, c] = 0.0
+        work[4, 2, 0, c] = 0.0
     _cross_matrix(work, 0, 0, 1.0, ax - ex, ay - ey, az - ez)
     _cross_matrix(work, 0, 1, -1.0, ax, ay, az)
     _cross_matrix(work, 0, 2, 1.0, ex, ey, ez)
@@ -154,7 +162,7 @@ def hinge_theta_derivatives(X, i, j, k, l, g, H, work):
     return cos_t, sin_t, True
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def bending_terms(X, hinges, cos0, sin0, stiffness, data, slots, work):
     """Add each hinge's Hessian blocks to ``data``. ``slots[h, 4 r + c]`` is the block of
     vertex pair (r, c), r, c in i, j, k, l."""
@@ -176,7 +184,7 @@ def bending_terms(X, hinges, cos0, sin0, stiffness, data, slots, work):
                         data[block, a, b] += d2 * g[r, a] * g[q, b] + d1 * Ht[r, q, a, b]
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def constrain(indptr, indices, data, pinned, plane_row, normals):
     """Restrict the Hessian to the free directions (the gradient is restricted alike by
     the solver): a pinned vertex's rows and columns become the identity; a center-plane
@@ -212,7 +220,7 @@ def constrain(indptr, indices, data, pinned, plane_row, normals):
                         B[a, b] += n[a] * n[b]
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def hessian(X, edges, rest0, growth, edge_k, hinges, cos0, sin0, hinge_k, A, data,
             edge_slots, hinge_slots, work):
     """Zero ``data``, then add the stretch and bending Hessians. (The energy and its
@@ -279,7 +287,7 @@ class Blocks:
         return sp.bsr_matrix((self.data, self.indices, self.indptr), shape=(n, n))
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def rounding_scale(X, edges, rest0, growth, edge_k, hinges, cos0, sin0, hinge_k, A, scale):
     """The size of what the force and energy kernels add and subtract, per vertex into
     ``scale (V,)`` (force units), and for the energy (returned): ``eps`` times these
