@@ -77,13 +77,13 @@ _POOL = None
 
 
 def _map(fn, items: list) -> list:
-    """``[fn(x) for x in items]``, the calls overlapping in threads. For work apart (the
-    solves of petals that do not interact) whose heavy parts, qdldl and the numba
-    kernels, release the GIL: each call's arithmetic is its own, so the results are the
-    same to the bit with any number of threads, and they come back in order (an
-    exception: the first item's that raised). (The groups of one coupled Newton step
-    were tried too: no gain beyond this machine's noise on the lily, a few percent lost
-    on lily_open, so they factor one after another.)"""
+    """``[fn(x) for x in items]``, the calls overlapping in threads. For work apart
+    whose heavy parts, qdldl and the numba kernels, release the GIL: the solves of
+    petals that do not interact, and the factorizations and shift searches of the
+    groups of one coupled Newton step. Each call's arithmetic is its own, so the
+    results are the same to the bit with any number of threads, and they come back in
+    order (an exception: the first item's that raised). A call made from a pool thread
+    has one item (a petal's solver has one group), so it runs inline."""
     global _POOL
     if len(items) < 2:
         return [fn(x) for x in items]
@@ -924,8 +924,7 @@ class QuasiStatic:
             factored = [gr for gr in moving if not chord[gr.key]]
             if factored:
                 self._assemble(X, factored)
-            for gr in factored:
-                positive, down = system.factor(gr)
+            for gr, (positive, down) in zip(factored, _map(system.factor, factored)):
                 fresh.add(gr.key)
                 stale.discard(gr.key)
                 if not positive:
@@ -936,16 +935,24 @@ class QuasiStatic:
                                                self._constrained(down))
             if lost:
                 energy, g = self._gradient(X, scratch)
-                for gr in lost:
-                    mu = floor
+
+                def shift(gr):
+                    """The group's shift search: (mu, shifts rejected); mu None if none."""
+                    mu, rejected = floor, 0
                     # (a shift that a direction of negative curvature rules out is
                     # rejected unfactored)
                     while (mu * (1.0 + 1e-6) < gr.need
                            or not system.factor(gr, mu, direction=False)[0]):
-                        self.shifted += 1
+                        rejected += 1
                         mu *= 10.0
                         if mu > top:  # no shift makes it positive: not finite?
-                            return _Failure(residual, scale, "shift", self._inertia())
+                            return None, rejected
+                    return mu, rejected
+
+                for gr, (mu, rejected) in zip(lost, _map(shift, lost)):
+                    self.shifted += rejected
+                    if mu is None:
+                        return _Failure(residual, scale, "shift", self._inertia())
             step = system.solve(-g, moving, None if lost else solved)
             length = self._line_search(X, scratch, energy, g, step)
             if length == 0.0:
