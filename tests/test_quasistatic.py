@@ -364,9 +364,11 @@ def test_inertia_plays_a_jump_in_growth_out_over_frames_and_comes_to_rest(petal)
     assert error(limit.positions) < 1e-5
 
 
-def test_threads_give_the_same_arrays_as_one(monkeypatch):
-    """Petals that do not interact solve in threads: the bloom is the same to the bit
-    with one thread as with three, and the threads are used."""
+@pytest.mark.parametrize("effects", [(), ("collisions",)])
+def test_threads_give_the_same_arrays_as_one(monkeypatch, effects):
+    """Petals that do not interact solve in threads, and with contact the groups of a
+    Newton step factor in threads: the bloom is the same to the bit with one thread as
+    with three, and the threads are used."""
     import threading
     from concurrent.futures import ThreadPoolExecutor
 
@@ -386,7 +388,7 @@ def test_threads_give_the_same_arrays_as_one(monkeypatch):
         pool = ThreadPoolExecutor(workers)
         monkeypatch.setattr(qs_module, "_POOL", pool)
         threads.clear()
-        runs.append(study.simulate(scene, "quasi-static", ramp=1, stages=5))
+        runs.append(study.simulate(scene, "quasi-static", ramp=1, stages=5, effects=effects))
         used = len(threads - {threading.get_ident()})
         pool.shutdown()
         assert used >= 2 if workers > 1 else used == 1
