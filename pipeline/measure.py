@@ -16,6 +16,9 @@ class PetalFrames:
     The opening angle is the rotation of the chord from the base's centre to the tip,
     within the plane of the initial chord and the petal's outward direction (from the
     petal's centroid toward its midrib, i.e. away from the cup); positive is outward.
+    In a flower (its axis known), outward is also away from the axis: a petal whose cup
+    does not tell (nearly flat, or cupped the other way, as in a dense bud's inner
+    whorls) has its direction turned to agree with the flower's, see :func:`_away`.
     """
 
     base_centers: np.ndarray  #: (P, 3) centroid of each petal's fixed base vertices
@@ -24,7 +27,10 @@ class PetalFrames:
     outward_dirs: np.ndarray  #: (P, 3) unit outward direction, perpendicular to the chord
 
     @classmethod
-    def from_mesh(cls, vertices, petal, base, on_axis, tips, plane) -> PetalFrames:
+    def from_mesh(cls, vertices, petal, base, on_axis, tips, plane,
+                  flower_axis=None) -> PetalFrames:
+        """``flower_axis``: (6,) point and unit direction from the receptacle toward
+        the tips (nan or None: a lone petal, none)."""
         v = np.asarray(vertices, dtype=np.float64)
         count = int(petal.max()) + 1 if len(petal) else 0
         centers, chords, outs = [], [], []
@@ -41,6 +47,9 @@ class PetalFrames:
             if np.linalg.norm(out) < 1e-9:  # a flat petal: take its normal (plane x chord)
                 out = np.cross(plane[p, :3], chord)
             out /= np.linalg.norm(out)
+            away = _away(center, chord, flower_axis)
+            if away is not None and out @ away < 0.0:
+                out = -out
             centers.append(center)
             chords.append(chord)
             outs.append(out)
@@ -53,6 +62,29 @@ class PetalFrames:
         along = np.einsum("ij,ij->i", chord, self.chord_dirs)
         out = np.einsum("ij,ij->i", chord, self.outward_dirs)
         return np.degrees(np.arctan2(out, along))
+
+
+def _away(base_center, chord, flower_axis) -> np.ndarray | None:
+    """The way a petal opens, as the flower tells it: away from the axis and down it,
+    ``r - a`` (``r`` the unit direction from the axis to the petal's base, ``a`` the
+    axis's), without its part along the petal's chord. For a closed bud's petal that is
+    ``r``; for one lying flat, ``-a``; for one at 45 degrees, both. The base, not the
+    centroid: a bud's petal may lean over the axis (an open lily's bud, found backward,
+    has one whose centroid is across it). None where it does not tell: no axis, a base
+    on it, or a petal along ``r - a`` itself (turned down 45 degrees)."""
+    fa = None if flower_axis is None else np.asarray(flower_axis, dtype=np.float64)
+    if fa is None or fa.shape != (6,) or not np.all(np.isfinite(fa)):
+        return None
+    a = fa[3:] / np.linalg.norm(fa[3:])
+    r = base_center - fa[:3]
+    far = np.linalg.norm(r)
+    r -= a * (r @ a)
+    size = np.linalg.norm(r)
+    if size <= 0.02 * far:  # (on the axis, to a fiftieth of its distance from the point)
+        return None
+    d = r / size - a
+    d -= chord * (d @ chord)
+    return d if np.linalg.norm(d) > 0.25 else None
 
 
 def crossings(X, faces, petal) -> int:

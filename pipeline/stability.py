@@ -354,7 +354,16 @@ def run_case(case: Case, workdir: Path, steps: dict | None = None) -> Result:
         opening = (float(h5["diagnostics/opening_angle"][-1])
                    if "diagnostics/opening_angle" in h5 else float("nan"))
         if "diagnostics/contacts" in h5:
-            notes.append(f"{int(h5['diagnostics/contacts'][()].sum())} contacts pushed back")
+            from .sim.contact import frame_intersections
+
+            contacts = h5["diagnostics/contacts"][()]
+            if h5.attrs["integrator"] == "quasi-static":  # (the barrier's pairs in band)
+                notes.append(f"contacts in {int(np.count_nonzero(contacts))} of "
+                             f"{len(contacts)} frames")
+            else:
+                notes.append(f"{int(contacts.sum())} contacts pushed back")
+            crossed = int(sum(frame_intersections(pos, h5["mesh/faces"][()])))
+            notes.append(f"{crossed} of {len(pos)} frames intersecting")
         if "diagnostics/connections_intact" in h5:
             intact = h5["diagnostics/connections_intact"][()]
             notes.append(f"connection springs {intact[0]} -> {intact[-1]} intact")

@@ -109,4 +109,5 @@ class Prepared:
         from ..measure import PetalFrames
 
         return PetalFrames.from_mesh(self.vertices if positions is None else positions,
-                                     self.petal, self.base, self.on_axis, self.tip, self.plane)
+                                     self.petal, self.base, self.on_axis, self.tip, self.plane,
+                                     flower_axis=self.flower_axis)
