@@ -39,7 +39,8 @@ class PetalFrames:
             b = mine & base
             center = v[b].mean(axis=0) if b.any() else v[mine].mean(axis=0)
             chord = v[tips[p]] - center
-            chord /= np.linalg.norm(chord)
+            length = np.linalg.norm(chord)
+            chord /= length
             axis_pts = mine & on_axis
             ref = v[axis_pts].mean(axis=0) if axis_pts.any() else v[mine].mean(axis=0)
             out = ref - v[mine].mean(axis=0)
@@ -47,7 +48,7 @@ class PetalFrames:
             if np.linalg.norm(out) < 1e-9:  # a flat petal: take its normal (plane x chord)
                 out = np.cross(plane[p, :3], chord)
             out /= np.linalg.norm(out)
-            away = _away(center, chord, flower_axis)
+            away = _away((center, v[mine].mean(axis=0)), chord, length, flower_axis)
             if away is not None and out @ away < 0.0:
                 out = -out
             centers.append(center)
@@ -64,23 +65,28 @@ class PetalFrames:
         return np.degrees(np.arctan2(out, along))
 
 
-def _away(base_center, chord, flower_axis) -> np.ndarray | None:
+def _away(where, chord, length: float, flower_axis) -> np.ndarray | None:
     """The way a petal opens, as the flower tells it: away from the axis and down it,
-    ``r - a`` (``r`` the unit direction from the axis to the petal's base, ``a`` the
-    axis's), without its part along the petal's chord. For a closed bud's petal that is
-    ``r``; for one lying flat, ``-a``; for one at 45 degrees, both. The base, not the
-    centroid: a bud's petal may lean over the axis (an open lily's bud, found backward,
-    has one whose centroid is across it). None where it does not tell: no axis, a base
-    on it, or a petal along ``r - a`` itself (turned down 45 degrees)."""
+    ``r - a`` (``r`` the unit direction from the axis to the petal, ``a`` the axis's),
+    without its part along the petal's chord. For a closed bud's petal that is ``r``;
+    for one lying flat, ``-a``; for one at 45 degrees, both. ``where``: the petal's base
+    centre, then its centroid: ``r`` is the first's that is off the axis by more than a
+    fiftieth of the petal's ``length``. The base first: a bud's petal may lean over the
+    axis (an open lily's bud, found backward, has one whose centroid is across it); the
+    centroid where the bases meet on the axis (an open flower of sheets joined at its
+    centre). None where it does not tell: no axis, both on it, or a petal along
+    ``r - a`` itself (turned down 45 degrees)."""
     fa = None if flower_axis is None else np.asarray(flower_axis, dtype=np.float64)
     if fa is None or fa.shape != (6,) or not np.all(np.isfinite(fa)):
         return None
     a = fa[3:] / np.linalg.norm(fa[3:])
-    r = base_center - fa[:3]
-    far = np.linalg.norm(r)
-    r -= a * (r @ a)
-    size = np.linalg.norm(r)
-    if size <= 0.02 * far:  # (on the axis, to a fiftieth of its distance from the point)
+    for point in where:
+        r = point - fa[:3]
+        r -= a * (r @ a)
+        size = np.linalg.norm(r)
+        if size > 0.02 * length:
+            break
+    else:
         return None
     d = r / size - a
     d -= chord * (d @ chord)

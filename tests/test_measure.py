@@ -7,17 +7,17 @@ from conftest import prepared
 from pipeline.measure import PetalFrames
 
 
-def _turned(v, petal, axes, degrees: float) -> np.ndarray:
+def _turned(v, petal, axes, degrees: float, side: str = "base") -> np.ndarray:
     """Every petal turned rigidly by ``degrees`` about the line through its base's centre
     along the flower's tangent there (positive: its tip away from the flower's axis, on
-    its base's side)."""
+    the ``side`` of its base's centre, or of its centroid)."""
     point, a = axes.flower_axis[:3], axes.flower_axis[3:] / np.linalg.norm(axes.flower_axis[3:])
     out = v.copy()
     t = np.radians(degrees)
     for p in range(int(petal.max()) + 1):
         mine = petal == p
         center = v[mine & axes.base].mean(axis=0)
-        r = center - point
+        r = (center if side == "base" else v[mine].mean(axis=0)) - point
         r -= a * (r @ a)
         k = np.cross(a, r / np.linalg.norm(r))  # the tip (along a) turns toward r
         x = v[mine] - center
@@ -61,4 +61,20 @@ def test_a_petal_leaning_over_the_axis_opens_outward():
     frames = PetalFrames.from_mesh(leaned, petal, axes.base, axes.on_axis, axes.tip,
                                    axes.plane, flower_axis=axes.flower_axis)
     angles = frames.opening_angles(_turned(leaned, petal, axes, 20.0))
+    assert np.all(np.abs(angles - 20.0) < 2.0), angles
+
+
+def test_petals_whose_bases_meet_on_the_axis_open_outward():
+    """Sheets joined at the flower's centre (an open flower of five sheets, souki202's,
+    has one base on its axis): where the base does not tell, the petal's centroid does."""
+    v, f, petal, axes, _ = prepared(14, 2800, 5)
+    point, a = axes.flower_axis[:3], axes.flower_axis[3:]
+    met = v.copy()
+    for p in range(14):  # each petal moved across, its base's centre onto the axis
+        mine = petal == p
+        r = v[mine & axes.base].mean(axis=0) - point
+        met[mine] -= r - a * (r @ a)
+    frames = PetalFrames.from_mesh(met, petal, axes.base, axes.on_axis, axes.tip, axes.plane,
+                                   flower_axis=axes.flower_axis)
+    angles = frames.opening_angles(_turned(met, petal, axes, 20.0, side="centroid"))
     assert np.all(np.abs(angles - 20.0) < 2.0), angles
