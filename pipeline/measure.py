@@ -37,18 +37,19 @@ class PetalFrames:
         for p in range(count):
             mine = petal == p
             b = mine & base
-            center = v[b].mean(axis=0) if b.any() else v[mine].mean(axis=0)
+            centroid = v[mine].mean(axis=0)
+            center = v[b].mean(axis=0) if b.any() else centroid
             chord = v[tips[p]] - center
             length = np.linalg.norm(chord)
             chord /= length
             axis_pts = mine & on_axis
-            ref = v[axis_pts].mean(axis=0) if axis_pts.any() else v[mine].mean(axis=0)
-            out = ref - v[mine].mean(axis=0)
+            ref = v[axis_pts].mean(axis=0) if axis_pts.any() else centroid
+            out = ref - centroid
             out -= chord * (out @ chord)
             if np.linalg.norm(out) < 1e-9:  # a flat petal: take its normal (plane x chord)
                 out = np.cross(plane[p, :3], chord)
             out /= np.linalg.norm(out)
-            away = _away((center, v[mine].mean(axis=0)), chord, length, flower_axis)
+            away = _away((center, centroid), chord, length, flower_axis)
             if away is not None and out @ away < 0.0:
                 out = -out
             centers.append(center)
