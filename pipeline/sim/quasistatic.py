@@ -7,7 +7,7 @@ not follow the dynamics: for each growth increment it finds the equilibrium
 of the last two equilibria, or the tangent).
 
 - Hessian: the analytic one of :mod:`hessian`. A Newton step factors it as is (a
-  sparse LDL^T by qdldl, whose pivot signs give its inertia); a later step of the same
+  sparse LDL^T by 3x3 vertex blocks, :mod:`ldl`, whose pivot signs give its inertia); a later step of the same
   solve may reuse that factorization (a chord step) if the step it gives is a tenth of
   the last one or less (the factorization is most of an iteration's cost). Where it is positive
   definite the step is Newton's, and near a stable equilibrium convergence is
@@ -63,13 +63,12 @@ import os
 from dataclasses import dataclass, field
 
 import numpy as np
-import qdldl
 import scipy.sparse as sp
-from scipy.sparse.linalg import spsolve_triangular
 
 from . import hessian, terms
 from .contact import Contact, Springs
 from .effects import CenterPlane, Curl, Effects
+from .ldl import BlockLDL
 from .model import Control, Model, State
 
 NO_EFFECTS = Effects()
@@ -78,8 +77,8 @@ _POOL = None
 
 def _map(fn, items: list) -> list:
     """``[fn(x) for x in items]``, the calls overlapping in threads. For work apart
-    whose heavy parts, qdldl and the numba kernels, release the GIL: the solves of
-    petals that do not interact, and the factorizations and shift searches of the
+    whose heavy parts, the numba kernels (the factorization's too), release the GIL:
+    the solves of petals that do not interact, and the factorizations and shift searches of the
     groups of one coupled Newton step. Each call's arithmetic is its own, so the
     results are the same to the bit with any number of threads, and they come back in
     order (an exception: the first item's that raised). A call made from a pool thread
@@ -224,7 +223,7 @@ class _Group:
     #: (edges, hinges, blocks) of its pieces: what assembling its Hessian alone touches
     part: tuple
     keys: np.ndarray  #: column * n + row of each entry of ``elastic`` (ascending)
-    solver: object = None  #: qdldl's LDL^T of the last factorization (None: none, or singular)
+    solver: object = None  #: the LDL^T of the last factorization (None: none, or singular)
     #: the matrix ``solver`` was set up for, on its pattern (:meth:`_System._fit`): its
     #: data is overwritten in place at each factorization
     matrix: sp.csc_matrix | None = None
@@ -379,7 +378,7 @@ class _System:
         ``P (H + mu I) P^T = L D L^T``: the signs of D are those of the eigenvalues
         (Sylvester's law of inertia); for ``D_k < 0``, ``z = L^-T e_k`` has
         ``z^T L D L^T z = D_k``. A group whose matrix has the pattern of its last one
-        (a petal alone always has) reuses qdldl's ordering and symbolic analysis.
+        (a petal alone always has) reuses its ordering and symbolic analysis.
         """
         values = self.blocks.data.ravel()[group.take]  # on group.elastic's pattern
         values[group.diagonal] += mu
@@ -398,24 +397,17 @@ class _System:
         M = self._fit(group, values, extra)
         try:
             if group.solver is not None:  # (_fit keeps it only while the pattern holds)
-                group.solver.update(M, upper=True)
+                group.solver.update(M)
             else:
-                group.solver = qdldl.Solver(M, upper=True)
-        except (ValueError, RuntimeError):  # a zero pivot: singular
+                group.solver = BlockLDL(M)
+        except ValueError:  # a zero pivot: singular
             group.solver, group.pattern, group.positive = None, None, False
             return False, None
-        L, D, perm = group.solver.factors()
+        D = group.solver.d
         group.positive = bool(np.all(D > 0.0))
         if group.positive or not direction:
             return group.positive, None
-        k = int(np.argmin(D))
-        e = np.zeros(len(D))
-        e[k] = 1.0
-        n = len(D)
-        z = spsolve_triangular((L + sp.identity(n, format="csc")).T.tocsr(), e, lower=False,
-                               unit_diagonal=True)
-        d = np.empty(n)
-        d[perm] = z
+        d = group.solver.curvature_direction(int(np.argmin(D)))
         full = M + sp.triu(M, k=1).T
         curvature, size = d @ (full @ d), d @ d
         if size > 0.0:
@@ -431,7 +423,7 @@ class _System:
         """The group's matrix, the elastic ``values`` (on ``group.elastic``'s pattern)
         plus the coupling terms' entries ``extra`` (``(keys, values)``, or None), on the
         group's pattern: the union of every pattern its matrices have had (contacts come
-        and go; an entry not there is an explicit zero), so that qdldl's ordering and
+        and go; an entry not there is an explicit zero), so that the ordering and
         symbolic analysis are redone only when a new entry appears (then the group's
         solver is dropped, to be set up anew). A sum with coupling entries has only its
         nonzero entries (an elastic one that is zero, as at a fixed vertex, included),
@@ -484,7 +476,7 @@ class _System:
         indptr = np.searchsorted(keys // n, np.arange(n + 1)).astype(np.int32)
         group.pattern, group.at_elastic = keys, None
         group.matrix = sp.csc_matrix((data, indices, indptr), shape=(n, n))
-        group.solver = None  # (a new pattern: qdldl's analysis is redone)
+        group.solver = None  # (a new pattern: the analysis is redone)
         return group.matrix
 
     def solve(self, rhs: np.ndarray, groups=None, known=None) -> np.ndarray:
@@ -924,7 +916,7 @@ class QuasiStatic:
             factored = [gr for gr in moving if not chord[gr.key]]
             if factored:
                 self._assemble(X, factored)
-            for gr, (positive, down) in zip(factored, _map(system.factor, factored)):
+            for gr, (positive, down) in zip(factored, _map(system.factor, factored), strict=True):
                 fresh.add(gr.key)
                 stale.discard(gr.key)
                 if not positive:
@@ -949,7 +941,7 @@ class QuasiStatic:
                             return None, rejected
                     return mu, rejected
 
-                for gr, (mu, rejected) in zip(lost, _map(shift, lost)):
+                for _gr, (mu, rejected) in zip(lost, _map(shift, lost), strict=True):
                     self.shifted += rejected
                     if mu is None:
                         return _Failure(residual, scale, "shift", self._inertia())
