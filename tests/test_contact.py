@@ -197,7 +197,12 @@ def test_the_accuracy_study_measures_contact_scenes():
     scene = study.Scene.bud(5, 700)
     ref, change = study.reference(scene, effects=("collisions",))
     free = study.simulate(scene, "quasi-static", ramp=1, stages=40, tolerance=1e-8)
-    assert change < 1e-3 and not ref.crossed
+    # (with contact the path of equilibria branches where pressed petals buckle, and
+    # which branch an increment takes depends on rounding: refining this reference
+    # moves it 0.5% of the petal length with Bloom's block LDL^T, 0.03% with qdldl's
+    # scalar one, whose 80- and 160-increment runs were 0.9% apart; so the bound is the
+    # study's 1%)
+    assert change < 1e-2 and not ref.crossed
     assert free.crossed
     assert study.shape_error(scene, free.positions, ref.positions)[0] > 1e-3  # contact acted
     plan = study.contact_plan(quick=True)

@@ -206,21 +206,85 @@ def _solve(nv, lp, li, lx, ldg, d, y):
     _upper(nv, lp, li, lx, ldg, y)
 
 
-def _ordering(rows: np.ndarray, cols: np.ndarray, nv: int) -> np.ndarray:
+@njit(cache=True, nogil=True)
+def _blocks(indptr, indices, where):
+    """The lower block pattern, by column, of the scalar upper triangle (``indptr``,
+    ``indices``; unknowns three per vertex) with vertex v moved to ``where[v]``:
+    ``(ap, ai)`` (rows ascending, the diagonal block included) and its transpose ``(up,
+    ui)`` (the upper pattern by column); and where each scalar entry goes in the
+    blocks' data (``first``; ``second``: its mirror in a diagonal block, or -1)."""
+    nv = where.shape[0]
+    nnz = indices.shape[0]
+    column = np.empty(nnz, np.int64)
+    row = np.empty(nnz, np.int64)
+    count = np.zeros(nv + 1, np.int64)
+    for c in range(3 * nv):
+        for q in range(indptr[c], indptr[c + 1]):
+            i = where[indices[q] // 3]
+            j = where[c // 3]
+            column[q] = min(i, j)
+            row[q] = max(i, j)
+            count[column[q] + 1] += 1
+    for k in range(nv):
+        count[k + 1] += count[k]
+    bucket = np.empty(nnz, np.int64)
+    fill = count[:nv].copy()
+    for q in range(nnz):
+        bucket[fill[column[q]]] = row[q]
+        fill[column[q]] += 1
+    ap = np.zeros(nv + 1, np.int64)
+    ai = np.empty(nnz, np.int64)
+    for k in range(nv):  # (each column's rows, sorted and once each)
+        rows = np.sort(bucket[count[k]:count[k + 1]])
+        at = ap[k]
+        for t in range(rows.shape[0]):
+            if t == 0 or rows[t] != rows[t - 1]:
+                ai[at] = rows[t]
+                at += 1
+        ap[k + 1] = at
+    ai = ai[:ap[nv]].copy()
+    first = np.empty(nnz, np.int64)
+    second = np.full(nnz, -1, np.int64)
+    for c in range(3 * nv):
+        for q in range(indptr[c], indptr[c + 1]):
+            k = column[q]
+            block = ap[k] + np.searchsorted(ai[ap[k]:ap[k + 1]], row[q])
+            a = indices[q] % 3
+            b = c % 3
+            if where[indices[q] // 3] < where[c // 3]:  # (above the block diagonal: turned)
+                a, b = b, a
+            first[q] = block * 9 + a * 3 + b
+            if row[q] == k and a != b:
+                second[q] = block * 9 + b * 3 + a
+    up = np.zeros(nv + 1, np.int64)
+    for q in range(ai.shape[0]):
+        up[ai[q] + 1] += 1
+    for k in range(nv):
+        up[k + 1] += up[k]
+    ui = np.empty(ai.shape[0], np.int64)
+    fill = up[:nv].copy()
+    for k in range(nv):  # (columns ascending: each upper column's rows come ascending)
+        for q in range(ap[k], ap[k + 1]):
+            ui[fill[ai[q]]] = k
+            fill[ai[q]] += 1
+    return ap, ai, up, ui, first, second
+
+
+def _ordering(indptr: np.ndarray, indices: np.ndarray, nv: int) -> np.ndarray:
     """Approximate minimum degree ordering of the vertex graph (the blocks' pattern):
-    qdldl's AMD, run on a diagonally dominant matrix of that pattern."""
+    qdldl's AMD, run on a diagonally dominant matrix of that pattern (its diagonal
+    each vertex's degree + 1, the rest -1)."""
     import qdldl
 
-    off = rows != cols
-    graph = sp.coo_matrix((np.full(off.sum(), -1.0), (rows[off], cols[off])),
-                          shape=(nv, nv)).tocsr()
-    graph.sum_duplicates()
-    graph.data[:] = -1.0
-    graph = graph + graph.T
-    graph.data[:] = -1.0
-    degree = np.diff(graph.indptr).astype(float)
-    upper = sp.triu(graph + sp.diags(degree + 1.0), format="csc")
-    return np.asarray(qdldl.Solver(upper, upper=True).factors()[2], dtype=np.int64)
+    _, _, up, ui, _, _ = _blocks(indptr, indices, np.arange(nv, dtype=np.int64))
+    values = np.full(len(ui), -1.0)
+    columns = np.repeat(np.arange(nv), np.diff(up))
+    diagonal = ui == columns
+    degree = np.bincount(ui[~diagonal], minlength=nv) + np.bincount(columns[~diagonal],
+                                                                    minlength=nv)
+    graph = sp.csc_matrix((values, ui, up), shape=(nv, nv))
+    graph.setdiag(degree + 1.0)  # (a vertex with no diagonal block gets one)
+    return np.asarray(qdldl.Solver(graph.tocsc(), upper=True).factors()[2], dtype=np.int64)
 
 
 class BlockLDL:
@@ -233,30 +297,15 @@ class BlockLDL:
         if n % 3:
             raise ValueError(f"{n} unknowns: not three per vertex")
         nv = n // 3
-        rows = upper.indices.astype(np.int64)
-        cols = np.repeat(np.arange(n, dtype=np.int64), np.diff(upper.indptr))
-        vr, vc = rows // 3, cols // 3
-        perm = _ordering(vr, vc, nv)
+        indptr = upper.indptr.astype(np.int64)
+        indices = upper.indices.astype(np.int64)
+        perm = _ordering(indptr, indices, nv)
         where = np.empty(nv, np.int64)
         where[perm] = np.arange(nv)
-        i, j = where[vr], where[vc]
-        lo, hi = np.maximum(i, j), np.minimum(i, j)  # (block (lo, hi) of the lower part)
-        keys = np.unique(hi * nv + lo)
-        column, row = keys // nv, keys % nv
-        self._ap = np.searchsorted(column, np.arange(nv + 1)).astype(np.int64)
-        self._ai = row.astype(np.int64)
-        transposed = np.sort(row * nv + column)  # (the upper pattern, by column)
-        up = np.searchsorted(transposed // nv, np.arange(nv + 1)).astype(np.int64)
-        ui = (transposed % nv).astype(np.int64)
-        block = np.searchsorted(keys, hi * nv + lo)
-        a, b = rows % 3, cols % 3
-        turned = i < j  # (an entry above the block diagonal, stored transposed)
-        ra, cb = np.where(turned, b, a), np.where(turned, a, b)
-        self._first = block * 9 + ra * 3 + cb
-        self._second = np.where((i == j) & (a != b), block * 9 + cb * 3 + ra, -1)
+        self._ap, self._ai, up, ui, self._first, self._second = _blocks(indptr, indices, where)
         self._lp, self._li, self._rp, self._rk, self._rq = _symbolic(nv, up, ui)
         self.nv, self.perm = nv, perm
-        self._ax = np.zeros((len(keys), 3, 3))
+        self._ax = np.zeros((len(self._ai), 3, 3))
         self._lx = np.zeros((len(self._li), 3, 3))
         self._ldg = np.zeros((nv, 3))
         self._w = np.zeros((nv, 3, 3))

@@ -230,6 +230,8 @@ class _Group:
     pattern: np.ndarray | None = None  #: column * n + row of each entry of ``matrix``
     #: where each entry of ``elastic`` is in ``matrix.data`` (-1: not in its pattern)
     at_elastic: np.ndarray | None = None
+    inside: np.ndarray | None = None  #: the entries of ``elastic`` in ``matrix``'s pattern
+    outside: np.ndarray | None = None  #: the others (zero when the pattern was made)
     positive: bool = False  #: the last factorization is positive definite
     shift: float = 0.0  #: the mu of the last factorization
     moved: float = 0.0  #: how far its last step (Newton's, or the predictor's) moved it
@@ -433,16 +435,26 @@ class _System:
         known = group.pattern
         if known is not None and group.at_elastic is None:  # (once per pattern)
             group.at_elastic = _positions(known, group.keys)
-        if extra is None:
-            keys, data = group.keys, values
-            if known is not None and np.all(group.at_elastic >= 0):
+            group.inside = np.flatnonzero(group.at_elastic >= 0)
+            group.outside = np.flatnonzero(group.at_elastic < 0)
+        if known is not None and not values[group.outside].any():
+            # (the pattern holds for the elastic part: its entries outside it are zero)
+            if extra is not None:
+                xkeys, xvalues = extra
+                nonzero = xvalues != 0.0
+                ax = _positions(known, xkeys[nonzero])
+            if extra is None or np.all(ax >= 0):
                 M = group.matrix
-                if len(known) == len(keys):  # (the pattern is the elastic one)
-                    M.data[:] = values
+                if not len(group.outside) and len(known) == len(group.keys):
+                    M.data[:] = values  # (the pattern is the elastic one)
                 else:
                     M.data[:] = 0.0
-                    M.data[group.at_elastic] = values
+                    M.data[group.at_elastic[group.inside]] = values[group.inside]
+                if extra is not None:
+                    M.data[ax] += xvalues[nonzero]  # (the coupling entries are distinct)
                 return M
+        if extra is None:
+            keys, data = group.keys, values
         else:
             xkeys, xvalues = extra
             data = values.copy()
@@ -451,15 +463,6 @@ class _System:
             data[at[hit]] += xvalues[hit]  # (the coupling entries are distinct)
             nz = data != 0.0
             xout = ~hit & (xvalues != 0.0)
-            if known is not None:
-                ae = group.at_elastic[nz]
-                ax = _positions(known, xkeys[xout])
-                if np.all(ae >= 0) and np.all(ax >= 0):
-                    M = group.matrix
-                    M.data[:] = 0.0
-                    M.data[ae] = data[nz]
-                    M.data[ax] = xvalues[xout]
-                    return M
             keys = np.concatenate([group.keys[nz], xkeys[xout]])
             data = np.concatenate([data[nz], xvalues[xout]])
             order = np.argsort(keys, kind="stable")
