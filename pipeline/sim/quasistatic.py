@@ -201,13 +201,6 @@ class NotConverged(RuntimeError):
         super().__init__(f"{text}; {detail}" if detail else text)
 
 
-def _positions(known: np.ndarray, keys: np.ndarray) -> np.ndarray:
-    """Where each of ``keys`` is in the ascending ``known``; -1 where it is not."""
-    at = np.searchsorted(known, keys)
-    at[at == len(known)] = 0
-    return np.where(known[at] == keys, at, -1) if len(known) else np.full(len(keys), -1)
-
-
 @dataclass
 class _Group:
     """Pieces (petals) that are one linear system: a piece alone, or pieces joined by
@@ -215,23 +208,18 @@ class _Group:
     made."""
 
     key: tuple  #: its pieces, ascending
-    dofs: np.ndarray  #: (n,) its unknowns in the whole (3 per vertex), ascending
-    elastic: sp.csc_matrix  #: upper triangle of the elastic Hessian on dofs (its pattern)
-    take: np.ndarray  #: elastic.data = blocks.data.ravel()[take]
-    diagonal: np.ndarray  #: positions of the diagonal in elastic.data
+    vertices: np.ndarray  #: (n,) its vertices, ascending
+    dofs: np.ndarray  #: (3n,) its unknowns in the whole (3 per vertex), ascending
     local: np.ndarray  #: (3V,) index in dofs of each unknown of the whole, -1 outside
     #: (edges, hinges, blocks) of its pieces: what assembling its Hessian alone touches
     part: tuple
-    keys: np.ndarray  #: column * n + row of each entry of ``elastic`` (ascending)
-    solver: object = None  #: the LDL^T of the last factorization (None: none, or singular)
-    #: the matrix ``solver`` was set up for, on its pattern (:meth:`_System._fit`): its
-    #: data is overwritten in place at each factorization
-    matrix: sp.csc_matrix | None = None
-    pattern: np.ndarray | None = None  #: column * n + row of each entry of ``matrix``
-    #: where each entry of ``elastic`` is in ``matrix.data`` (-1: not in its pattern)
-    at_elastic: np.ndarray | None = None
-    inside: np.ndarray | None = None  #: the entries of ``elastic`` in ``matrix``'s pattern
-    outside: np.ndarray | None = None  #: the others (zero when the pattern was made)
+    #: its factorization (:class:`ldl.BlockLDL`), on the pattern of its last matrix
+    #: (None: none yet, or singular)
+    solver: object = None
+    #: (k, 2) vertex pairs (local) the coupling terms have joined in its matrices: the
+    #: pattern is the elastic one and these, so that the ordering and symbolic analysis
+    #: are redone only when a new pair appears
+    pairs: np.ndarray = field(default_factory=lambda: np.zeros((0, 2), dtype=np.int64))
     positive: bool = False  #: the last factorization is positive definite
     shift: float = 0.0  #: the mu of the last factorization
     moved: float = 0.0  #: how far its last step (Newton's, or the predictor's) moved it
@@ -249,9 +237,6 @@ class _System:
     pinned: np.ndarray
     plane_row: np.ndarray
     normals: np.ndarray
-    upper: sp.csc_matrix  #: the upper triangle in CSC, its pattern fixed
-    take: np.ndarray  #: upper.data = data.ravel()[take]
-    diagonal: np.ndarray  #: positions of the diagonal in upper.data
     piece: np.ndarray  #: (V,) connected piece (petal) of each vertex
     edge_piece: np.ndarray  #: (E,) piece of each edge
     hinge_piece: np.ndarray  #: (H,) piece of each hinge
@@ -274,25 +259,16 @@ class _System:
 
         n = model.vertex_count
         blocks = hessian.Blocks.build(model)
-        indptr, indices = blocks.indptr, blocks.indices
         plane_row = np.full(n, -1, dtype=np.int64)
         normals = np.zeros((0, 3))
         if effects.center_plane is not None:
             plane_row[effects.center_plane.vertices] = np.arange(len(effects.center_plane.vertices))
             normals = np.ascontiguousarray(effects.center_plane.normals)
-        # the scalar pattern of the block matrix, each entry numbered by its place in data
-        numbered = np.arange(1, 9 * len(indices) + 1, dtype=np.float64).reshape(-1, 3, 3)
-        upper = sp.triu(sp.bsr_matrix((numbered, indices, indptr), shape=(3 * n, 3 * n)),
-                        format="csc")
-        upper.sort_indices()
-        take = upper.data.astype(np.int64) - 1
-        rows = np.repeat(np.arange(3 * n), np.diff(upper.indptr))  # column of each entry
-        diagonal = np.flatnonzero(upper.indices == rows)
         e = model.edge_indices
         graph = sp.coo_matrix((np.ones(len(e)), (e[:, 0], e[:, 1])), shape=(n, n))
         piece = connected_components(graph, directed=False)[1].astype(np.int64)
-        system = cls(blocks, model.pinned.copy(), plane_row, normals, upper, take, diagonal,
-                     piece, piece[e[:, 0]], piece[model.hinge_indices[:, 0]])
+        system = cls(blocks, model.pinned.copy(), plane_row, normals, piece, piece[e[:, 0]],
+                     piece[model.hinge_indices[:, 0]])
         if effects.collisions is not None or effects.connections is not None:
             P = np.broadcast_to(np.eye(3), (n, 3, 3)).copy()
             P[model.pinned] = 0.0
@@ -330,22 +306,13 @@ class _System:
         if group is None:
             vertices = np.flatnonzero(np.isin(self.piece, key))
             dofs = (3 * vertices[:, None] + np.arange(3)).ravel()
-            numbered = self.upper.copy()
-            numbered.data = np.arange(1, len(numbered.data) + 1, dtype=np.float64)
-            sub = numbered[dofs][:, dofs].tocsc()
-            sub.sort_indices()
-            take = self.take[sub.data.astype(np.int64) - 1]
-            rows = np.repeat(np.arange(len(dofs)), np.diff(sub.indptr))
-            local = np.full(self.upper.shape[0], -1, dtype=np.int64)
+            local = np.full(3 * len(self.piece), -1, dtype=np.int64)
             local[dofs] = np.arange(len(dofs))
-            keys = rows * len(dofs) + sub.indices  # (rows: the column of each entry)
             indptr = self.blocks.indptr
             part = (np.flatnonzero(np.isin(self.edge_piece, key)),
                     np.flatnonzero(np.isin(self.hinge_piece, key)),
                     np.concatenate([np.arange(indptr[v], indptr[v + 1]) for v in vertices]))
-            group = self._known[key] = _Group(key, dofs, sub, take,
-                                              np.flatnonzero(sub.indices == rows), local, part,
-                                              keys)
+            group = self._known[key] = _Group(key, vertices, dofs, local, part)
         return group
 
     @property
@@ -382,105 +349,46 @@ class _System:
         ``z^T L D L^T z = D_k``. A group whose matrix has the pattern of its last one
         (a petal alone always has) reuses its ordering and symbolic analysis.
         """
-        values = self.blocks.data.ravel()[group.take]  # on group.elastic's pattern
-        values[group.diagonal] += mu
+        shift = np.full(len(group.dofs), mu)
         if self.inertia is not None:
-            values[group.diagonal] += self.inertia[group.dofs]
-        extra = None
+            shift += self.inertia[group.dofs]
+        coupling = None
         if self.extra is not None:
             x = self.extra
             r, c = group.local[x.row], group.local[x.col]
             inside = r >= 0
             if inside.any():
-                extra = (c[inside] * len(group.dofs) + r[inside], x.data[inside])
+                coupling = (r[inside], c[inside], x.data[inside])
         group.shift = mu
         if mu == 0.0:  # (a new H: what is known of its shifts is of the last one)
             group.need = 0.0
-        M = self._fit(group, values, extra)
         try:
-            if group.solver is not None:  # (_fit keeps it only while the pattern holds)
-                group.solver.update(M)
-            else:
-                group.solver = BlockLDL(M)
+            while True:
+                if group.solver is None:
+                    group.solver = BlockLDL(self.blocks.indptr, self.blocks.indices,
+                                            group.vertices, group.pairs)
+                if group.solver.factor(self.blocks.data, shift, coupling):
+                    break
+                # (a coupling entry outside the pattern: the pattern grows by its pairs)
+                pairs = np.concatenate([group.pairs, np.c_[coupling[0] // 3, coupling[1] // 3]])
+                group.pairs = np.unique(np.sort(pairs, axis=1), axis=0)
+                group.solver = None
         except ValueError:  # a zero pivot: singular
-            group.solver, group.pattern, group.positive = None, None, False
+            group.solver, group.positive = None, False
             return False, None
         D = group.solver.d
         group.positive = bool(np.all(D > 0.0))
         if group.positive or not direction:
             return group.positive, None
-        d = group.solver.curvature_direction(int(np.argmin(D)))
-        full = M + sp.triu(M, k=1).T
-        curvature, size = d @ (full @ d), d @ d
+        d, curvature = group.solver.curvature_direction(int(np.argmin(D)))
+        size = d @ d
         if size > 0.0:
             group.need = max(group.need, mu - curvature / size)
         if not curvature < mu * size:
             return False, None
-        out = np.zeros(self.upper.shape[0])
+        out = np.zeros(3 * len(self.piece))
         out[group.dofs] = d
         return False, out
-
-    @staticmethod
-    def _fit(group: _Group, values: np.ndarray, extra) -> sp.csc_matrix:
-        """The group's matrix, the elastic ``values`` (on ``group.elastic``'s pattern)
-        plus the coupling terms' entries ``extra`` (``(keys, values)``, or None), on the
-        group's pattern: the union of every pattern its matrices have had (contacts come
-        and go; an entry not there is an explicit zero), so that the ordering and
-        symbolic analysis are redone only when a new entry appears (then the group's
-        solver is dropped, to be set up anew). A sum with coupling entries has only its
-        nonzero entries (an elastic one that is zero, as at a fixed vertex, included),
-        one without them every elastic entry. The matrix is the group's own, its data
-        overwritten."""
-        n = len(group.dofs)
-        known = group.pattern
-        if known is not None and group.at_elastic is None:  # (once per pattern)
-            group.at_elastic = _positions(known, group.keys)
-            group.inside = np.flatnonzero(group.at_elastic >= 0)
-            group.outside = np.flatnonzero(group.at_elastic < 0)
-        if known is not None and not values[group.outside].any():
-            # (the pattern holds for the elastic part: its entries outside it are zero)
-            if extra is not None:
-                xkeys, xvalues = extra
-                nonzero = xvalues != 0.0
-                ax = _positions(known, xkeys[nonzero])
-            if extra is None or np.all(ax >= 0):
-                M = group.matrix
-                if not len(group.outside) and len(known) == len(group.keys):
-                    M.data[:] = values  # (the pattern is the elastic one)
-                else:
-                    M.data[:] = 0.0
-                    M.data[group.at_elastic[group.inside]] = values[group.inside]
-                if extra is not None:
-                    M.data[ax] += xvalues[nonzero]  # (the coupling entries are distinct)
-                return M
-        if extra is None:
-            keys, data = group.keys, values
-        else:
-            xkeys, xvalues = extra
-            data = values.copy()
-            at = _positions(group.keys, xkeys)
-            hit = at >= 0
-            data[at[hit]] += xvalues[hit]  # (the coupling entries are distinct)
-            nz = data != 0.0
-            xout = ~hit & (xvalues != 0.0)
-            keys = np.concatenate([group.keys[nz], xkeys[xout]])
-            data = np.concatenate([data[nz], xvalues[xout]])
-            order = np.argsort(keys, kind="stable")
-            keys, data = keys[order], data[order]
-        if known is not None:
-            union = np.sort(np.concatenate([known, keys]))
-            union = union[np.concatenate([[True], union[1:] != union[:-1]])]
-            full = np.zeros(len(union))
-            full[np.searchsorted(union, keys)] = data
-            keys, data = union, full
-        else:
-            data = data.copy()
-        indices = (keys % n).astype(np.int32)
-        indptr = np.searchsorted(keys // n, np.arange(n + 1)).astype(np.int32)
-        group.pattern, group.at_elastic = keys, None
-        group.matrix = sp.csc_matrix((data, indices, indptr), shape=(n, n))
-        group.solver = None  # (a new pattern: the analysis is redone)
-        return group.matrix
 
     def solve(self, rhs: np.ndarray, groups=None, known=None) -> np.ndarray:
         """The step of each group's last factorization for ``rhs`` (3V); zero in the
