@@ -254,6 +254,18 @@ def block_pattern(vertex_count: int, edges: np.ndarray, hinges: np.ndarray):
 
 
 @dataclass
+class Part:
+    """A part of the mesh that no element joins to another (a petal): its edges, its
+    hinges and its blocks (index arrays), and the static arrays of its elements, taken
+    once (:meth:`terms.Elastic.assemble`)."""
+
+    edges: np.ndarray
+    hinges: np.ndarray
+    blocks: np.ndarray
+    static: tuple | None = None
+
+
+@dataclass
 class Blocks:
     """One model's Hessian as 3x3 blocks: the pattern, each element's slots and the
     arrays it is assembled into (built once; :meth:`assemble` allocates nothing). The

@@ -211,8 +211,7 @@ class _Group:
     vertices: np.ndarray  #: (n,) its vertices, ascending
     dofs: np.ndarray  #: (3n,) its unknowns in the whole (3 per vertex), ascending
     local: np.ndarray  #: (3V,) index in dofs of each unknown of the whole, -1 outside
-    #: (edges, hinges, blocks) of its pieces: what assembling its Hessian alone touches
-    part: tuple
+    parts: list  #: its pieces' :class:`hessian.Part`: what assembling its Hessian touches
     #: its factorization (:class:`ldl.BlockLDL`), on the pattern of its last matrix
     #: (None: none yet, or singular)
     solver: object = None
@@ -252,6 +251,7 @@ class _System:
     groups: list = field(default_factory=list)  #: the current groups (:class:`_Group`)
     _known: dict = field(default_factory=dict)  #: every group met so far, by key
     _joined: np.ndarray | None = None  #: the piece pairs the groups were made of
+    _parts: dict = field(default_factory=dict)  #: each piece's part, by piece (:meth:`_part`)
 
     @classmethod
     def build(cls, model: Model, effects: Effects) -> _System:
@@ -301,6 +301,18 @@ class _System:
         self.groups = [self._group(k) for k in keys]
         return keys != before
 
+    def _part(self, piece: int) -> hessian.Part:
+        """What assembling piece ``piece``'s Hessian touches (no element joins two)."""
+        part = self._parts.get(piece)
+        if part is None:
+            indptr = self.blocks.indptr
+            vertices = np.flatnonzero(self.piece == piece)
+            part = self._parts[piece] = hessian.Part(
+                np.flatnonzero(self.edge_piece == piece),
+                np.flatnonzero(self.hinge_piece == piece),
+                np.concatenate([np.arange(indptr[v], indptr[v + 1]) for v in vertices]))
+        return part
+
     def _group(self, key: tuple) -> _Group:
         group = self._known.get(key)
         if group is None:
@@ -308,11 +320,8 @@ class _System:
             dofs = (3 * vertices[:, None] + np.arange(3)).ravel()
             local = np.full(3 * len(self.piece), -1, dtype=np.int64)
             local[dofs] = np.arange(len(dofs))
-            indptr = self.blocks.indptr
-            part = (np.flatnonzero(np.isin(self.edge_piece, key)),
-                    np.flatnonzero(np.isin(self.hinge_piece, key)),
-                    np.concatenate([np.arange(indptr[v], indptr[v + 1]) for v in vertices]))
-            group = self._known[key] = _Group(key, vertices, dofs, local, part)
+            group = self._known[key] = _Group(key, vertices, dofs, local,
+                                              [self._part(p) for p in key])
         return group
 
     @property
@@ -432,6 +441,9 @@ class QuasiStatic:
     _springs: Springs | None = field(default=None, repr=False)  #: if connection springs
     _coupling: np.ndarray | None = field(default=None, repr=False)  #: their last forces
     _limited: bool = field(default=False, repr=False)  #: the last line search was cut by CCD
+    #: the energy at the step the last line search took, whose forces it left in its
+    #: scratch (None: not since); the next Newton iteration starts from them
+    _accepted: float | None = field(default=None, repr=False)
     #: the equilibrium before the last one on the path: (A, X), for the secant predictor
     _behind: tuple | None = field(default=None, repr=False)
     #: the inertia term of the increment being solved (None: the quasi-static path)
@@ -709,11 +721,12 @@ class QuasiStatic:
         assembled again)."""
         s = self._system
         H = s.blocks
-        if groups is None or len(groups) == len(s.groups):
-            self._terms.elastic.assemble(X, H)
-        else:
-            for gr in groups:
-                self._terms.elastic.assemble(X, H, gr.part)
+        elastic = self._terms.elastic
+        parts = [p for gr in (s.groups if groups is None else groups) for p in gr.parts]
+        if len(parts) > 1:  # (pieces touch blocks apart: they are assembled in threads)
+            _map(lambda p: elastic.assemble(X, H, p, np.zeros((7, 4, 3, 3))), parts)
+        elif parts:
+            elastic.assemble(X, H, parts[0])
         hessian.constrain(H.indptr, H.indices, H.data, s.pinned, s.plane_row, s.normals)
         if s.project is not None:
             s.couple([t.hessian(X, project=True) for t in self._terms.coupling])
@@ -787,8 +800,13 @@ class QuasiStatic:
         stale: set = set()  #: groups whose factorization a chord step failed with
         fresh: set = set()  #: groups factored in this solve
         chord: dict = {}  #: whether a group's step reuses its factorization
+        self._accepted = None
         for _ in range(self.max_iterations):
-            energy, g = self._gradient(X, scratch)
+            if self._accepted is not None:  # (the line search left X's forces in scratch)
+                energy, g = self._accepted, self._constrained(-scratch)
+                self._accepted = None
+            else:
+                energy, g = self._gradient(X, scratch)
             residual = float(np.abs(g).max())
             self.residuals.append(residual)
             scale, self._energy_rounding = self._rounding(X)
@@ -947,6 +965,7 @@ class QuasiStatic:
             change = abs(trial - energy)
             if (trial <= energy + 1e-4 * length * slope or change <= 1e-14 * abs(energy)
                     or (change <= blind and length * abs(slope) <= blind)):
+                self._accepted = trial
                 return length
             length *= 0.5
         X[:] = base

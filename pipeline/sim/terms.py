@@ -175,25 +175,31 @@ class Elastic(Term):
         return _add_forces(X, s.edges, s.rest0, s.growth, s.stiffness, b.hinges, b.cos0, b.sin0,
                            b.stiffness, s.A, F, self._work)
 
-    def assemble(self, X, blocks: hs.Blocks, part=None) -> None:
+    def assemble(self, X, blocks: hs.Blocks, part: hs.Part | None = None, work=None) -> None:
         """The Hessian at X into ``blocks`` (zeroed first): the solver's layout.
-        ``part``: ``(edges, hinges, blocks)`` index arrays of a part of the mesh that
-        no other element touches (a petal): only its blocks are zeroed and assembled
-        (the same sums, in the same order), the others are left as they are."""
+        ``part``: a part of the mesh that no other element touches (a petal): only its
+        blocks are zeroed and assembled (the same sums, in the same order), the others
+        are left as they are; ``work``: the hinge kernel's scratch (``(7, 4, 3, 3)``
+        zeros) if not the blocks' own, so that parts can be assembled at once in
+        threads."""
         s, b = self.stretch, self.bending
         if part is None:
             hs.hessian(X, s.edges, s.rest0, s.growth, s.stiffness, b.hinges, b.cos0, b.sin0,
                        b.stiffness, s.A, blocks.data, blocks.edge_slots, blocks.hinge_slots,
                        blocks.work)
             return
-        e, h, k = part
-        blocks.data[k] = 0.0
+        e, h = part.edges, part.hinges
+        if part.static is None:
+            part.static = (s.edges[e], s.rest0[e], s.growth[e], s.stiffness[e],
+                           blocks.edge_slots[e], b.hinges[h], b.stiffness[h],
+                           blocks.hinge_slots[h])
+        edges, rest0, growth, stiffness, edge_slots, hinges, hinge_k, hinge_slots = part.static
+        blocks.data[part.blocks] = 0.0
         if len(e):
-            hs.stretch_terms(X, s.edges[e], s.rest0[e], s.growth[e], s.stiffness[e], s.A,
-                             blocks.data, blocks.edge_slots[e])
+            hs.stretch_terms(X, edges, rest0, growth, stiffness, s.A, blocks.data, edge_slots)
         if len(h):
-            hs.bending_terms(X, b.hinges[h], b.cos0[h], b.sin0[h], b.stiffness[h], blocks.data,
-                             blocks.hinge_slots[h], blocks.work)
+            hs.bending_terms(X, hinges, b.cos0[h], b.sin0[h], hinge_k, blocks.data,
+                             hinge_slots, blocks.work if work is None else work)
 
     def hessian(self, X, project: bool = False) -> sp.csr_matrix:
         s, b = self.stretch, self.bending
