@@ -138,3 +138,35 @@ def test_fill_is_that_of_a_minimum_degree_ordering():
     assert f.factor(np.where(on_diagonal, 20.0, -1.0)[:, None, None] * np.eye(3))
     banded = 9 * n * side  # (the natural order: a band of `side` vertices)
     assert f.nnz < 0.5 * banded
+
+
+def test_subtrees_factored_in_two_threads_are_the_serial_factorization(monkeypatch):
+    """A large matrix is factored as two sets of subtrees of its elimination tree at
+    once, then the columns above them: the same arithmetic, to the bit."""
+    from pipeline.sim import ldl
+
+    side = 20
+    n = side * side
+    idx = np.arange(n).reshape(side, side)
+    pairs = np.vstack([np.c_[idx[:, :-1].ravel(), idx[:, 1:].ravel()],
+                       np.c_[idx[:-1].ravel(), idx[1:].ravel()],
+                       np.c_[idx[:-1, :-1].ravel(), idx[1:, 1:].ravel()]])
+    rng = np.random.default_rng(2)
+    A = np.zeros((3 * n, 3 * n))
+    for a, b in pairs:
+        A[3 * a:3 * a + 3, 3 * b:3 * b + 3] = rng.standard_normal((3, 3))
+    A = A + A.T + 40.0 * np.eye(3 * n)
+    bsr = sp.bsr_matrix(A, blocksize=(3, 3))
+    bsr.sort_indices()
+    graph, data = bsr, bsr.data
+    monkeypatch.setattr(ldl, "SPLIT", 10)
+    split = BlockLDL(graph.indptr, graph.indices, np.arange(n))
+    first, second, rest = split._sets
+    assert len(first) > n // 10 and len(second) > n // 10 and len(rest) < n // 4
+    monkeypatch.setattr(ldl, "SPLIT", 10 ** 9)
+    serial = BlockLDL(graph.indptr, graph.indices, np.arange(n))
+    assert serial._sets is None
+    assert split.factor(data) and serial.factor(data)
+    b = np.sin(np.arange(3 * n))
+    assert np.array_equal(split.d, serial.d) and np.array_equal(split.solve(b), serial.solve(b))
+    assert _residual(A, split.solve(b), b) < 1e-12
