@@ -250,14 +250,19 @@ class Contact(Term):
         return len(self._active(np.asfortranarray(X, dtype=np.float64)))
 
     # --- steps ----------------------------------------------------------------------------
+    def cover(self, X0, X1) -> None:
+        """Sweep the straight move X0 -> X1 (:meth:`sweep`, with a margin of the
+        barrier's band) unless the last sweep holds it."""
+        if not (self._swept(X0) and self._swept(X1)):
+            self.sweep(X0, X1, self.gap + self.band)
+
     def max_step(self, X0, X1) -> float:
         """The largest fraction of the straight move X0 -> X1 along which no two petals
         come closer than the gap (continuous collision detection, with ipctk's
         conservative rescaling): 1.0 is the whole move. Sweeps the move first
         (:meth:`sweep`, with a margin of the barrier's band) unless the last sweep holds
         it: its candidates serve the CCD and the active sets along it."""
-        if not (self._swept(X0) and self._swept(X1)):
-            self.sweep(X0, X1, self.gap + self.band)
+        self.cover(X0, X1)
         return float(self.candidates.compute_collision_free_stepsize(
             self.mesh, np.asfortranarray(X0, dtype=np.float64),
             np.asfortranarray(X1, dtype=np.float64), self.gap, self.ccd))

@@ -75,6 +75,10 @@ NO_EFFECTS = Effects()
 _POOL = None
 
 
+#: how far (mesh units) a search along a direction of negative curvature may go
+DESCENT = 2.0
+
+
 def _map(fn, items: list) -> list:
     """``[fn(x) for x in items]``, the calls overlapping in threads. For work apart
     whose heavy parts, the numba kernels (the factorization's too), release the GIL:
@@ -845,15 +849,20 @@ class QuasiStatic:
             factored = [gr for gr in moving if not chord[gr.key]]
             if factored:
                 self._assemble(X, factored)
+            downs = []  # (the groups' directions of negative curvature)
             for gr, (positive, down) in zip(factored, _map(system.factor, factored), strict=True):
                 fresh.add(gr.key)
                 stale.discard(gr.key)
                 if not positive:
                     lost.append(gr)
                     if down is not None:
-                        self.descents += 1
-                        energy = self._descend(X, scratch, energy, g,
-                                               self._constrained(down))
+                        downs.append(self._downhill(self._constrained(down), g))
+            if self._contact is not None and len(downs) > 1:
+                # (one sweep for all the groups' searches: each moves its group alone)
+                self._contact.cover(X, X + DESCENT * sum(downs))
+            for d in downs:
+                self.descents += 1
+                energy = self._descend(X, scratch, energy, d)
             if lost:
                 energy, g = self._gradient(X, scratch)
 
@@ -971,16 +980,21 @@ class QuasiStatic:
         X[:] = base
         return 0.0
 
-    def _descend(self, X, scratch, energy, g, down) -> float:
-        """Move X along the negative-curvature direction ``down`` (downhill sign), by
-        the length (doubling from 1e-3, at most 2 mesh units) that lowers the energy
-        most; returns the energy there."""
+    @staticmethod
+    def _downhill(down, g) -> np.ndarray:
+        """The direction ``down`` (flattened) as :meth:`_descend` searches it: per vertex,
+        its largest component 1, its sign downhill on the energy of gradient ``g``."""
         d = down.reshape(-1, 3) / np.abs(down).max()
-        if float(g @ down) > 0.0:
-            d = -d
+        return -d if float(g @ down) > 0.0 else d
+
+    def _descend(self, X, scratch, energy, d) -> float:
+        """Move X along the downhill negative-curvature direction ``d``
+        (:meth:`_downhill`), by the length (doubling from 1e-3, at most
+        :data:`DESCENT` mesh units) that lowers the energy most; returns the energy
+        there."""
         base = X.copy()
         best, best_length, length = energy, 0.0, 1e-3
-        top = 2.0  # (no further than contact allows)
+        top = DESCENT  # (no further than contact allows)
         if self._contact is not None:
             top *= self._contact.max_step(base, base + top * d)
         while length <= top:
