@@ -473,7 +473,6 @@ class BlockLDL:
         if not _fill(data, self._source, self._diagonal, shift, xr, xc, xv, self._where,
                      self._ap, self._ai, self._ax):
             return False
-
         def run(columns, w):
             return _numeric(columns, self._ap, self._ai, self._ax, self._lp, self._li,
                             self._rp, self._rk, self._rq, self._lx, self._ldg, self.d, w)
@@ -487,9 +486,6 @@ class BlockLDL:
         else:
             zero = run(self._all, self._w)
         if zero >= 0:
-            self._w[:] = 0.0  # (a column stopped halfway leaves its work behind)
-            if self._sets is not None:
-                self._w2[:] = 0.0
             raise ValueError(f"zero pivot at {zero}: the matrix is singular")
         return True
 
