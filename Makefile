@@ -37,7 +37,7 @@ test: $(INSTALLED)  ## run the test suite
 bench: $(INSTALLED)  ## print what each effect costs, as ratios to the bare simulation
 	$(BLOOM) bench
 
-accuracy: $(INSTALLED)  ## what accuracy costs in time, with and without contact: outputs/accuracy/accuracy.csv, .png (~10 min)
+accuracy: $(INSTALLED)  ## what accuracy costs in time, with and without contact: outputs/accuracy/accuracy.csv, .png (~5 min)
 	$(BLOOM) study accuracy --out $(OUT)/accuracy
 
 stability: $(INSTALLED)  ## the hard cases, slow ones included; prints the README's table (~30 s)
