@@ -7,10 +7,10 @@ not follow the dynamics: for each growth increment it finds the equilibrium
 of the last two equilibria, or the tangent).
 
 - Hessian: the analytic one of :mod:`hessian`. A Newton step factors it as is (a
-  sparse LDL^T by 3x3 vertex blocks, :mod:`ldl`, whose pivot signs give its inertia); a later step of the same
-  solve may reuse that factorization (a chord step) if the step it gives is a tenth of
-  the last one or less (the factorization is most of an iteration's cost). Where it is positive
-  definite the step is Newton's, and near a stable equilibrium convergence is
+  sparse LDL^T by 3x3 vertex blocks, :mod:`ldl`, whose pivot signs give its inertia);
+  a later step of the same solve may reuse that factorization (a chord step) if the
+  step it gives is a tenth of the last one or less (the factorization is most of an
+  iteration's cost). Where it is positive definite the step is Newton's, and near a stable equilibrium convergence is
   quadratic. Where it is not (the path passes a bifurcation or a snap, or the
   prediction is far off), the energy is first searched along a direction of negative
   curvature read from the factors, then the step solves ``(H + mu I) p = -g`` with
@@ -82,8 +82,8 @@ DESCENT = 2.0
 def _map(fn, items: list) -> list:
     """``[fn(x) for x in items]``, the calls overlapping in threads. For work apart
     whose heavy parts, the numba kernels (the factorization's too), release the GIL:
-    the solves of petals that do not interact, and the factorizations and shift searches of the
-    groups of one coupled Newton step. Each call's arithmetic is its own, so the
+    the solves of petals that do not interact, the factorizations and shift searches of
+    the groups of one coupled Newton step, the pieces' Hessians. Each call's arithmetic is its own, so the
     results are the same to the bit with any number of threads, and they come back in
     order (an exception: the first item's that raised). A call made from a pool thread
     has one item (a petal's solver has one group), so it runs inline."""
