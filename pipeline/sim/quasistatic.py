@@ -11,8 +11,8 @@ of the last two equilibria, or the tangent).
   a later step of the same solve may reuse that factorization (a chord step) if the
   step it gives is a tenth of the last one or less (the factorization is most of an
   iteration's cost). Where it is positive definite the step is Newton's, and near a
-  stable equilibrium convergence is quadratic. Where it is not (the path passes a bifurcation or a snap, or the
-  prediction is far off), the energy is first searched along a direction of negative
+  stable equilibrium convergence is quadratic. Where it is not (the path passes a
+  bifurcation or a snap, or the prediction is far off), the energy is first searched along a direction of negative
   curvature read from the factors, then the step solves ``(H + mu I) p = -g`` with
   ``mu`` raised until that is positive definite (see :meth:`QuasiStatic._newton`).
   (Projecting each element's Hessian to positive definite, the other classic remedy,
