@@ -6,18 +6,18 @@ not follow the dynamics: for each growth increment it finds the equilibrium
 (grad U = 0) by Newton's method, starting from a prediction along the path (the secant
 of the last two equilibria, or the tangent).
 
-- Hessian: the analytic one of :mod:`hessian`. A Newton step factors it as is (a
-  sparse LDL^T by 3x3 vertex blocks, :mod:`ldl`, whose pivot signs give its inertia);
-  a later step of the same solve may reuse that factorization (a chord step) if the
-  step it gives is a tenth of the last one or less (the factorization is most of an
-  iteration's cost). Where it is positive definite the step is Newton's, and near a
-  stable equilibrium convergence is quadratic. Where it is not (the path passes a
-  bifurcation or a snap, or the prediction is far off), the energy is first searched along a direction of negative
-  curvature read from the factors, then the step solves ``(H + mu I) p = -g`` with
-  ``mu`` raised until that is positive definite (see :meth:`QuasiStatic._newton`).
-  (Projecting each element's Hessian to positive definite, the other classic remedy,
-  was tried first: it converged linearly, 50-100 iterations per increment, and stalled
-  at snaps.)
+- Hessian: the analytic one of :mod:`hessian`. A Newton step factors it as is (a sparse
+  LDL^T by 3x3 vertex blocks, :mod:`ldl`, whose pivot signs give its inertia); a later
+  step of the same solve may reuse that factorization (a chord step) if the step it
+  gives is a tenth of the last one or less (the factorization is most of an iteration's
+  cost). Where it is positive definite the step is Newton's, and near a stable
+  equilibrium convergence is quadratic. Where it is not (the path passes a bifurcation
+  or a snap, or the prediction is far off), the energy is first searched along a
+  direction of negative curvature read from the factors, then the step solves ``(H + mu
+  I) p = -g`` with ``mu`` raised until that is positive definite (see
+  :meth:`QuasiStatic._newton`). (Projecting each element's Hessian to positive definite,
+  the other classic remedy, was tried first: it converged linearly, 50-100 iterations
+  per increment, and stalled at snaps.)
 - Each connected piece (petal) is its own problem when petals do not interact. With
   collisions or connection springs they share one energy and one line search, but the
   linear algebra is split by group: petals that a contact within the barrier's band or
