@@ -362,33 +362,34 @@ def _split(parent: np.ndarray, lp: np.ndarray, ways: int = 2) -> list[np.ndarray
     set can be factored at once with the others, then the rest. The work of a column is
     the square of its count."""
     nv = len(parent)
-    work = (np.diff(lp) + 1.0) ** 2
-    sub = work.copy()
+    parent = parent.tolist()  # (Python's own ints and floats: these loops are Python's)
+    sub = ((np.diff(lp) + 1.0) ** 2).tolist()
+    children = [[] for _ in range(nv)]
     for j in range(nv):  # (children come before their parents)
         if parent[j] >= 0:
             sub[parent[j]] += sub[j]
-    children = [[] for _ in range(nv)]
-    for j in range(nv):
-        if parent[j] >= 0:
             children[parent[j]].append(j)
     frontier = [j for j in range(nv) if parent[j] < 0]
+    total = sum(sub[j] for j in frontier)  # (the frontier's work)
     top = set()
     while True:  # (open the heaviest subtree while it outweighs the others)
         heaviest = max(frontier, key=lambda j: sub[j])
-        if not children[heaviest] or sub[heaviest] <= sum(sub[j] for j in frontier) / ways:
+        if not children[heaviest] or sub[heaviest] <= total / ways:
             break
         frontier.remove(heaviest)
         top.add(heaviest)
         frontier.extend(children[heaviest])
-    label = np.full(nv, -1, np.int64)
+        total += sum(sub[c] for c in children[heaviest]) - sub[heaviest]
+    label = [-1] * nv
     load = [0.0] * ways
     for r in sorted(frontier, key=lambda j: (-sub[j], j)):
-        k = int(np.argmin(load))
+        k = min(range(ways), key=lambda w: load[w])
         label[r] = k
         load[k] += sub[r]
     for j in range(nv - 1, -1, -1):  # (parents first: a subtree takes its root's label)
         if label[j] < 0 and parent[j] >= 0 and parent[j] not in top:
             label[j] = label[parent[j]]
+    label = np.asarray(label, dtype=np.int64)
     return [np.flatnonzero(label == k) for k in range(ways)] + [np.flatnonzero(label < 0)]
 
 
