@@ -104,6 +104,24 @@ def test_barrier_gradient_and_hessian_match_finite_differences():
     assert np.linalg.eigvalsh(H).min() < -1e-6 * np.abs(H).max()  # (the exact one is not)
 
 
+def test_ccd_in_threads_is_the_ccd_on_one(monkeypatch):
+    """The CCD's narrow phase runs in threads (a minimum over the candidates): the step
+    it allows is the same to the bit as on one thread, cut moves included."""
+    X, faces, petal = _sheets_in_the_band()
+    c = ct.Contact.build(X, faces, petal, gap=GAP, stiffness=0.1)
+    rng = np.random.default_rng(5)
+    moves = [X + np.where((petal == 1)[:, None], rng.normal(0.0, 0.002, X.shape)
+                          + [0.0, 0.0, 0.02 - 0.01 * k], 0.0) for k in range(8)]
+
+    def steps(threads):
+        monkeypatch.setattr(ct, "CCD_THREADS", threads)
+        return [c.max_step(X, X1) for X1 in moves]
+
+    one, two = steps(1), steps(2)
+    assert one == two
+    assert min(one) < 0.5 and max(one) == 1.0  # (some moves cut, some whole)
+
+
 def test_barrier_stiffness_scales_with_the_springs():
     """kappa makes the barrier's curvature at the middle of its band the stiffness asked
     for; the energy is zero past the band and infinite at the gap."""

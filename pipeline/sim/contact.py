@@ -32,6 +32,7 @@ from __future__ import annotations
 
 import logging
 import math
+import os
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -46,6 +47,10 @@ class ContactError(RuntimeError):
     def __init__(self, message: str, key: str = "effects.collisions"):
         self.key = key
         super().__init__(message)
+
+
+#: threads of the CCD's narrow phase (a minimum: the same bits with any number)
+CCD_THREADS = max(1, min(2, os.cpu_count() or 1))
 
 
 def _ipctk():
@@ -263,9 +268,16 @@ class Contact(Term):
         (:meth:`sweep`, with a margin of the barrier's band) unless the last sweep holds
         it: its candidates serve the CCD and the active sets along it."""
         self.cover(X0, X1)
-        return float(self.candidates.compute_collision_free_stepsize(
-            self.mesh, np.asfortranarray(X0, dtype=np.float64),
-            np.asfortranarray(X1, dtype=np.float64), self.gap, self.ccd))
+        ipctk = _ipctk()
+        # (the narrow phase in threads: its result is a minimum over the candidates, the
+        # same in any order; everything that sums stays on one thread)
+        ipctk.set_num_threads(CCD_THREADS)
+        try:
+            return float(self.candidates.compute_collision_free_stepsize(
+                self.mesh, np.asfortranarray(X0, dtype=np.float64),
+                np.asfortranarray(X1, dtype=np.float64), self.gap, self.ccd))
+        finally:
+            ipctk.set_num_threads(1)
 
     def min_distance(self, X, reach: float) -> float:
         """Smallest distance between two petals at X, if below ``reach`` (else inf)."""
