@@ -24,7 +24,7 @@ vertex pairs to their block, so assembly is one pass that allocates nothing.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from numba import njit
@@ -256,13 +256,15 @@ def block_pattern(vertex_count: int, edges: np.ndarray, hinges: np.ndarray):
 @dataclass
 class Part:
     """A part of the mesh that no element joins to another (a petal): its edges, its
-    hinges and its blocks (index arrays), and the static arrays of its elements, taken
-    once (:meth:`terms.Elastic.assemble`)."""
+    hinges and its blocks (index arrays), the static arrays of its elements, taken
+    once, and its own scratch for the hinge kernel, so that parts can be assembled at
+    once in threads (:meth:`terms.Elastic.assemble`)."""
 
     edges: np.ndarray
     hinges: np.ndarray
     blocks: np.ndarray
     static: tuple | None = None
+    work: np.ndarray = field(default_factory=lambda: np.zeros((7, 4, 3, 3)))
 
 
 @dataclass

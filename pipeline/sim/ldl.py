@@ -412,6 +412,7 @@ def _ordering(nv: int, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
 #: vertices from which a factorization is split into subtrees factored in two threads
 #: (the main thread's only: a matrix factored in a pool thread has others beside it)
 SPLIT = 1000
+_NO_COUPLING = (np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0))
 _POOL = None
 
 
@@ -467,8 +468,7 @@ class BlockLDL:
         ``(rows, cols, values)`` in local unknowns, upper triangle. Returns False (and
         factors nothing) if a coupling entry falls outside the pattern (new ``extra``
         pairs are needed)."""
-        none = np.zeros(0, np.int64)
-        xr, xc, xv = coupling if coupling is not None else (none, none, np.zeros(0))
+        xr, xc, xv = coupling if coupling is not None else _NO_COUPLING
         if shift is None:
             shift = np.zeros(3 * self.nv)
         if not _fill(data, self._source, self._diagonal, shift, xr, xc, xv, self._where,

@@ -728,7 +728,7 @@ class QuasiStatic:
         elastic = self._terms.elastic
         parts = [p for gr in (s.groups if groups is None else groups) for p in gr.parts]
         if len(parts) > 1:  # (pieces touch blocks apart: they are assembled in threads)
-            _map(lambda p: elastic.assemble(X, H, p, np.zeros((7, 4, 3, 3))), parts)
+            _map(lambda p: elastic.assemble(X, H, p), parts)
         elif parts:
             elastic.assemble(X, H, parts[0])
         hessian.constrain(H.indptr, H.indices, H.data, s.pinned, s.plane_row, s.normals)

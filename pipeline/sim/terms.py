@@ -175,13 +175,11 @@ class Elastic(Term):
         return _add_forces(X, s.edges, s.rest0, s.growth, s.stiffness, b.hinges, b.cos0, b.sin0,
                            b.stiffness, s.A, F, self._work)
 
-    def assemble(self, X, blocks: hs.Blocks, part: hs.Part | None = None, work=None) -> None:
+    def assemble(self, X, blocks: hs.Blocks, part: hs.Part | None = None) -> None:
         """The Hessian at X into ``blocks`` (zeroed first): the solver's layout.
         ``part``: a part of the mesh that no other element touches (a petal): only its
-        blocks are zeroed and assembled (the same sums, in the same order), the others
-        are left as they are; ``work``: the hinge kernel's scratch (``(7, 4, 3, 3)``
-        zeros) if not the blocks' own, so that parts can be assembled at once in
-        threads."""
+        blocks are zeroed and assembled (the same sums, in the same order), with the
+        part's own scratch; the others are left as they are."""
         s, b = self.stretch, self.bending
         if part is None:
             hs.hessian(X, s.edges, s.rest0, s.growth, s.stiffness, b.hinges, b.cos0, b.sin0,
@@ -199,7 +197,7 @@ class Elastic(Term):
             hs.stretch_terms(X, edges, rest0, growth, stiffness, s.A, blocks.data, edge_slots)
         if len(h):
             hs.bending_terms(X, hinges, b.cos0[h], b.sin0[h], hinge_k, blocks.data,
-                             hinge_slots, blocks.work if work is None else work)
+                             hinge_slots, part.work)
 
     def hessian(self, X, project: bool = False) -> sp.csr_matrix:
         s, b = self.stretch, self.bending
