@@ -122,6 +122,36 @@ def test_ccd_in_threads_is_the_ccd_on_one(monkeypatch):
     assert min(one) < 0.5 and max(one) == 1.0  # (some moves cut, some whole)
 
 
+def test_the_active_set_is_the_same_whatever_order_the_broad_phase_finds():
+    """The broad phase runs in threads, which find the candidates in an order the
+    scheduling decides; the active set is put in one order (``_canonical``), so the
+    barrier's sums are the same bits. Reversing the candidates stands in for another
+    schedule: without the canonical order the active set would come out reversed."""
+    X, faces, petal = _sheets_in_the_band()
+    ipctk = ct._ipctk()
+
+    def active(reverse):
+        c = ct.Contact.build(X, faces, petal, gap=GAP, stiffness=0.1)
+        c.sweep(X, X, c.gap + c.band)
+        if reverse:
+            c.candidates.ee_candidates = c.candidates.ee_candidates[::-1]
+            c.candidates.fv_candidates = c.candidates.fv_candidates[::-1]
+        raw = ipctk.NormalCollisions()
+        raw.build(c.candidates, c.mesh, np.asfortranarray(X), c.band, c.gap)
+        F = np.zeros_like(X)
+        energy = c.forces(X, F)
+        ids = [(k.edge0_id, k.edge1_id) for k in c.collisions.ee_collisions]
+        raw_ids = [(k.edge0_id, k.edge1_id) for k in raw.ee_collisions]
+        return energy, F, c.hessian(X, project=True).toarray(), ids, raw_ids
+
+    e0, F0, H0, ids0, raw0 = active(False)
+    e1, F1, H1, ids1, raw1 = active(True)
+    assert len(ids0) > 3 and ids0 == sorted(ids0)
+    assert raw1 != raw0  # (the reversed candidates give another raw order...)
+    assert ids1 == ids0  # (...and the same canonical one)
+    assert e1 == e0 and np.array_equal(F1, F0) and np.array_equal(H1, H0)
+
+
 def test_barrier_stiffness_scales_with_the_springs():
     """kappa makes the barrier's curvature at the middle of its band the stiffness asked
     for; the energy is zero past the band and infinite at the gap."""

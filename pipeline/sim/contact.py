@@ -49,7 +49,9 @@ class ContactError(RuntimeError):
         super().__init__(message)
 
 
-#: threads of the CCD's narrow phase (a minimum: the same bits with any number)
+#: threads of the broad phase and of the CCD's narrow phase: the narrow phase's result is
+#: a minimum, and the active sets built from the broad phase are put in one order
+#: (:func:`_canonical`), so both give the same bits with any number
 CCD_THREADS = max(1, min(2, os.cpu_count() or 1))
 
 
@@ -58,6 +60,31 @@ def _ipctk():
 
     ipctk.set_num_threads(1)  # sums in a fixed order: bit-reproducible
     return ipctk
+
+
+class _threads:
+    """ipctk on :data:`CCD_THREADS` threads inside the block, on one again after it."""
+
+    def __enter__(self):
+        _ipctk().set_num_threads(CCD_THREADS)
+
+    def __exit__(self, *exc):
+        _ipctk().set_num_threads(1)
+
+
+def _canonical(collisions):
+    """The active set ``collisions`` (an ipctk.NormalCollisions) with each kind of contact
+    sorted by its primitives' ids: the broad phase in threads finds its candidates in an
+    order the scheduling decides, and the barrier's sums run over the active set in its
+    order; sorted, they are the same bits with any number of threads."""
+    for kind, key in (("vv_collisions", lambda c: (c.vertex0_id, c.vertex1_id)),
+                      ("ev_collisions", lambda c: (c.edge_id, c.vertex_id)),
+                      ("ee_collisions", lambda c: (c.edge0_id, c.edge1_id)),
+                      ("fv_collisions", lambda c: (c.face_id, c.vertex_id))):
+        found = getattr(collisions, kind)
+        if len(found) > 1:
+            setattr(collisions, kind, sorted(found, key=key))
+    return collisions
 
 
 def barrier_curvature(d: float, gap: float, band: float) -> float:
@@ -198,7 +225,8 @@ class Contact(Term):
         low = np.asfortranarray(np.minimum(X0, X1) - margin, dtype=np.float64)
         high = np.asfortranarray(np.maximum(X0, X1) + margin, dtype=np.float64)
         self.candidates = ipctk.Candidates()
-        self.candidates.build(self.mesh, low, high, self.gap + self.band)
+        with _threads():  # (in any order: see _canonical)
+            self.candidates.build(self.mesh, low, high, self.gap + self.band)
         self._low, self._high = low, high
 
     def _swept(self, X) -> bool:
@@ -212,7 +240,9 @@ class Contact(Term):
             if self._swept(X):
                 self.collisions.build(self.candidates, self.mesh, X, self.band, self.gap)
             else:
-                self.collisions.build(self.mesh, X, self.band, self.gap)
+                with _threads():
+                    self.collisions.build(self.mesh, X, self.band, self.gap)
+            _canonical(self.collisions)
             self._at = X.copy()
         return self.collisions
 
@@ -268,16 +298,12 @@ class Contact(Term):
         (:meth:`sweep`, with a margin of the barrier's band) unless the last sweep holds
         it: its candidates serve the CCD and the active sets along it."""
         self.cover(X0, X1)
-        ipctk = _ipctk()
         # (the narrow phase in threads: its result is a minimum over the candidates, the
         # same in any order; everything that sums stays on one thread)
-        ipctk.set_num_threads(CCD_THREADS)
-        try:
+        with _threads():
             return float(self.candidates.compute_collision_free_stepsize(
                 self.mesh, np.asfortranarray(X0, dtype=np.float64),
                 np.asfortranarray(X1, dtype=np.float64), self.gap, self.ccd))
-        finally:
-            ipctk.set_num_threads(1)
 
     def min_distance(self, X, reach: float) -> float:
         """Smallest distance between two petals at X, if below ``reach`` (else inf)."""
