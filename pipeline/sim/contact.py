@@ -20,8 +20,10 @@ collision detection (:meth:`Contact.max_step`), so no iterate ever comes closer 
   stops within the band (it scales with the problem, as the springs do).
 - The Hessian is ipctk's, projected to positive semi-definite per contact (it adds no
   negative curvature of its own; the elastic Hessian stays exact).
-- ipctk runs on one thread: its parallel sums would otherwise depend on the scheduling,
-  and the artifacts must be bit-reproducible.
+- ipctk sums on one thread (its parallel sums would depend on the scheduling, and the
+  artifacts must be bit-reproducible); its broad phase and CCD run in two threads
+  (:data:`CCD_THREADS`): the CCD's result is a minimum, and the active set the broad
+  phase's candidates give is sorted into one order (:func:`_canonical`).
 
 Connection springs (:class:`Springs`): ``1/2 k (l - L)^2`` per intact spring, with
 gradient and exact Hessian; breaking is the solver's business (an increment that ends
