@@ -114,7 +114,7 @@ def test_ccd_in_threads_is_the_ccd_on_one(monkeypatch):
                           + [0.0, 0.0, 0.02 - 0.01 * k], 0.0) for k in range(8)]
 
     def steps(threads):
-        monkeypatch.setattr(ct, "CCD_THREADS", threads)
+        monkeypatch.setattr(ct, "THREADS", threads)
         return [c.max_step(X, X1) for X1 in moves]
 
     one, two = steps(1), steps(2)

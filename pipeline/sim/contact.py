@@ -22,7 +22,7 @@ collision detection (:meth:`Contact.max_step`), so no iterate ever comes closer 
   negative curvature of its own; the elastic Hessian stays exact).
 - ipctk sums on one thread (its parallel sums would depend on the scheduling, and the
   artifacts must be bit-reproducible); its broad phase and CCD run in two threads
-  (:data:`CCD_THREADS`): the CCD's result is a minimum, and the active set the broad
+  (:data:`THREADS`): the CCD's result is a minimum, and the active set the broad
   phase's candidates give is sorted into one order (:func:`_canonical`).
 
 Connection springs (:class:`Springs`): ``1/2 k (l - L)^2`` per intact spring, with
@@ -35,6 +35,7 @@ from __future__ import annotations
 import logging
 import math
 import os
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -54,7 +55,7 @@ class ContactError(RuntimeError):
 #: threads of the broad phase and of the CCD's narrow phase: the narrow phase's result is
 #: a minimum, and the active sets built from the broad phase are put in one order
 #: (:func:`_canonical`), so both give the same bits with any number
-CCD_THREADS = max(1, min(2, os.cpu_count() or 1))
+THREADS = max(1, min(2, os.cpu_count() or 1))
 
 
 def _ipctk():
@@ -64,17 +65,18 @@ def _ipctk():
     return ipctk
 
 
-class _threads:
-    """ipctk on :data:`CCD_THREADS` threads inside the block, on one again after it."""
+@contextmanager
+def _threads():
+    """ipctk on :data:`THREADS` threads inside the block, on one again after it."""
+    ipctk = _ipctk()
+    ipctk.set_num_threads(THREADS)
+    try:
+        yield
+    finally:
+        ipctk.set_num_threads(1)
 
-    def __enter__(self):
-        _ipctk().set_num_threads(CCD_THREADS)
 
-    def __exit__(self, *exc):
-        _ipctk().set_num_threads(1)
-
-
-def _canonical(collisions):
+def _canonical(collisions) -> None:
     """The active set ``collisions`` (an ipctk.NormalCollisions) with each kind of contact
     sorted by its primitives' ids: the broad phase in threads finds its candidates in an
     order the scheduling decides, and the barrier's sums run over the active set in its
@@ -86,7 +88,6 @@ def _canonical(collisions):
         found = getattr(collisions, kind)
         if len(found) > 1:
             setattr(collisions, kind, sorted(found, key=key))
-    return collisions
 
 
 def barrier_curvature(d: float, gap: float, band: float) -> float:
