@@ -493,9 +493,17 @@ def _remesh_half(h: float):
 
 
 def _remeshed(pts, lf, h):
-    """A sheet remeshed at edge ``h`` and improved towards the quality bound."""
+    """A sheet remeshed at edge ``h`` and improved towards the quality bound. If it
+    misses the bound, remeshed once more from there, kept if that meets it: the
+    improvement can clip a needle off the rim (:func:`remesh.improve`), whose short base
+    is then a rim edge that the remesh's boundary pass collapses."""
     pts, lf, _ = remesh.isotropic(pts, lf, h)
     pts, lf, _, _ = remesh.improve(pts, lf)
+    if not remesh.meets_bound(pts, lf):
+        again, again_f, _ = remesh.isotropic(pts, lf, h)
+        again, again_f, _, _ = remesh.improve(again, again_f)
+        if remesh.meets_bound(again, again_f):
+            return again, again_f
     return pts, lf
 
 

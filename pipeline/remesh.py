@@ -494,6 +494,24 @@ class _Improver:
 
         return self.attempt(change, sorted(ring_a | ring_b | {a}))
 
+    def clip(self, t: int) -> bool:
+        """Drop face ``t`` if it is an ear: a rim vertex's only face, its third edge
+        inside the sheet (a needle or a flat spike on the rim, which no move, collapse
+        or split mends: its base edge joins two rim vertices across the sheet). The
+        tip goes with it; the outline loses the ear's sliver of area."""
+        tri = self.f[t].tolist()
+        tips = [i for i in tri if len(self.incident[i]) == 1 and not self.fixed[i]]
+        if len(tips) != 1:
+            return False
+        a, b = (i for i in tri if i != tips[0])
+        if (min(a, b), max(a, b)) in self.rim_edges:
+            return False
+
+        def change(v, f, fixed, slide):
+            return v, np.delete(f, [t], axis=0), fixed, slide
+
+        return self.attempt(change, [a, b])
+
     def split(self, a: int, b: int) -> bool:
         """Split edge ``a-b`` at its midpoint."""
         faces = [t for t in self.incident[a] if t in self.incident[b]]
@@ -521,7 +539,8 @@ def improve(vertices: np.ndarray, faces: np.ndarray, fixed: np.ndarray | None = 
 
     Delaunay flips; then, for each face below the bound, worst first: move one of its
     vertices in the tangent plane (a boundary vertex only if ``slide`` allows it, and
-    then only along the rim), else collapse its shortest edge, else split its longest,
+    then only along the rim), else drop it if it is an ear on the rim (``clip``), else
+    collapse its shortest edge, else split its longest,
     each only where it raises the smallest angle of the faces it touches (so this
     ends). ``fixed`` vertices never move nor go; with ``moves_only`` the faces are kept
     as they are (no flips, collapses or splits: a mirror-paired mesh stays paired).
@@ -546,6 +565,9 @@ def improve(vertices: np.ndarray, faces: np.ndarray, fixed: np.ndarray | None = 
                 continue
             if moves_only:
                 continue
+            if work.clip(t):
+                changed = True
+                break
             p = work.v[tri]
             length = np.linalg.norm(p - np.roll(p, -1, axis=0), axis=1)  # edge k: tri[k]-tri[k+1]
             k = int(np.argmin(length))

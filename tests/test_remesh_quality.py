@@ -116,6 +116,26 @@ def test_a_notch_between_two_corners_below_the_resolution_is_collapsed():
     assert np.any(np.all(kept == v[6], axis=1)) and np.any(np.all(kept == v[7], axis=1))
 
 
+def test_a_flat_needle_on_the_rim_is_clipped():
+    """A 4 x 2 grid with one more face on its rim: an ear whose tip lies almost on the
+    rim's line, 4 edges out (a needle that a thick petal's mid-surface left: 173.8 deg
+    at its base on pchinyun's petal, which then flattened in the simulation). No move,
+    collapse or split mends it: improve drops it, tip and all, and the grid is left as
+    it was, its faces meeting the bound."""
+    x, y = np.meshgrid(np.arange(5.0), np.arange(3.0), indexing="ij")
+    v = np.column_stack([x.ravel(), y.ravel(), np.zeros(x.size)])
+    idx = np.arange(15).reshape(5, 3)
+    a, b, c, d = idx[:-1, :-1].ravel(), idx[1:, :-1].ravel(), idx[1:, 1:].ravel(), idx[:-1, 1:].ravel()
+    grid = np.concatenate([np.column_stack([a, b, c]), np.column_stack([a, c, d])])
+    p, q = idx[3, 0], idx[4, 0]  # a rim edge along y = 0
+    v = np.vstack([v, [8.0, -0.2, 0.0]])
+    f = np.vstack([grid, [[q, p, 15]]])
+    assert remesh.quality(v, f) < 5.0
+    out_v, out_f, _, _ = remesh.improve(v, f)
+    assert len(out_v) == 15 and not np.any(np.all(out_v == [8.0, -0.2, 0.0], axis=1))
+    assert remesh.quality(out_v, out_f) >= remesh.MIN_ANGLE
+
+
 def test_the_measure_does_not_depend_on_the_units():
     v, f, _ = stability.MESHES["asymmetric bud6"]()
     assert remesh.quality(v, f) == pytest.approx(remesh.quality(4.5e-3 * v, f), abs=1e-9)
@@ -167,6 +187,17 @@ def test_thick_petals_with_torn_mid_surfaces_meet_the_bound():
     assert result.petal.max() + 1 == 14
     check(result)
     assert sum("closed a slit" in n for n in result.notes) == 11
+
+
+@needs_shared
+def test_a_thick_petal_whose_remesh_left_needles_on_its_rim_meets_the_bound():
+    """pchinyun's solidified petal: its mid-surface, remeshed, kept needles on the rim
+    (single faces down to 4.2 deg away from their tips, bases 0.09 of the mean edge);
+    improve clips them and a second remesh collapses their bases. Before, the petal left
+    remesh below the bound and the default simulation failed at growth 0.045."""
+    result = prepare_parts(read_parts(EXTERNAL / "pchinyun_petal.obj"), where="pchinyun")
+    assert result.petal.max() + 1 == 1
+    check(result)
 
 
 def test_quad_petals_are_cut_remeshed_and_mirrored_and_say_so():
