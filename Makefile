@@ -15,7 +15,7 @@ SCENES ?= $(sort $(basename $(notdir $(wildcard configs/*.toml))))
 PYTEST_ARGS ?=
 
 # A stage's artifacts depend on the library and on the stage's own module.
-LIB := $(wildcard pipeline/*.py pipeline/sim/*.py pipeline/mesh/*.py) stages/cli.py stages/common.py
+LIB := $(wildcard pipeline/*.py pipeline/*/*.py pipeline/*/*/*.py) stages/cli.py stages/common.py
 
 .PHONY: all test lint bench accuracy stability venv clean clean-venv help
 all: $(SCENES:%=$(OUT)/%/render/bloom.mp4) $(SCENES:%=$(OUT)/%/report.json) $(SCENES:%=$(OUT)/%/bloom.usdc)  ## build every scene: artifacts, frames, MP4, report, USD
@@ -41,7 +41,7 @@ accuracy: $(INSTALLED)  ## what accuracy costs in time, with and without contact
 	$(BLOOM) study accuracy --out $(OUT)/accuracy
 
 stability: $(INSTALLED)  ## the hard cases, slow ones included; prints the README's table (~30 s)
-	$(VENV)/bin/python -m pipeline.stability
+	$(BLOOM) study stability
 
 lint: $(INSTALLED)  ## ruff over the code
 	$(VENV)/bin/ruff check pipeline stages tests

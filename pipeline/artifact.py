@@ -11,6 +11,7 @@ from __future__ import annotations
 import hashlib
 import json
 import os
+import shutil
 import sys
 import time
 from collections.abc import Iterator
@@ -21,8 +22,8 @@ from typing import Any
 import h5py
 import numpy as np
 
-from . import __version__
-from .errors import BloomError
+from pipeline import __version__
+from pipeline.errors import BloomError
 
 #: The stages in pipeline order, and the datasets each one adds.
 STAGE_DATASETS = {
@@ -41,6 +42,14 @@ def sha256_file(path: str | Path) -> str:
         for block in iter(lambda: f.read(1 << 20), b""):
             h.update(block)
     return h.hexdigest()
+
+
+def input_hashes(cfg, *paths: str | Path) -> dict[str, str]:
+    """Provenance of a stage's inputs: path -> sha256, the config file included."""
+    files = [Path(p) for p in paths]
+    if cfg.path is not None:
+        files.append(cfg.path)
+    return {str(p): sha256_file(p) for p in files}
 
 
 def command_line() -> str:
@@ -106,7 +115,9 @@ def writing(path: str | Path, *, stage: str, config_json: str, inputs: dict[str,
 @contextmanager
 def atomic_path(path: str | Path) -> Iterator[Path]:
     """A temporary path next to ``path`` to write any file to; renamed into place if the
-    block succeeds, removed if it fails (the previous file is left as it was)."""
+    block succeeds, removed if it fails (the previous file is left as it was). The one
+    way every file Bloom writes reaches its name: artifacts, reports, USD, meshes,
+    checkpoints."""
     path = Path(path)
     tmp = path.with_name(f".{path.stem}.tmp-{os.getpid()}{path.suffix}")
     try:
@@ -115,6 +126,36 @@ def atomic_path(path: str | Path) -> Iterator[Path]:
     finally:
         if tmp.exists():
             tmp.unlink()
+
+
+@contextmanager
+def writing_folder(out: str | Path, overwrite: bool, marker: str, stage: str) -> Iterator[Path]:
+    """A temporary folder to write the folder output ``out`` into: swapped into place if
+    the block succeeds, removed if it fails (the previous ``out`` is left as it was).
+    A folder that exists, is not empty and has no ``marker`` file (so ``bloom stage``
+    did not write it) is refused unless ``overwrite``."""
+    out = Path(out)
+    if out.exists() and not out.is_dir():
+        raise BloomError("exists and is not a folder; --out needs a folder", where=str(out))
+    if out.is_dir() and any(out.iterdir()) and not (out / marker).exists() and not overwrite:
+        raise BloomError(f"folder exists and was not written by `bloom {stage}`; not "
+                         "overwriting it (pass --overwrite)", where=str(out))
+    out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = out.with_name(f".{out.name}.tmp-{os.getpid()}")
+    if tmp.exists():
+        shutil.rmtree(tmp)
+    tmp.mkdir()
+    try:
+        yield tmp
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    old = out.with_name(f".{out.name}.old-{os.getpid()}")  # the old one goes only after
+    if out.exists():
+        os.replace(out, old)
+    os.replace(tmp, out)
+    if old.exists():
+        shutil.rmtree(old)
 
 
 def put(f: h5py.File, name: str, data: Any, doc: str | None = None) -> None:
@@ -185,3 +226,47 @@ class Artifact:
         for name in names:
             if name in self.file:
                 self.file.copy(self.file[name], out, name=name)
+
+
+def describe(path: str | Path) -> dict:
+    """What the HDF5 file at ``path`` holds: its attributes (JSON ones decoded) and each
+    dataset's shape, dtype, range and one-line description."""
+    path = Path(path)
+    where = str(path)
+    if not path.exists():
+        raise BloomError("file not found", where=where)
+    try:
+        f = h5py.File(path, "r")
+    except OSError:
+        raise BloomError("not an HDF5 file (unreadable or truncated)", where=where) from None
+    with f:
+        def plain(value):
+            if isinstance(value, bytes):
+                value = value.decode()
+            if isinstance(value, str) and value[:1] in "{[":
+                try:
+                    return json.loads(value)
+                except json.JSONDecodeError:
+                    return value
+            if isinstance(value, np.ndarray):
+                return value.tolist()
+            if isinstance(value, np.generic):
+                return value.item()
+            return value
+
+        attrs = {k: plain(v) for k, v in f.attrs.items()}
+        datasets = {}
+
+        def visit(name, obj):
+            if isinstance(obj, h5py.Dataset):
+                entry = {"shape": list(obj.shape), "dtype": str(obj.dtype)}
+                if obj.dtype.kind in "fiub" and obj.size and obj.size <= 50_000_000:
+                    data = obj[()]
+                    entry["min"] = plain(np.min(data))
+                    entry["max"] = plain(np.max(data))
+                if "doc" in obj.attrs:
+                    entry["doc"] = plain(obj.attrs["doc"])
+                datasets[name] = entry
+
+        f.visititems(visit)
+    return {"file": where, "attributes": attrs, "datasets": datasets}

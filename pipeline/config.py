@@ -16,8 +16,9 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from .errors import BloomError
-from .expr import check_curve
+from pipeline.directions import DIRECTIONS, parse_direction
+from pipeline.errors import BloomError
+from pipeline.expr import check_curve
 
 
 @dataclass(frozen=True)
@@ -63,12 +64,9 @@ def _check_keys(value: list) -> None:
 
 
 def _check_direction(value: str) -> None:
-    from .axis import parse_direction
-
     parse_direction(value)
 
 
-DIRECTIONS = ("+x", "-x", "+y", "-y", "+z", "-z")
 SCHEDULES = ("linear", "smoothstep", "smootherstep")
 INTEGRATORS = ("semi-implicit", "explicit-damping", "quasi-static")
 
@@ -83,7 +81,7 @@ SCHEMA: dict[str, Any] = {
                        "(wins over scene.petals)"),
         "up": Key(str, "auto", "the scene's up direction (+x ... -z): orients the flower's axis "
                   "where its petals do not (a flat open flower); recorded in the artifacts. auto: "
-                  "the file's own (glTF: +y), else +z", choices=("auto",) + DIRECTIONS),
+                  "the file's own (glTF: +y), else +z", choices=("auto", *DIRECTIONS)),
     },
     "remesh": {
         "target_edge": Key(float, 0.0, "target edge length in the input's units; 0 keeps the "
@@ -101,7 +99,7 @@ SCHEMA: dict[str, Any] = {
         "base": Key(str, "auto", "which end of a petal is its base: auto (nearest the flower's "
                     "axis, or the narrow end of a lone petal), narrow, wide, or the end lying "
                     "towards a direction of the input (+x, -x, +y, -y, +z, -z)",
-                    choices=("auto", "narrow", "wide", "+x", "-x", "+y", "-y", "+z", "-z")),
+                    choices=("auto", "narrow", "wide", *DIRECTIONS)),
         "base_fraction": Key(float, 0.04, "boundary vertices this close to the base end, as a "
                              "fraction of the petal's length, are fixed", low=0.0, high=0.5,
                              low_open=True),
@@ -329,9 +327,10 @@ class Config:
     returns the values of one section; ``cfg.to_json()`` is what artifacts record.
     """
 
-    def __init__(self, values: dict[str, Any], path: Path | None):
+    def __init__(self, values: dict[str, Any], path: Path | None, given: frozenset = frozenset()):
         self._values = values
         self.path = path
+        self.given = given  #: the keys the file or an override set (the others are defaults)
 
     def __getitem__(self, dotted: str) -> Any:
         return self._values[dotted]
@@ -396,6 +395,7 @@ def load_config(path: str | Path | None = None, overrides: tuple[str, ...] | lis
     values = {dotted: list(key.default) if key.kind is list else key.default
               for dotted, key in KEYS.items()}
     cfg_path = None
+    given = set()
     if path is not None:
         cfg_path = Path(path)
         where = str(cfg_path)
@@ -417,10 +417,12 @@ def load_config(path: str | Path | None = None, overrides: tuple[str, ...] | lis
             if dotted not in KEYS:
                 raise BloomError(f"{dotted}: unknown key{_suggest(dotted)}", where=where)
             values[dotted] = _coerce(dotted, KEYS[dotted], value, where)
+            given.add(dotted)
     for text in overrides:
         dotted, value = parse_override(text)
         values[dotted] = _coerce(dotted, KEYS[dotted], value, "--set")
-    cfg = Config(values, cfg_path)
+        given.add(dotted)
+    cfg = Config(values, cfg_path, frozenset(given))
     _check_together(cfg, str(cfg_path) if cfg_path else "defaults")
     return cfg
 

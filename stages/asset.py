@@ -2,11 +2,11 @@
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 
 import click
 
+from pipeline.artifact import atomic_path
 from pipeline.errors import BloomError
 
 HEADER = "bloom asset"
@@ -27,7 +27,7 @@ def command(kind: str, petals: int, vertices: int | None, seed: int, out: str, o
 
     The same options give the same file, byte for byte.
     """
-    from pipeline import asset
+    from pipeline.mesh import procedural
 
     path = Path(out)
     if path.suffix.lower() != ".obj":
@@ -41,15 +41,10 @@ def command(kind: str, petals: int, vertices: int | None, seed: int, out: str, o
     if kind == "petal":
         petals = 1
     n = vertices or (320 if kind == "petal" else 300 * petals)
-    v, f, p = (asset.open_flower if kind == "open" else asset.bud)(petals, n, seed)
+    v, f, p = (procedural.open_flower if kind == "open" else procedural.bud)(petals, n, seed)
     header = (f"{HEADER} {kind} --petals {petals} --vertices {n} --seed {seed}\n"
               f"{len(v)} vertices, {len(f)} faces, {petals} petals; flower axis +z")
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
-    try:
-        asset.write_obj(tmp, v, f, p, header)
-        os.replace(tmp, path)
-    finally:
-        if tmp.exists():
-            tmp.unlink()
+    with atomic_path(path) as tmp:
+        procedural.write_obj(tmp, v, f, p, header)
     click.echo(f"wrote {path}: {len(v)} vertices, {len(f)} faces, {petals} petal(s)", err=True)

@@ -31,7 +31,7 @@ def command(configs, scheduler: str, workers: int, out_root: str, retries: int,
     """Build CONFIGS (scene TOML files) as the Makefile does, each stage a Dask task
     whose input artifact is its dependency. Prints one line per scene; exits 1 if any
     stage failed (its log under OUT_ROOT/<scene>/logs/ says why)."""
-    from pipeline import batch
+    from pipeline.studies import batch
 
     paths = [Path(c) for c in configs]
     for p in paths:

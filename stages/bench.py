@@ -45,8 +45,8 @@ def command(vertices: int, steps: int, sizes: tuple[int, ...], converge: bool, s
     needs for a bloom within 1% of the petal length of a converged reference, on a
     6-petal bud of 2133 vertices (the paper's Fig. 12 lily: 44 s); then the default
     scenes with contact named by --scenes (--quick: none)."""
-    from pipeline import bench, study
     from pipeline.errors import BloomError
+    from pipeline.studies import accuracy, bench
 
     names = () if scenes.strip() in ("", "none") else tuple(
         n.strip() for n in scenes.split(","))
@@ -61,11 +61,11 @@ def command(vertices: int, steps: int, sizes: tuple[int, ...], converge: bool, s
         scaling = bench.collision_scaling(sizes)
         converged = None
         if converge:
-            scene = study.Scene.bud(6, 600 if quick else 2133)
-            ref, change = study.reference(scene)
+            scene = accuracy.Scene.bud(6, 600 if quick else 2133)
+            ref, change = accuracy.reference(scene)
             converged = {"vertices": scene.model.vertex_count, "reference_seconds": ref.wall,
                          "reference_refinement_change": change,
-                         "runs": study.time_to_converge(
+                         "runs": accuracy.time_to_converge(
                              scene, ref.positions, echo=None if as_json else click.echo,
                              quick=quick)}
         contact = bench.contact_scenes(names) if names else []
@@ -93,7 +93,7 @@ def command(vertices: int, steps: int, sizes: tuple[int, ...], converge: bool, s
     if converged:
         click.echo(f"\nconverged bloom (within 1% of the petal length), 6-petal bud of "
                    f"{converged['vertices']} vertices; the paper: "
-                   f"{study.PAPER_LILY_SECONDS:.0f} s for its 2133-vertex lily")
+                   f"{accuracy.PAPER_LILY_SECONDS:.0f} s for its 2133-vertex lily")
         for row in converged["runs"]:
             mark = "" if row["converged"] else "  (not within 1% even so)"
             click.echo(f"{row['integrator']:26s} {row['wall_seconds']:8.2f} s  "

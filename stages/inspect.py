@@ -7,53 +7,9 @@ from pathlib import Path
 
 import click
 
-from pipeline.errors import BloomError
+from pipeline.artifact import describe
 
 PROVENANCE = ("stage", "version", "command", "inputs", "config")
-
-
-def describe(path: Path) -> dict:
-    import h5py
-    import numpy as np
-
-    where = str(path)
-    if not path.exists():
-        raise BloomError("file not found", where=where)
-    try:
-        f = h5py.File(path, "r")
-    except OSError:
-        raise BloomError("not an HDF5 file (unreadable or truncated)", where=where) from None
-    with f:
-        def plain(value):
-            if isinstance(value, bytes):
-                value = value.decode()
-            if isinstance(value, str) and value[:1] in "{[":
-                try:
-                    return json.loads(value)
-                except json.JSONDecodeError:
-                    return value
-            if isinstance(value, np.ndarray):
-                return value.tolist()
-            if isinstance(value, np.generic):
-                return value.item()
-            return value
-
-        attrs = {k: plain(v) for k, v in f.attrs.items()}
-        datasets = {}
-
-        def visit(name, obj):
-            if isinstance(obj, h5py.Dataset):
-                entry = {"shape": list(obj.shape), "dtype": str(obj.dtype)}
-                if obj.dtype.kind in "fiub" and obj.size and obj.size <= 50_000_000:
-                    data = obj[()]
-                    entry["min"] = plain(np.min(data))
-                    entry["max"] = plain(np.max(data))
-                if "doc" in obj.attrs:
-                    entry["doc"] = plain(obj.attrs["doc"])
-                datasets[name] = entry
-
-        f.visititems(visit)
-    return {"file": where, "attributes": attrs, "datasets": datasets}
 
 
 @click.command("inspect")

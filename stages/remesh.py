@@ -2,15 +2,9 @@
 
 from __future__ import annotations
 
-import json
-
 import click
-import h5py
-import numpy as np
 
-from pipeline.errors import BloomError
-
-from .common import config_options, input_hashes, load, log, output_options
+from .common import config_options, load, output_options
 
 
 @click.command("remesh")
@@ -30,108 +24,10 @@ def command(mesh: str | None, config_path, overrides, out, overwrite) -> None:
     remesh.petal_vertices (boundary included), with remesh.symmetrize makes each petal
     mirror-symmetric about its center plane, and scales the mesh so its mean edge is 1
     (the scale is recorded; the mesh is never rotated). A petal whose triangles have an
-    angle under 20 deg (pipeline.remesh.MIN_ANGLE; sharp rim corners excepted) is remeshed
+    angle under 20 deg (pipeline.mesh.remesh.MIN_ANGLE; sharp rim corners excepted) is remeshed
     at its own mean edge; a petal that cannot be mirrored is kept as it is and listed in
     the attribute unsymmetrized.
     """
-    from pipeline import artifact, binding, userasset
-    from pipeline.meshfile import read_parts
-    from pipeline.petals import prepare_parts
+    from pipeline.chain import remesh
 
-    cfg = load(config_path, overrides)
-    where = str(cfg.path) if cfg.path else "defaults"
-    mesh_path = mesh or cfg.mesh_path()
-    if mesh_path is None:
-        raise BloomError("scene.mesh: no input mesh (give MESH or set scene.mesh)", where=where)
-    out = artifact.check_output(out, "remesh", overwrite)
-    mesh_file = read_parts(mesh_path)
-    result = prepare_parts(mesh_file, where=str(mesh_path), target_edge=cfg["remesh.target_edge"],
-                           petal_vertices=cfg["remesh.petal_vertices"],
-                           symmetrize=cfg["remesh.symmetrize"],
-                           closed_parts=cfg["remesh.closed_parts"],
-                           petals_globs=cfg["scene.petals"], exclude_globs=cfg["scene.exclude"])
-    report = result.report
-    asset, bindings = _bound_asset(mesh_path, mesh_file, result)
-    for i, part in enumerate(result.parts):
-        done = {"petal": "simulated", "kept": "kept as it is (carried forward)",
-                "excluded": "excluded by scene.exclude (carried forward)"}[part["role"]]
-        if part["role"] == "petal":
-            count = len(np.unique(result.petal[result.part == i]))
-            done = f"simulated as {count} petal sheet(s)" if count else "left out"
-        log.info("%s: part %r: %s (%s): %s", mesh_path, part["name"], part["kind"], part["reason"], done)
-    for line in result.dropped:
-        log.warning("%s: left out %s (remesh.closed_parts = \"drop\")", mesh_path, line)
-    for line in result.notes:
-        if ": warning: " in line:
-            log.warning("%s: %s", mesh_path, line.replace(": warning: ", ": ", 1))
-        else:
-            log.info("%s", line)
-    log.info("%s: %d vertices, %d faces, %d petal(s); welded %d, dropped %d degenerate and "
-             "%d duplicate faces, flipped %d; scale %.6g; asymmetry %s -> %s",
-             mesh_path, len(result.vertices), len(result.faces), len(result.plane),
-             report.welded, report.degenerate_faces, report.duplicate_faces,
-             report.flipped_faces, result.scale, np.round(result.asymmetry_before, 4).tolist(),
-             np.round(result.asymmetry_after, 9).tolist())
-
-    attrs = {
-        "scale": result.scale,
-        "petal_count": len(result.plane),
-        "clean": json.dumps(vars(report)),
-        "asymmetry_before": result.asymmetry_before,
-        "asymmetry_after": result.asymmetry_after,
-        "edge_target": result.edge_target,
-        "dropped_parts": json.dumps(result.dropped),
-        "notes": json.dumps(result.notes),
-        # petals remesh.symmetrize could not mirror (a later stage may constrain them instead)
-        "unsymmetrized": np.asarray(result.unsymmetrized, dtype=np.int64),
-        "min_angle": result.min_angle,
-        "parts": json.dumps(result.parts),
-        "file_up": mesh_file.up or "",
-    }
-    if mesh_file.meters_per_unit is not None:
-        attrs["meters_per_unit"] = float(mesh_file.meters_per_unit)
-    with artifact.writing(out, stage="remesh", config_json=cfg.to_json(),
-                          inputs=input_hashes(cfg, mesh_path), attrs=attrs) as h5:
-        artifact.put(h5, "mesh/vertices", result.vertices, "(V, 3) positions, mean edge 1")
-        artifact.put(h5, "mesh/faces", result.faces.astype(np.int64),
-                     "(F, 3) vertex indices, consistently oriented")
-        artifact.put(h5, "mesh/petal", result.petal, "(V,) petal id (connected component)")
-        artifact.put(h5, "mesh/plane", result.plane,
-                     "(P, 4) center plane of each petal: unit normal, offset")
-        names = np.array([p.name for p in mesh_file.parts], dtype=object)
-        h5.create_dataset("mesh/part_names", data=names, dtype=h5py.string_dtype("utf-8"))
-        h5["mesh/part_names"].attrs["doc"] = "(N,) the input's part names, in file order"
-        artifact.put(h5, "mesh/part", result.part.astype(np.int64),
-                     "(V,) the input part (index into mesh/part_names) each vertex came from")
-        artifact.put(h5, "mesh/thickness", result.thickness,
-                     "(V,) thickness of a thick petal (its mid-surface's), output units; 0 for sheets")
-        for i, (pv, pf) in sorted(result.kept_parts.items()):
-            artifact.put(h5, f"input/parts/{i}/vertices", pv.astype(np.float64),
-                         f"(n, 3) part {mesh_file.parts[i].name!r} as read, input units (not scaled)")
-            artifact.put(h5, f"input/parts/{i}/faces", pf.astype(np.int64), "(m, 3) its triangles")
-        if asset is not None:
-            userasset.write(h5, asset)
-            binding.write_bindings(h5, bindings)
-    log.info("wrote %s", out)
-
-
-def _bound_asset(mesh_path, mesh_file, result):
-    """The input's parts as the file gives them (for the export) and their petals' binding
-    to the sheet; ``(None, {})`` when the file's own parts cannot be matched to the parts
-    read for simulating (the export can then give back the sheet only)."""
-    from pipeline import binding, userasset
-
-    asset = userasset.read_asset(mesh_path)
-    names = [p.name for p in mesh_file.parts]
-    if asset.names != names:
-        log.warning("%s: the file's own parts (%d) do not match the parts read (%d); the "
-                    "export can give back the simulated sheet only (export.mesh = \"sheet\")",
-                    mesh_path, len(asset.parts), len(names))
-        return None, {}
-    bindings = binding.bind_parts(asset, result.scale, result.vertices, result.faces, result.part)
-    for i, b in sorted(bindings.items()):
-        log.info("%s: part %r: %d points bound to its sheet (offset up to %.3g along the "
-                 "normal, %.3g across)", mesh_path, names[i], len(b.face),
-                 float(np.abs(b.offset[:, 2]).max()) / result.scale,
-                 float(np.linalg.norm(b.offset[:, :2], axis=1).max()) / result.scale)
-    return asset, bindings
+    remesh.run(mesh, out, load(config_path, overrides), overwrite=overwrite)

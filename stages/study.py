@@ -26,14 +26,26 @@ def accuracy(out: str, petals: int, vertices: int, quick: bool) -> None:
     """Run one bud with every integrator over a range of cost (growth duration, eta,
     increments) and measure each final bloom against a converged reference: RMS vertex
     distance over petal length, and the opening angle difference."""
-    from pipeline import study
+    from pipeline.studies import accuracy
 
     folder = Path(out)
     if folder.exists() and not folder.is_dir():
         raise BloomError("exists and is not a folder", where=str(folder))
     folder.mkdir(parents=True, exist_ok=True)
     try:
-        study.accuracy(folder, petals=petals, vertices=vertices, quick=quick, echo=click.echo)
+        accuracy.accuracy(folder, petals=petals, vertices=vertices, quick=quick, echo=click.echo)
     except RuntimeError as exc:  # a run that diverged or did not converge
         raise BloomError(f"a run of the study failed: {exc}", where=str(folder)) from None
     click.echo(f"wrote {folder / 'accuracy.csv'} and {folder / 'accuracy.png'}")
+
+
+@command.command("stability")
+def stability() -> None:
+    """The hard cases (dense buds, extreme growth, contact, snaps), slow ones included:
+    each run through remesh -> simulate; prints a table and exits 1 if a case is not as
+    expected (a bloom that finishes, or a clean one-line stop)."""
+    from pipeline.studies import stability as cases
+
+    if cases.main():
+        raise BloomError("a stability case did not end as expected (see the table)",
+                         where="bloom study stability")

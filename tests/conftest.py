@@ -6,9 +6,9 @@ from pathlib import Path
 
 import pytest
 
-from pipeline import asset, clean
-from pipeline.axis import find_axes
-from pipeline.growth import assign_growth
+from pipeline.flower.axis import find_axes
+from pipeline.flower.growth import assign_growth
+from pipeline.mesh import clean, procedural
 from pipeline.sim.build import Prepared
 from pipeline.sim.model import Control, Model
 
@@ -18,7 +18,7 @@ SHARED = ROOT.parent / "shared"
 
 def prepared(petals: int = 1, vertices: int = 150, seed: int = 0, curve: str = "0.2*x**2"):
     """A procedural petal or bud at mean edge 1, with its axes and growth map."""
-    v, f, petal = asset.bud(petals, vertices, seed)
+    v, f, petal = procedural.bud(petals, vertices, seed)
     v = v / clean.mean_edge_length(v, f)
     axes = find_axes(v, f, petal)
     growth = assign_growth(v, f, axes.x, curve)

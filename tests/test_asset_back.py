@@ -10,7 +10,7 @@ import pytest
 import trimesh
 from click.testing import CliRunner
 
-from pipeline import binding, export, userasset
+from pipeline.io import binding, export, userasset
 from pipeline.sim.model import Control
 from stages.cli import cli
 

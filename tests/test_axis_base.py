@@ -6,8 +6,10 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from pipeline import asset, axis, clean, stability
-from pipeline.axis import MIN_BASE_WIDTH, WeakBase, base_width, find_axes
+from pipeline.flower import axis
+from pipeline.flower.axis import MIN_BASE_WIDTH, WeakBase, base_width, find_axes
+from pipeline.mesh import clean, procedural
+from pipeline.studies import stability
 
 
 def cupped_petal(rows: int = 14, cols: int = 8, cup: float = 0.6):
@@ -53,7 +55,7 @@ def test_a_base_that_cannot_be_widened_is_refused_in_one_line(tmp_path, monkeypa
     with pytest.raises(WeakBase, match="petal 0's base is a line"):
         find_axes(v, f, p, base_fraction=0.04)
     mesh = tmp_path / "flatbase.obj"
-    asset.write_obj(mesh, v, f, p, "a petal whose base row is straight")
+    procedural.write_obj(mesh, v, f, p, "a petal whose base row is straight")
     runner = CliRunner()
     remesh = tmp_path / "remesh.h5"
     r = runner.invoke(cli, ["-q", "remesh", str(mesh), "--out", str(remesh), "--set",
@@ -71,8 +73,8 @@ def test_a_base_that_cannot_be_widened_is_refused_in_one_line(tmp_path, monkeypa
 
 @pytest.mark.parametrize("petals,vertices", [(1, 320), (6, 1200), (5, 2000)])
 def test_the_project_buds_keep_their_bases(petals, vertices, monkeypatch):
-    """The widening never triggers on asset.bud: the same base as without it."""
-    v, f, p = asset.bud(petals, vertices, 0)
+    """The widening never triggers on procedural.bud: the same base as without it."""
+    v, f, p = procedural.bud(petals, vertices, 0)
     v = v / clean.mean_edge_length(v, f)
     now = find_axes(v, f, p)
     monkeypatch.setattr(axis, "MIN_BASE_WIDTH", 0.0)  # the rule before widening

@@ -89,7 +89,7 @@ def _blender_sees_the_asset(mesh, sim, usd, frame):
     """Export sim.h5 to USD, import it in Blender headless and compare every part with the
     input (names, counts, polygon corners, UVs, materials) and with its frame through the
     binding. Returns what Blender saw."""
-    from pipeline import binding, export, userasset
+    from pipeline.io import binding, export, userasset
 
     assert CliRunner().invoke(cli, ["export", str(sim), "--out", str(usd)]).exit_code == 0
     r = subprocess.run([sys.executable, str(ROOT / "tests" / "blender" / "asset_report.py"),

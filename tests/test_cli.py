@@ -57,7 +57,7 @@ def test_remesh_artifact(chain):
         assert str(chain["mesh"]) in inputs and str(chain["scene"]) in inputs
         assert json.loads(f.attrs["config"])["scene"]["mesh"] == "bud.obj"
         assert np.all(f.attrs["asymmetry_after"] < 1e-9)
-    from pipeline.topology import unique_edges
+    from pipeline.mesh.topology import unique_edges
 
     edges, _, _ = unique_edges(faces)
     mean_edge = np.linalg.norm(v[edges[:, 0]] - v[edges[:, 1]], axis=1).mean()
@@ -336,7 +336,7 @@ def test_petals_closer_than_the_gap_keep_half_their_distance(chain, tmp_path):
     """The bud's petals are 0.18 apart at their closest: contact cannot keep a gap of
     0.25 from the start, so it keeps half their distance, says so in one warning naming
     the pairs and the key, and no frame has an intersection."""
-    from pipeline.sim.contact import frame_intersections
+    from pipeline.sim.terms.contact import frame_intersections
 
     out = tmp_path / "sim.h5"
     r = CliRunner().invoke(cli, ["simulate", str(chain["growth"]), "--out", str(out),
@@ -371,7 +371,7 @@ def test_export_usd_round_trip(chain, tmp_path):
     rate; OBJ and PLY sequences hold every frame."""
     from pxr import Usd, UsdGeom
 
-    from pipeline import export
+    from pipeline.io import export
 
     usd = tmp_path / "bloom.usdc"
     sheet = ["--set", "export.mesh=sheet"]
@@ -454,7 +454,7 @@ def test_a_bud_grown_shut_has_no_intersecting_frame_with_contact(chain, tmp_path
     through each other without contact; with it (the default integrator, Newton with
     the barrier), no frame of sim.h5 has two intersecting triangles (ipctk's exact
     test), and the petals end at least the gap apart."""
-    from pipeline.sim.contact import Contact, frame_intersections
+    from pipeline.sim.terms.contact import Contact, frame_intersections
 
     growth = tmp_path / "growth.h5"
     r = invoke("growth", chain["axis"], "--config", chain["scene"], "--out", growth,

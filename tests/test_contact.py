@@ -7,11 +7,12 @@ import math
 import numpy as np
 import pytest
 
-from pipeline.sim import contact as ct
 from pipeline.sim import effects as fx
 from pipeline.sim.model import Control, Model, State
-from pipeline.sim.quasistatic import QuasiStatic
 from pipeline.sim.run import run
+from pipeline.sim.solver.quasistatic import QuasiStatic
+from pipeline.sim.terms import contact as contact_module
+from pipeline.sim.terms.contact import Contact, _ipctk, barrier_curvature, frame_intersections
 
 GAP = 0.01
 
@@ -27,7 +28,7 @@ def _grid(nx: int, ny: int, z: float, spacing: float = 1.0):
 
 
 def _edges_hinges(faces):
-    from pipeline import topology
+    from pipeline.mesh import topology
 
     return topology.unique_edges(faces)[0], topology.hinges(faces)[0]
 
@@ -75,7 +76,7 @@ def test_barrier_gradient_and_hessian_match_finite_differences():
     compared at 1e-5 of the largest entry: the truncation error is (step/gap)^2 ~ 1e-6
     of it."""
     X, faces, petal = _sheets_in_the_band()
-    c = ct.Contact.build(X, faces, petal, gap=GAP, stiffness=0.1)
+    c = Contact.build(X, faces, petal, gap=GAP, stiffness=0.1)
     assert c.active_count(X) > 10
     F = np.zeros_like(X)
     energy = c.forces(X, F)
@@ -108,13 +109,13 @@ def test_ccd_in_threads_is_the_ccd_on_one(monkeypatch):
     """The CCD's narrow phase runs in threads (a minimum over the candidates): the step
     it allows is the same to the bit as on one thread, cut moves included."""
     X, faces, petal = _sheets_in_the_band()
-    c = ct.Contact.build(X, faces, petal, gap=GAP, stiffness=0.1)
+    c = Contact.build(X, faces, petal, gap=GAP, stiffness=0.1)
     rng = np.random.default_rng(5)
     moves = [X + np.where((petal == 1)[:, None], rng.normal(0.0, 0.002, X.shape)
                           + [0.0, 0.0, 0.02 - 0.01 * k], 0.0) for k in range(8)]
 
     def steps(threads):
-        monkeypatch.setattr(ct, "THREADS", threads)
+        monkeypatch.setattr(contact_module, "THREADS", threads)
         return [c.max_step(X, X1) for X1 in moves]
 
     one, two = steps(1), steps(2)
@@ -128,10 +129,10 @@ def test_the_active_set_is_the_same_whatever_order_the_broad_phase_finds():
     barrier's sums are the same bits. Reversing the candidates stands in for another
     schedule: without the canonical order the active set would come out reversed."""
     X, faces, petal = _sheets_in_the_band()
-    ipctk = ct._ipctk()
+    ipctk = _ipctk()
 
     def active(reverse):
-        c = ct.Contact.build(X, faces, petal, gap=GAP, stiffness=0.1)
+        c = Contact.build(X, faces, petal, gap=GAP, stiffness=0.1)
         c.sweep(X, X, c.gap + c.band)
         if reverse:
             c.candidates.ee_candidates = c.candidates.ee_candidates[::-1]
@@ -156,8 +157,8 @@ def test_barrier_stiffness_scales_with_the_springs():
     """kappa makes the barrier's curvature at the middle of its band the stiffness asked
     for; the energy is zero past the band and infinite at the gap."""
     for stiffness, gap in ((0.1, 0.01), (3.0, 0.05)):
-        c = ct.Contact.build(*_grid(2, 2, 0.0), np.zeros(4, int), gap=gap, stiffness=stiffness)
-        assert c.kappa * ct.barrier_curvature(1.5 * gap, gap, gap) == pytest.approx(stiffness)
+        c = Contact.build(*_grid(2, 2, 0.0), np.zeros(4, int), gap=gap, stiffness=stiffness)
+        assert c.kappa * barrier_curvature(1.5 * gap, gap, gap) == pytest.approx(stiffness)
 
 
 def test_newton_with_contact_never_crosses_and_keeps_the_gap(monkeypatch):
@@ -169,21 +170,21 @@ def test_newton_with_contact_never_crosses_and_keeps_the_gap(monkeypatch):
     control = Control("linear", 10.0)
     free = State.at_rest(model, v, control)
     QuasiStatic(stages=5).advance(model, free, control, 10, 1.0, fx.Effects())
-    assert ct.frame_intersections([free.positions], faces) == [True]
+    assert frame_intersections([free.positions], faces) == [True]
 
     seen = []
-    forces = ct.Contact.forces
+    forces = Contact.forces
 
     def spy(self, X, F):
         seen.append(np.array(X, copy=True))
         return forces(self, X, F)
 
-    monkeypatch.setattr(ct.Contact, "forces", spy)
+    monkeypatch.setattr(Contact, "forces", spy)
     state = State.at_rest(model, v, control)
     qs = QuasiStatic(stages=5)
     qs.advance(model, state, control, 10, 1.0, _collisions(v, faces, petal))
     assert qs.ccd_cuts > 0 and len(seen) > 20
-    assert not any(ct.frame_intersections(seen, faces))
+    assert not any(frame_intersections(seen, faces))
     c = qs._contact
     assert min(c.min_distance(X, 2 * GAP) for X in seen) >= GAP
     final = c.min_distance(state.positions, 1.0)
@@ -240,11 +241,11 @@ def test_the_accuracy_study_measures_contact_scenes():
     the push-back is measured against the same reference. On this bud the petals do
     press on each other: without contact they pass through each other, and the contact
     reference is not the free one (0.5% of the petal length apart)."""
-    from pipeline import study
+    from pipeline.studies import accuracy
 
-    scene = study.Scene.bud(5, 700)
-    ref, change = study.reference(scene, effects=("collisions",))
-    free = study.simulate(scene, "quasi-static", ramp=1, stages=40, tolerance=1e-8)
+    scene = accuracy.Scene.bud(5, 700)
+    ref, change = accuracy.reference(scene, effects=("collisions",))
+    free = accuracy.simulate(scene, "quasi-static", ramp=1, stages=40, tolerance=1e-8)
     # (with contact the path of equilibria branches where pressed petals buckle, and
     # which branch an increment takes depends on rounding: refining this reference
     # moves it 0.5% of the petal length with Bloom's block LDL^T, 0.03% with qdldl's
@@ -252,11 +253,11 @@ def test_the_accuracy_study_measures_contact_scenes():
     # study's 1%)
     assert change < 1e-2 and not ref.crossed
     assert free.crossed
-    assert study.shape_error(scene, free.positions, ref.positions)[0] > 1e-3  # contact acted
-    plan = study.contact_plan(quick=True)
+    assert accuracy.shape_error(scene, free.positions, ref.positions)[0] > 1e-3  # contact acted
+    plan = accuracy.contact_plan(quick=True)
     newton = next(s for s in plan if s["integrator"] == "quasi-static" and s["stages"] == 10)
     explicit = next(s for s in plan if s["integrator"] == "semi-implicit")
-    rows = [study._row(scene, None, dict(s), ref) for s in (newton, explicit)]
+    rows = [accuracy._row(scene, None, dict(s), ref) for s in (newton, explicit)]
     assert [r["integrator"] for r in rows] == ["quasi-static, contact",
                                                "semi-implicit eta=0.1, push-back"]
     assert all(r["effects"] == "collisions" for r in rows)
@@ -274,8 +275,8 @@ def test_the_generated_buds_never_start_crossed(petals, vertices, seed):
     (these crossed before they were untangled: same-whorl neighbours overlapping near
     the base, cups turning about other centres near the tip); one made to cross still
     can (``crossing=True``)."""
-    from pipeline import asset
+    from pipeline.mesh import procedural
 
-    v, f, p = asset.bud(petals, vertices, seed)
-    assert len(np.unique(p)) == petals and not asset._crossed(v, f, p)
-    assert asset._crossed(*asset.bud(petals, vertices, seed, crossing=True))
+    v, f, p = procedural.bud(petals, vertices, seed)
+    assert len(np.unique(p)) == petals and not procedural._crossed(v, f, p)
+    assert procedural._crossed(*procedural.bud(petals, vertices, seed, crossing=True))

@@ -6,14 +6,15 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from pipeline import measure, topology
-from pipeline.bench import PARAMS
-from pipeline.growth import assign_growth
-from pipeline.remesh import boundary_loops
+from pipeline.flower import measure
+from pipeline.flower.growth import assign_growth
+from pipeline.mesh import topology
+from pipeline.mesh.remesh import boundary_loops
 from pipeline.sim import effects as fx
-from pipeline.sim.integrators import SemiImplicit
+from pipeline.sim.explicit.semi_implicit import SemiImplicit
 from pipeline.sim.model import Control, State
 from pipeline.sim.run import run
+from pipeline.studies.bench import PARAMS
 from tests.conftest import build_model, prepared
 
 
@@ -34,7 +35,7 @@ def simulate(mesh, names=(), steps=6000, frames=13, curve=None, beta=0.5, alpha_
     control = Control("smootherstep", 0.6 * steps)
     state = State.at_rest(model, v, control)
     effects.constrain(state.forces)
-    from pipeline.measure import PetalFrames
+    from pipeline.flower.measure import PetalFrames
 
     petals = PetalFrames.from_mesh(v, petal, axes.base, axes.on_axis, axes.tip, axes.plane)
     rec, _ = run(model, state, control, SemiImplicit(0.1), steps=steps, frames=frames, h=1.0,
@@ -135,10 +136,10 @@ def test_collisions_keep_vertices_out_of_other_petals(bud):
     c = effects.collisions
     X = on.positions.copy()
     c.near_pairs(X, c.params[2])
-    from pipeline.sim import kernels
+    from pipeline.sim.explicit.pushback import face_unit_normals, resolve_collisions
 
-    kernels.face_unit_normals(X, c.faces, c.normals)
-    behind = kernels.resolve_collisions(X, np.zeros_like(X), np.ones(len(X)), c.faces,
+    face_unit_normals(X, c.faces, c.normals)
+    behind = resolve_collisions(X, np.zeros_like(X), np.ones(len(X)), c.faces,
                                         c.face_petal, c.vertex_petal, c.side.copy(),
                                         c.near.copy(), c.normals, 0.0, c.params[2],
                                         c.pair_start, c.pair_faces, c.best_face, c.best_dist)

@@ -9,10 +9,14 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from pipeline import asset, axis, clean
-from pipeline.axis import BadPetal, PetalAxes, check_axes, find_axes, parse_direction
+from pipeline.chain import axis as chain_axis
+from pipeline.chain import growth as chain_growth
 from pipeline.config import load_config
+from pipeline.directions import parse_direction
 from pipeline.errors import BloomError
+from pipeline.flower import axis
+from pipeline.flower.axis import BadPetal, PetalAxes, check_axes, find_axes
+from pipeline.mesh import clean, procedural
 from stages.cli import cli
 
 pytestmark = pytest.mark.filterwarnings("error::RuntimeWarning")
@@ -43,13 +47,13 @@ def tilt(v, degrees=45.0):  # about x: +z -> (0, -sin, cos)
 
 @pytest.fixture(scope="module")
 def bud():
-    v, f, p = asset.bud(6, 900, 0)
+    v, f, p = procedural.bud(6, 900, 0)
     return v / clean.mean_edge_length(v, f), f, p
 
 
 @pytest.fixture(scope="module")
 def lone():
-    v, f, p = asset.bud(1, 200, 0)
+    v, f, p = procedural.bud(1, 200, 0)
     return v / clean.mean_edge_length(v, f), f, p
 
 
@@ -312,7 +316,7 @@ def test_the_stages_check_their_own_outputs(remeshed, tmp_path, monkeypatch):
         axes.x[np.flatnonzero(args[2] == 2)[4]] = np.nan
         return axes
 
-    monkeypatch.setattr(axis, "find_axes", nan_x)
+    monkeypatch.setattr(chain_axis, "find_axes", nan_x)
     out = tmp_path / "axis.h5"
     r = run_axis(remeshed["z"], out)
     line = r.output.strip()
@@ -321,7 +325,7 @@ def test_the_stages_check_their_own_outputs(remeshed, tmp_path, monkeypatch):
     monkeypatch.undo()
 
     assert run_axis(remeshed["z"], out).exit_code == 0
-    from pipeline import growth
+    from pipeline.flower import growth
 
     real_growth = growth.assign_growth
     with h5py.File(out) as h5:
@@ -335,7 +339,7 @@ def test_the_stages_check_their_own_outputs(remeshed, tmp_path, monkeypatch):
         hit["petal"] = int(petal[g.hinges[h, 0]])
         return g
 
-    monkeypatch.setattr(growth, "assign_growth", nan_angle)
+    monkeypatch.setattr(chain_growth, "assign_growth", nan_angle)
     gout = tmp_path / "growth.h5"
     r = CliRunner().invoke(cli, ["-q", "growth", str(out), "--out", str(gout)])
     line = r.output.strip()

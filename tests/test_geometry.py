@@ -4,8 +4,8 @@ rotation and scaling; symmetry; the cross-section coordinate."""
 import numpy as np
 import pytest
 
-from pipeline import asset, clean, symmetry, topology
-from pipeline.axis import find_axes
+from pipeline.flower.axis import find_axes
+from pipeline.mesh import clean, procedural, symmetry, topology
 from tests.conftest import prepared
 
 
@@ -27,7 +27,7 @@ def test_hinges_of_two_triangles_by_hand():
 
 
 def test_orientation_is_made_consistent():
-    v, f, _ = asset.bud(1, 120, 0)
+    v, f, _ = procedural.bud(1, 120, 0)
     flipped = f.copy()
     flipped[::3] = flipped[::3][:, [0, 2, 1]]
     _, fixed, report = clean.clean_mesh(v, flipped)
@@ -36,7 +36,7 @@ def test_orientation_is_made_consistent():
 
 
 def test_welding_merges_duplicates_and_drops_degenerate_faces():
-    v, f, _ = asset.bud(1, 120, 0)
+    v, f, _ = procedural.bud(1, 120, 0)
     dup = np.concatenate([v, v[:5] + 1e-9])
     f2 = f.copy()
     f2[f2 < 5] += len(v)  # use the duplicates in some faces
@@ -47,7 +47,7 @@ def test_welding_merges_duplicates_and_drops_degenerate_faces():
 
 
 def test_procedural_petals_are_mirror_symmetric():
-    v, f, petal = asset.bud(5, 1000, 2)
+    v, f, petal = procedural.bud(5, 1000, 2)
     for p in range(5):
         idx = np.flatnonzero(petal == p)
         plane, err = symmetry.mirror_plane(v[idx])
@@ -57,7 +57,7 @@ def test_procedural_petals_are_mirror_symmetric():
 
 
 def test_symmetrize_makes_a_perturbed_petal_symmetric_to_1e9():
-    v, f, _ = asset.bud(1, 200, 0)
+    v, f, _ = procedural.bud(1, 200, 0)
     v = v / clean.mean_edge_length(v, f)
     noisy = v + np.random.default_rng(0).normal(scale=0.01, size=v.shape)
     plane, before = symmetry.mirror_plane(noisy)
@@ -153,8 +153,8 @@ def _with_sliver(interior: bool):
 
 
 def test_rim_sliver_is_dropped_and_an_inner_one_kept_whole():
-    from pipeline import clean, topology
-    from pipeline.remesh import boundary_loops
+    from pipeline.mesh import clean, topology
+    from pipeline.mesh.remesh import boundary_loops
 
     v, f = _with_sliver(interior=False)
     v2, f2, rep = clean.clean_mesh(v, f)

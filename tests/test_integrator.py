@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from pipeline.sim.integrators import SemiImplicit
+from pipeline.sim.explicit.semi_implicit import SemiImplicit
 from pipeline.sim.model import Control, State
 from pipeline.sim.run import run
 from tests.conftest import build_model, prepared
@@ -49,7 +49,7 @@ def test_smaller_eta_damps_more():
 def grow_petal(schedule, ramp, steps, frames, curve="0.2*x**2"):
     """A 150-vertex petal grown by ``curve`` with eta = 0.1: (initial vertices, model,
     recording with opening angles)."""
-    from pipeline.measure import PetalFrames
+    from pipeline.flower.measure import PetalFrames
 
     v, f, petal, axes, growth = prepared(1, 150, curve=curve)
     model = build_model(v, growth, axes)

@@ -3,12 +3,15 @@
 import numpy as np
 import pytest
 
-from pipeline.sim import kernels
+from pipeline.mesh.hinge import dihedral_angles
+from pipeline.sim.terms.bending import bending_forces
+from pipeline.sim.terms.elastic import internal_forces
+from pipeline.sim.terms.growth import SCHEDULE_CODES, schedule_value
 
 
 def energy_and_forces(X, edges, rest0, growth, ks, hinges, cos0, sin0, kb, A=0.0):
     F = np.zeros_like(X)
-    E = kernels.internal_forces(X, edges, rest0, growth, ks, hinges, cos0, sin0, kb, A, F)
+    E = internal_forces(X, edges, rest0, growth, ks, hinges, cos0, sin0, kb, A, F)
     return E, F
 
 
@@ -58,7 +61,7 @@ def test_bending_forces_are_minus_gradient(theta, theta0):
     rng = np.random.default_rng(int(1000 * abs(theta)) + 7)
     X = hinge_config(theta, rng)
     hinges = np.array([[0, 1, 2, 3]])
-    measured = kernels.dihedral_angles(X, hinges)[0]
+    measured = dihedral_angles(X, hinges)[0]
     assert abs(np.angle(np.exp(1j * (measured - theta)))) < 0.6  # the config has about theta
     kb = np.array([0.7])
     no_edges = np.zeros((0, 2), dtype=np.int64)
@@ -75,7 +78,7 @@ def test_bending_forces_balance_and_have_no_torque():
     X = rng.normal(size=(4, 3))
     hinges = np.array([[0, 1, 2, 3]])
     F = np.zeros_like(X)
-    kernels.bending_forces(X, hinges, np.array([0.3]), np.array([0.95]), np.array([1.0]), F)
+    bending_forces(X, hinges, np.array([0.3]), np.array([0.95]), np.array([1.0]), F)
     assert np.abs(F).max() > 1e-3
     np.testing.assert_allclose(F.sum(axis=0), 0.0, atol=1e-13)
     np.testing.assert_allclose(np.cross(X, F).sum(axis=0), 0.0, atol=1e-13)
@@ -88,7 +91,7 @@ def test_signed_angle_is_continuous_across_pi():
     a = np.array([[0, 0, 0], [1, 0, 0], [0.5, 1, 0], [0.5, -np.cos(fold), -np.sin(fold)]])
     b = a.copy()
     b[3] = [a[3, 0], a[3, 1], -a[3, 2]]  # mirror l through the plane: angle -> -(pi - 1e-6)
-    ta, tb = kernels.dihedral_angles(a, hinges)[0], kernels.dihedral_angles(b, hinges)[0]
+    ta, tb = dihedral_angles(a, hinges)[0], dihedral_angles(b, hinges)[0]
     assert ta > 3.14 and tb < -3.14
     no_edges = np.zeros((0, 2), dtype=np.int64)
     args = (no_edges, np.zeros(0), np.zeros(0), np.zeros(0), hinges,
@@ -112,8 +115,8 @@ def test_rest_state_feels_exactly_zero_force(small_petal):
 
 def test_schedules_rise_from_zero_to_one_smoothly():
     t = np.linspace(-10, 110, 1201)
-    for name, code in kernels.SCHEDULE_CODES.items():
-        a = np.array([kernels.schedule_value(code, x, 100.0) for x in t])
+    for name, code in SCHEDULE_CODES.items():
+        a = np.array([schedule_value(code, x, 100.0) for x in t])
         assert a[0] == 0.0 and a[-1] == 1.0
         assert np.all(np.diff(a) >= 0), name
         assert np.max(np.abs(np.diff(a))) <= 0.1 * (120 / 1200) * 2 + 1e-12  # no jump

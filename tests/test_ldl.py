@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import scipy.sparse as sp
 
-from pipeline.sim.ldl import BlockLDL
+from pipeline.sim.solver.ldl import BlockLDL
 
 
 def _random_blocks(nv: int, seed: int, shift: float):
@@ -143,7 +143,7 @@ def test_fill_is_that_of_a_minimum_degree_ordering():
 def test_subtrees_factored_in_two_threads_are_the_serial_factorization(monkeypatch):
     """A large matrix is factored as two sets of subtrees of its elimination tree at
     once, then the columns above them: the same arithmetic, to the bit."""
-    from pipeline.sim import ldl
+    from pipeline.sim.solver import ldl
 
     side = 20
     n = side * side

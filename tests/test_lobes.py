@@ -7,7 +7,7 @@ import gpytoolbox
 import numpy as np
 import pytest
 
-from pipeline import asset, topology
+from pipeline.mesh import procedural, topology
 from pipeline.mesh.heightfield import height_sheet
 from pipeline.mesh.lobes import angular_profile, lobes, profile_peaks
 from tests.test_midsurface import _cup_petal, _solidify
@@ -64,7 +64,7 @@ def _distance(points, v, f):
 
 def _gentle_petal():
     """A procedural petal of length 1, cupped gently (a height field over its plane)."""
-    flat, faces = asset.flat_petal(asset.Outline(), 0.05, np.random.default_rng(0))
+    flat, faces = procedural.flat_petal(procedural.Outline(), 0.05, np.random.default_rng(0))
     x, y = flat[:, 0], flat[:, 1]
     return np.stack([x, y, 0.3 * x ** 2 + 0.1 * y ** 2], axis=1), faces
 
@@ -187,7 +187,7 @@ def test_the_height_sheet_is_deterministic_and_moves_with_the_input():
 
 
 def test_a_flat_star_with_hems_gives_one_sheet_per_petal_without_touching():
-    from pipeline.petals import _lobe_sheets
+    from pipeline.flower.petals import _lobe_sheets
 
     v, f = hem(*star(k=5, cup=0.2), 0.05, 0.05)
     made = _lobe_sheets(v, f)
@@ -202,7 +202,7 @@ def test_a_flat_star_with_hems_gives_one_sheet_per_petal_without_touching():
 
 def test_asset_petal_is_unchanged_by_an_empty_hem():
     """A flat open petal, no hem: the height sheet lies on it."""
-    flat, faces = asset.flat_petal(asset.Outline(), 0.05, np.random.default_rng(0))
+    flat, faces = procedural.flat_petal(procedural.Outline(), 0.05, np.random.default_rng(0))
     flat = np.c_[flat[:, :2], np.zeros(len(flat))]
     h = height_sheet(flat, faces)
     assert _distance(h.vertices, flat, faces).max() < 1e-9

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 from conftest import prepared
 
-from pipeline.measure import PetalFrames
+from pipeline.flower.measure import PetalFrames
 
 
 def _turned(v, petal, axes, degrees: float, side: str = "base") -> np.ndarray:

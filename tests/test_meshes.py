@@ -9,11 +9,11 @@ import trimesh
 from click.testing import CliRunner
 from scipy.spatial import Delaunay
 
-from pipeline import asset, clean, remesh, symmetry, topology
-from pipeline.axis import find_axes
 from pipeline.errors import BloomError
-from pipeline.meshfile import read_mesh
-from pipeline.petals import prepare
+from pipeline.flower.axis import find_axes
+from pipeline.flower.petals import prepare
+from pipeline.io.meshfile import read_mesh
+from pipeline.mesh import clean, procedural, remesh, symmetry, topology
 from stages.cli import cli
 from tests.conftest import SHARED
 
@@ -22,7 +22,7 @@ needs_shared = pytest.mark.skipif(not EXTERNAL.exists(), reason="../shared/exter
 
 
 def petal(vertices=300, seed=0):
-    v, f, _ = asset.bud(1, vertices, seed)
+    v, f, _ = procedural.bud(1, vertices, seed)
     return v / clean.mean_edge_length(v, f), f
 
 

@@ -10,8 +10,7 @@ import numpy as np
 import pytest
 import trimesh
 
-from pipeline import asset, clean, topology
-from pipeline.mesh import midsurface, thickness
+from pipeline.mesh import clean, midsurface, procedural, thickness, topology
 
 EXTERNAL = Path(__file__).resolve().parents[1] / ".." / "shared" / "external-meshes"
 T = 0.02  #: shell thickness, for a petal of length 1
@@ -20,8 +19,8 @@ TOL = 0.05  #: mid-surface to layer distance within 5% of the thickness
 
 def _cup_petal():
     """A procedural petal sheet of length 1, bent into a cup."""
-    flat, faces = asset.flat_petal(asset.Outline(), 0.05, np.random.default_rng(0))
-    return asset.bend_into_bud(flat, 0.0, 0.0, asset.BudShape()), faces
+    flat, faces = procedural.flat_petal(procedural.Outline(), 0.05, np.random.default_rng(0))
+    return procedural.bend_into_bud(flat, 0.0, 0.0, procedural.BudShape()), faces
 
 
 def _solidify(v, f, t, rim="all"):

@@ -7,20 +7,22 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from pipeline import asset, clean
-from pipeline.axis import find_axes
-from pipeline.growth import assign_growth
-from pipeline.sim import kernels, reverse
+from pipeline.flower.axis import find_axes
+from pipeline.flower.growth import assign_growth
+from pipeline.mesh import clean, procedural
+from pipeline.mesh.hinge import edge_lengths
+from pipeline.sim import reverse
 from pipeline.sim.effects import Effects
 from pipeline.sim.model import Control, State
-from pipeline.sim.quasistatic import QuasiStatic
+from pipeline.sim.solver.quasistatic import QuasiStatic
+from pipeline.sim.terms.elastic import internal_forces
 from stages.cli import cli
 from tests.conftest import build_model
 
 
 def open_petal(vertices: int = 150):
     """One tepal of the procedural open lily, at mean edge 1, with its axes and growth."""
-    v, f, petal = asset.open_flower(1, vertices, 0)
+    v, f, petal = procedural.open_flower(1, vertices, 0)
     v = v / clean.mean_edge_length(v, f)
     axes = find_axes(v, f, petal)
     return v, f, petal, axes, assign_growth(v, f, axes.x, "0.2*x**2")
@@ -29,7 +31,7 @@ def open_petal(vertices: int = 150):
 def residual(model, X, growth: float) -> float:
     """Largest free-vertex force over the largest spring force scale (k times a rest length)."""
     F = np.zeros_like(X)
-    kernels.internal_forces(X, model.edge_indices, model.edge_rest_length, model.edge_growth,
+    internal_forces(X, model.edge_indices, model.edge_rest_length, model.edge_growth,
                             model.edge_stiffness, model.hinge_indices, model.hinge_rest_cos,
                             model.hinge_rest_sin, model.hinge_stiffness, growth, F)
     F[model.pinned] = 0.0
@@ -42,7 +44,7 @@ def test_the_open_model_is_the_rest_state_at_full_growth():
     model = reverse.open_model(build_model(v, growth, axes), 1.0)
     rest = model.edge_rest_length * (1.0 + model.edge_growth)
     length = np.empty(model.edge_count)
-    kernels.edge_lengths(v, model.edge_indices, length)
+    edge_lengths(v, model.edge_indices, length)
     np.testing.assert_allclose(rest, length, rtol=1e-14)
     assert residual(model, v, 1.0) < 1e-12
     assert residual(model, v, 0.0) > 1e-4  # shorter rest lengths at the bud: not at rest there
@@ -97,7 +99,7 @@ def test_the_open_lily_scene_blooms_back_to_itself(tmp_path):
 def test_the_lift_chooses_the_branch_a_flat_petal_closes_on():
     """A flat, horizontal petal closes up or down (the path forks): lifted toward +z it
     closes up, toward -z down, and either way the bud is the model's own equilibrium."""
-    v, f, petal = asset.open_flower(1, 150, 0, asset.OpenShape(lean=90.0, recurve=90.0,
+    v, f, petal = procedural.open_flower(1, 150, 0, procedural.OpenShape(lean=90.0, recurve=90.0,
                                                                 trough=1e3))
     v = v / clean.mean_edge_length(v, f)
     assert np.ptp(v[:, 2]) < 1e-3 * np.ptp(v[:, 0])  # flat

@@ -8,11 +8,11 @@ import numpy as np
 import pytest
 import trimesh
 
-from pipeline import asset, topology
 from pipeline.config import load_config
 from pipeline.errors import BloomError
-from pipeline.mesh.classify import KINDS, classify, select
-from pipeline.meshfile import Part, read_parts
+from pipeline.flower.classify import KINDS, classify, select
+from pipeline.io.meshfile import Part, read_parts
+from pipeline.mesh import procedural, topology
 
 EXTERNAL = Path(__file__).resolve().parents[2] / "shared" / "external-meshes"
 
@@ -173,7 +173,7 @@ def _at(m, z0, z1=None, xy=(0.0, 0.0)):
 def flower(thick=False):
     """A bud of 6 petals with a stem, a receptacle, two leaves, 5 stamens and a pistil,
     every part with a generic name. Returns ``(parts, expected kinds)``. +z up."""
-    v, f, petal = asset.bud(6, 900, 0)
+    v, f, petal = procedural.bud(6, 900, 0)
     parts, kinds = [], []
     for p in range(6):
         idx = np.flatnonzero(petal == p)
@@ -187,7 +187,7 @@ def flower(thick=False):
     kinds.append("stem")
     parts.append(Part("Sphere", *_mesh(_at(trimesh.creation.icosphere(2, 0.09), -0.03))))
     kinds.append("receptacle")
-    leaf, leaf_f = asset.flat_petal(asset.Outline(0.05, 0.3, 0.5), 0.05, np.random.default_rng(1))
+    leaf, leaf_f = procedural.flat_petal(procedural.Outline(0.05, 0.3, 0.5), 0.05, np.random.default_rng(1))
     for k, azimuth in enumerate([0.3, 0.3 + np.pi]):
         out = np.array([np.cos(azimuth), np.sin(azimuth), 0.0])
         across = np.array([-np.sin(azimuth), np.cos(azimuth), 0.0])
@@ -270,7 +270,7 @@ def test_globs_override_the_verdict_both_ways(thin_flower):
 
 
 def test_a_lone_sheet_is_a_petal_and_a_lone_ball_is_not():
-    v, f = asset.flat_petal(asset.Outline(), 0.05, np.random.default_rng(0))
+    v, f = procedural.flat_petal(procedural.Outline(), 0.05, np.random.default_rng(0))
     sheet = Part("part_0", np.c_[v, 0.05 * v[:, 0] ** 2], f)
     ball = Part("part_0", *_mesh(trimesh.creation.icosphere(2)))
     assert classify([sheet])[0].kind == "petal"

@@ -4,16 +4,16 @@ slow explicit run."""
 import numpy as np
 import pytest
 
-from pipeline import study
 from pipeline.sim import effects as fx
-from pipeline.sim import hessian, kernels
 from pipeline.sim.model import Control, Model, State
-from pipeline.sim.quasistatic import QuasiStatic, _System
+from pipeline.sim.solver.quasistatic import QuasiStatic, _System
+from pipeline.sim.terms.elastic import hessian, internal_forces, rounding_scale
+from pipeline.studies import accuracy
 
 
 @pytest.fixture(scope="module")
 def petal():
-    return study.Scene.bud(1, 200)
+    return accuracy.Scene.bud(1, 200)
 
 
 def _grown_state(scene, A):
@@ -26,12 +26,20 @@ def _grown_state(scene, A):
 
 
 def _gradient(model, X, A):
-    """Minus the simulator's own forces (kernels.internal_forces)."""
+    """Minus the simulator's own forces (internal_forces)."""
     F = np.empty_like(X)
-    kernels.internal_forces(X, model.edge_indices, model.edge_rest_length, model.edge_growth,
+    internal_forces(X, model.edge_indices, model.edge_rest_length, model.edge_growth,
                             model.edge_stiffness, model.hinge_indices, model.hinge_rest_cos,
                             model.hinge_rest_sin, model.hinge_stiffness, A, F)
     return -F
+
+
+def _assemble(blocks, model, X, A):
+    """The elastic Hessian of ``model`` at X, growth A and its rest angles, into ``blocks``."""
+    hessian(X, model.edge_indices, model.edge_rest_length, model.edge_growth,
+            model.edge_stiffness, model.hinge_indices, model.hinge_rest_cos, model.hinge_rest_sin,
+            model.hinge_stiffness, A, blocks.data, blocks.edge_slots, blocks.hinge_slots,
+            blocks.work)
 
 
 def test_hessian_matches_finite_differences_of_the_gradient(petal):
@@ -46,7 +54,7 @@ def test_hessian_matches_finite_differences_of_the_gradient(petal):
     rng = np.random.default_rng(3)
     X = petal.vertices + rng.normal(scale=0.1, size=petal.vertices.shape)
     A = 0.5
-    system.blocks.assemble(free, X, A, free.hinge_rest_cos, free.hinge_rest_sin)
+    _assemble(system.blocks, free, X, A)
     n = 3 * free.vertex_count
     H = system.blocks.matrix().toarray()
     assert np.abs(H - H.T).max() < 1e-14
@@ -84,11 +92,11 @@ def test_newton_converges_quadratically_near_a_solution(petal):
 
 
 def test_quasi_static_path_agrees_with_a_very_slow_explicit_run(petal):
-    ref = study.simulate(petal, "quasi-static", ramp=1, stages=20, tolerance=1e-8)
-    slow = study.simulate(petal, "semi-implicit", ramp=80_000, hold=40_000, eta=0.1)
-    fast = study.simulate(petal, "semi-implicit", ramp=20_000, hold=10_000, eta=0.1)
-    err_slow, angle_slow = study.shape_error(petal, slow.positions, ref.positions)
-    err_fast, _ = study.shape_error(petal, fast.positions, ref.positions)
+    ref = accuracy.simulate(petal, "quasi-static", ramp=1, stages=20, tolerance=1e-8)
+    slow = accuracy.simulate(petal, "semi-implicit", ramp=80_000, hold=40_000, eta=0.1)
+    fast = accuracy.simulate(petal, "semi-implicit", ramp=20_000, hold=10_000, eta=0.1)
+    err_slow, angle_slow = accuracy.shape_error(petal, slow.positions, ref.positions)
+    err_fast, _ = accuracy.shape_error(petal, fast.positions, ref.positions)
     opening = petal.petals.opening_angles(ref.positions).mean()
     assert opening > 30.0  # it did open
     assert err_slow < 2e-3 and abs(angle_slow) < 0.2, (err_slow, angle_slow)
@@ -97,22 +105,22 @@ def test_quasi_static_path_agrees_with_a_very_slow_explicit_run(petal):
 
 def test_equilibria_are_independent_of_the_increments(petal):
     """Stage counts 10 and 40 land on the same bloom (the path is followed, not jumped)."""
-    a = study.simulate(petal, "quasi-static", ramp=1, stages=10, tolerance=1e-8)
-    b = study.simulate(petal, "quasi-static", ramp=1, stages=40, tolerance=1e-8)
-    assert study.shape_error(petal, a.positions, b.positions)[0] < 1e-6
+    a = accuracy.simulate(petal, "quasi-static", ramp=1, stages=10, tolerance=1e-8)
+    b = accuracy.simulate(petal, "quasi-static", ramp=1, stages=40, tolerance=1e-8)
+    assert accuracy.shape_error(petal, a.positions, b.positions)[0] < 1e-6
 
 
 def test_quasi_static_keeps_the_center_plane_and_curls():
     """A 3-petal bud grown hard (1.0 x^2): the petals buckle, so the solver leaves
     saddles along negative curvature and shifts its Hessian; the center-plane vertices
     must stay on their planes through all of it; curl changes the bloom."""
-    from pipeline import asset, clean
-    from pipeline.axis import find_axes
-    from pipeline.growth import assign_growth
+    from pipeline.flower.axis import find_axes
+    from pipeline.flower.growth import assign_growth
+    from pipeline.mesh import clean, procedural
 
-    scene = study.Scene.bud(3, 600, curve="1.0*x**2")
+    scene = accuracy.Scene.bud(3, 600, curve="1.0*x**2")
     m = scene.model
-    v, f, p = asset.bud(3, 600, 0)
+    v, f, p = procedural.bud(3, 600, 0)
     v = v / clean.mean_edge_length(v, f)
     axes = find_axes(v, f, p)
     g = assign_growth(v, f, axes.x, "1.0*x**2")
@@ -131,7 +139,7 @@ def test_quasi_static_keeps_the_center_plane_and_curls():
         blooms[names] = state.positions.copy()
     assert qs.descents > 0  # the negative-curvature search did run
     # curl with beta = 1 flattens the cross-sections: a different bloom
-    diff = study.shape_error(scene, blooms[("curl", "center_plane")], blooms[("center_plane",)])
+    diff = accuracy.shape_error(scene, blooms[("curl", "center_plane")], blooms[("center_plane",)])
     assert diff[0] > 1e-3
 
 
@@ -139,8 +147,8 @@ def test_time_to_converge_reports_each_integrator(petal):
     """`bloom bench`'s converged-bloom figures on a lone petal: every integrator gets
     within 1% (the dynamic ones with long enough growth), each row says what it cost,
     and the paper's 44 s is beside it."""
-    ref = study.simulate(petal, "quasi-static", ramp=1, stages=40, tolerance=1e-8)
-    rows = study.time_to_converge(petal, ref.positions)
+    ref = accuracy.simulate(petal, "quasi-static", ramp=1, stages=40, tolerance=1e-8)
+    rows = accuracy.time_to_converge(petal, ref.positions)
     by = {r["integrator"]: r for r in rows}
     assert set(by) == {"quasi-static", "semi-implicit eta=0.1", "Verlet (eta=0.5)",
                        "explicit-damping d=0.999"}
@@ -172,11 +180,11 @@ def test_bench_json_reports_step_cost_per_edge():
 
 def _rounding_bound(model, X, A=0.0):
     """The solver's rounding level of the forces at X: ROUNDING_FACTOR eps times the
-    largest free vertex's force scale (hessian.rounding_scale)."""
-    from pipeline.sim.quasistatic import EPS, ROUNDING_FACTOR
+    largest free vertex's force scale (rounding_scale)."""
+    from pipeline.sim.solver.quasistatic import EPS, ROUNDING_FACTOR
 
     scale = np.empty(len(X))
-    hessian.rounding_scale(X, model.edge_indices, model.edge_rest_length, model.edge_growth,
+    rounding_scale(X, model.edge_indices, model.edge_rest_length, model.edge_growth,
                            model.edge_stiffness, model.hinge_indices, model.hinge_rest_cos,
                            model.hinge_rest_sin, model.hinge_stiffness, A, scale)
     return ROUNDING_FACTOR * EPS * scale[~model.pinned].max()
@@ -194,7 +202,7 @@ def test_a_rest_state_converges_at_the_rounding_level_of_its_forces():
     from the origin). It used to end in 'no equilibrium found at step 0 (growth A = 0,
     residual force 2.11e-13)': the energy could no longer see Newton's decrease, and
     1e-14 was an absolute floor. Now Newton goes on to the rounding level and stops."""
-    scene = study.Scene.bud(6, 600)
+    scene = accuracy.Scene.bud(6, 600)
     m = scene.model
     control = Control("smootherstep", 1.0)
     state = State.at_rest(m, scene.vertices, control)
@@ -235,8 +243,8 @@ def test_a_petal_held_on_a_line_converges_where_its_hessian_is_singular():
     Now a residual at rounding is converged, whatever the inertia."""
     from test_axis_base import cupped_petal
 
-    from pipeline.axis import find_axes
-    from pipeline.growth import assign_growth
+    from pipeline.flower.axis import find_axes
+    from pipeline.flower.growth import assign_growth
 
     v, f = cupped_petal()
     axes = find_axes(v, f, np.zeros(len(v), dtype=np.int64))
@@ -253,7 +261,7 @@ def test_a_petal_held_on_a_line_converges_where_its_hessian_is_singular():
     # the turn about the base line (the x axis) costs nothing: H r = 0 to rounding on
     # the free vertices (E(R X) = E(X) gives H r = w x g, and g = 0 where free)
     system = _System.build(model, fx.Effects())
-    system.blocks.assemble(model, X, 1.0, model.hinge_rest_cos, model.hinge_rest_sin)
+    _assemble(system.blocks, model, X, 1.0)
     H = system.blocks.matrix()
     turn = np.cross([1.0, 0.0, 0.0], X).ravel()
     assert np.abs(turn.reshape(-1, 3)[pinned]).max() == 0.0  # the fixed ones stay put
@@ -269,7 +277,7 @@ def test_failures_name_their_cause():
     its rounding level and the force scale; the message has no doubled 'found'."""
     from test_axis_base import cupped_petal
 
-    from pipeline.sim.quasistatic import _Failure
+    from pipeline.sim.solver.quasistatic import _Failure
 
     v, f = cupped_petal()
     edges = np.array(sorted({tuple(sorted(e)) for t in f for e in ((t[0], t[1]), (t[1], t[2]),
@@ -294,8 +302,8 @@ def test_simulate_names_the_cause_in_one_line(tmp_path, monkeypatch):
     typo 'found no equilibrium found' gone, no output file."""
     from click.testing import CliRunner
 
-    from pipeline import axis
-    from pipeline.sim import quasistatic
+    from pipeline.flower import axis
+    from pipeline.sim.solver.quasistatic import QuasiStatic, _Failure
     from stages.cli import cli
 
     runner = CliRunner()
@@ -307,9 +315,9 @@ def test_simulate_names_the_cause_in_one_line(tmp_path, monkeypatch):
         assert r.exit_code == 0, r.output
 
     def stall(self, model, state, effects, A):
-        return quasistatic._Failure(3e-9, 0.25, "stalled", "indefinite")
+        return _Failure(3e-9, 0.25, "stalled", "indefinite")
 
-    monkeypatch.setattr(quasistatic.QuasiStatic, "_newton", stall)
+    monkeypatch.setattr(QuasiStatic, "_newton", stall)
     lines = {}
     for case in ("rest", "weak"):
         if case == "weak":  # every base now counts as a line
@@ -342,7 +350,7 @@ def test_inertia_plays_a_jump_in_growth_out_over_frames_and_comes_to_rest(petal)
     length = petal.length
 
     def error(X):
-        return study.shape_error(petal, X, eq.positions)[0]
+        return accuracy.shape_error(petal, X, eq.positions)[0]
 
     start = error(petal.vertices)
     assert start > 0.05  # the jump moves the petal a lot
@@ -372,9 +380,9 @@ def test_threads_give_the_same_arrays_as_one(monkeypatch, effects):
     import threading
     from concurrent.futures import ThreadPoolExecutor
 
-    from pipeline.sim import quasistatic as qs_module
+    from pipeline.sim.solver import quasistatic as qs_module
 
-    scene = study.Scene.bud(6, 300)
+    scene = accuracy.Scene.bud(6, 300)
     threads = set()
     factor = _System.factor
 
@@ -388,7 +396,7 @@ def test_threads_give_the_same_arrays_as_one(monkeypatch, effects):
         pool = ThreadPoolExecutor(workers)
         monkeypatch.setattr(qs_module, "_POOL", pool)
         threads.clear()
-        runs.append(study.simulate(scene, "quasi-static", ramp=1, stages=5, effects=effects))
+        runs.append(accuracy.simulate(scene, "quasi-static", ramp=1, stages=5, effects=effects))
         used = len(threads - {threading.get_ident()})
         pool.shutdown()
         assert used >= 2 if workers > 1 else used == 1

@@ -10,7 +10,7 @@ import pytest
 import trimesh
 from click.testing import CliRunner
 
-from pipeline import asset, topology
+from pipeline.mesh import procedural, topology
 from stages.cli import cli
 from tests.conftest import SHARED
 
@@ -38,7 +38,7 @@ def write_parts(path, parts, header=""):
 
 def bud_petals(count=5):
     """The procedural bud's petals, each ``(vertices, faces)``."""
-    v, f, petal = asset.bud(count, 600, 0)
+    v, f, petal = procedural.bud(count, 600, 0)
     out = []
     for p in range(count):
         idx = np.flatnonzero(petal == p)

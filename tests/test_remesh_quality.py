@@ -7,9 +7,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from pipeline import asset, remesh, stability, symmetry
-from pipeline.meshfile import read_mesh, read_parts
-from pipeline.petals import prepare, prepare_parts
+from pipeline.flower.petals import prepare, prepare_parts
+from pipeline.io.meshfile import read_mesh, read_parts
+from pipeline.mesh import procedural, remesh, symmetry
+from pipeline.studies import stability
 from tests.conftest import SHARED
 
 EXTERNAL = SHARED / "external-meshes"
@@ -209,7 +210,7 @@ def test_quad_petals_are_cut_remeshed_and_mirrored_and_say_so():
 
 
 def test_a_passing_mirror_paired_petal_is_left_as_it_is():
-    v, f, _ = asset.bud(1, 320, 0)
+    v, f, _ = procedural.bud(1, 320, 0)
     assert remesh.quality(v, f) >= remesh.MIN_ANGLE
     result = prepare(v, f, where="petal.obj")
     assert result.notes == [] and result.edge_target[0] == 0

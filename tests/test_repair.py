@@ -4,8 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from pipeline import topology
-from pipeline.mesh import repair
+from pipeline.mesh import repair, topology
 
 
 def bowtie():

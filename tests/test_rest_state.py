@@ -7,7 +7,7 @@ import h5py
 import numpy as np
 from click.testing import CliRunner
 
-from pipeline.growth import REST_STIFFNESS, rest_stiffness
+from pipeline.sim.build import REST_STIFFNESS, rest_stiffness
 from stages.cli import cli
 from tests.conftest import prepared
 
@@ -15,7 +15,7 @@ from tests.conftest import prepared
 def _collapse_one_triangle(v, f, petal_of_vertices, which: int = 0):
     """Move the third vertex of an interior face of petal ``which`` to 1e-9 mean edges
     off the midpoint of the face's first edge: that face becomes a sliver."""
-    from pipeline import topology
+    from pipeline.mesh import topology
 
     boundary = topology.boundary_vertices(f, len(v))
     faces = [t for t in f if not boundary[t].any() and petal_of_vertices[t[0]] == which]

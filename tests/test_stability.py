@@ -6,7 +6,7 @@ import h5py
 import numpy as np
 import pytest
 
-from pipeline import stability
+from pipeline.studies import stability
 
 FAST = [c for c in stability.CASES if not c.slow]
 
@@ -22,7 +22,7 @@ def test_hard_case_is_stable_or_stops_cleanly(case, tmp_path):
             contact = (h5.attrs["integrator"] == "quasi-static"
                        and "collisions" in str(h5.attrs["effects"]))
             if contact:  # (the dense 12-petal bud): no frame has an intersection
-                from pipeline.sim.contact import frame_intersections
+                from pipeline.sim.terms.contact import frame_intersections
 
                 frames = h5["frames/positions"][()]
                 assert not any(frame_intersections(frames, h5["mesh/faces"][()]))

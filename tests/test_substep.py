@@ -8,15 +8,16 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from pipeline import asset, clean
-from pipeline.axis import find_axes
 from pipeline.config import load_config
-from pipeline.growth import assign_growth
+from pipeline.flower.axis import find_axes
+from pipeline.flower.growth import assign_growth
+from pipeline.mesh import clean, procedural
 from pipeline.sim import effects as fx
-from pipeline.sim import stable_step
-from pipeline.sim.integrators import Diverged, SemiImplicit
+from pipeline.sim.explicit.semi_implicit import Diverged, SemiImplicit
+from pipeline.sim.explicit.stable_step import StableStep, amplification, scheme_limit
 from pipeline.sim.model import Control, State
 from pipeline.sim.run import run
+from pipeline.sim.terms.connections import connection_blocks
 from tests.conftest import build_model, prepared
 
 PARAMS = load_config().nested()["effects"]
@@ -31,24 +32,23 @@ def bud():
                                                (0.1, 1.0, 1.491), (0.0, 1.0, 1.414),
                                                (0.4, 1.0, 1.826), (0.5, 0.99, 1.414)])
 def test_scheme_limit_is_where_the_amplification_matrix_reaches_one(eta, d, expected):
-    z = stable_step.scheme_limit(eta, d)
+    z = scheme_limit(eta, d)
     assert z == pytest.approx(expected, abs=1e-3)
 
     def rho(x):
-        return max(abs(np.linalg.eigvals(stable_step.amplification(x, eta, d))))
+        return max(abs(np.linalg.eigvals(amplification(x, eta, d))))
 
     assert all(rho(x) <= 1.0 + 1e-9 for x in np.linspace(0.0, 0.999 * z, 200))
     assert rho(1.002 * z) > 1.0 + 1e-6
 
 
-def dense_top_eigenvalue(est: stable_step.StableStep, n: int, conn=None, X=None) -> float:
+def dense_top_eigenvalue(est: StableStep, n: int, conn=None, X=None) -> float:
     """The largest eigenvalue of D H D over the free vertices, dense (H as last assembled
     by ``est``; connection springs added)."""
     H = est.blocks.matrix().toarray()
     if conn is not None:
         blocks = np.zeros((len(conn.pairs), 3, 3))
-        stable_step._connection_blocks(X, conn.pairs, conn.rest, conn.stiffness, conn.alive,
-                                       blocks)
+        connection_blocks(X, conn.pairs, conn.rest, conn.stiffness, conn.alive, blocks)
         for (i, j), K in zip(conn.pairs, blocks, strict=True):
             for a, b, s in ((i, i, 1), (j, j, 1), (i, j, -1), (j, i, -1)):
                 H[3 * a:3 * a + 3, 3 * b:3 * b + 3] += s * K
@@ -62,7 +62,7 @@ def test_estimate_bounds_the_top_eigenvalue_from_above_within_2_percent(vertices
     v, f, petal, axes, growth = prepared(1, vertices)
     model = build_model(v, growth, axes, ks=ks)
     X = v + np.random.default_rng(2).normal(scale=0.05, size=v.shape)  # off its rest state
-    est = stable_step.StableStep.build(model)
+    est = StableStep.build(model)
     e = est.estimate(model, X, A, model.hinge_rest_cos, model.hinge_rest_sin)
     true = dense_top_eigenvalue(est, model.vertex_count)
     assert true <= e.gershgorin <= 2.5 * true  # the bound (measured 1.8-1.95 x)
@@ -82,7 +82,7 @@ def test_estimate_counts_intact_connection_springs(bud):
     conn = effects.connections
     assert len(conn.pairs) > 5
     X = v + np.random.default_rng(3).normal(scale=0.05, size=v.shape)
-    est = stable_step.StableStep.build(model)
+    est = StableStep.build(model)
     cos0, sin0 = model.hinge_rest_cos, model.hinge_rest_sin
     bare = est.estimate(model, X, 0.0, cos0, sin0)
     e = est.estimate(model, X, 0.0, cos0, sin0, conn)
@@ -190,7 +190,7 @@ def test_rollback_restores_the_effects_and_break_steps_stay_in_user_steps():
     and is rolled back each frame; the run is the one the honest estimate gives, bit for
     bit (so every array the kernel changes was restored), and springs break at user
     steps."""
-    v, f, petal = asset.bud(4, 480, 1, asset.BudShape(layer_gap=-0.04), crossing=True)
+    v, f, petal = procedural.bud(4, 480, 1, procedural.BudShape(layer_gap=-0.04), crossing=True)
     v = v / clean.mean_edge_length(v, f)
     axes = find_axes(v, f, petal)
     mesh = v, f, petal, axes, assign_growth(v, f, axes.x, "0.2*x**2")

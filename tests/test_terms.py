@@ -5,13 +5,18 @@ parts, and the same physics checks run against every integrator."""
 import numpy as np
 import pytest
 
-from pipeline.measure import PetalFrames
-from pipeline.sim import contact as ct
+from pipeline.flower.measure import PetalFrames
 from pipeline.sim import effects as fx
-from pipeline.sim import terms
+from pipeline.sim.energy import build
 from pipeline.sim.integrators import make_integrator
 from pipeline.sim.model import Control, State
 from pipeline.sim.run import run
+from pipeline.sim.terms.bending import Bending
+from pipeline.sim.terms.connections import Springs
+from pipeline.sim.terms.contact import Contact
+from pipeline.sim.terms.elastic import Elastic
+from pipeline.sim.terms.inertia import Inertia
+from pipeline.sim.terms.stretch import Stretch
 from tests.conftest import build_model, prepared
 from tests.test_contact import GAP, _sheets_in_the_band
 
@@ -52,14 +57,14 @@ def _check(term, X, step, moving=None, rtol=1e-6):
 
 def test_stretch_gradient_and_hessian(petal):
     _, model, X, _ = petal
-    _check(terms.Stretch.of(model).at(0.6), X, 1e-6)
+    _check(Stretch.of(model).at(0.6), X, 1e-6)
 
 
 def test_bending_with_curl_gradient_and_hessian(petal):
     """Curl moves the rest angles with the growth (Eq. 11): at A = 0.6 they are not the
     model's, and the unit's derivatives are of that energy."""
     _, model, X, curl = petal
-    bending = terms.Bending.of(model, curl).at(0.6)
+    bending = Bending.of(model, curl).at(0.6)
     assert not np.allclose(bending.cos0, model.hinge_rest_cos)
     _check(bending, X, 1e-6)
 
@@ -67,14 +72,14 @@ def test_bending_with_curl_gradient_and_hessian(petal):
 def test_inertia_gradient_and_hessian(petal):
     v, model, X, _ = petal
     rng = np.random.default_rng(2)
-    _check(terms.Inertia(v, rng.uniform(0.5, 2.0, len(v))), X, 1e-4)
+    _check(Inertia(v, rng.uniform(0.5, 2.0, len(v))), X, 1e-4)
 
 
 def test_contact_gradient_and_hessian():
     """The barrier, where vertex-face and edge-edge pairs are in its band (its length
     scale is the gap: a step of 1e-3 of it)."""
     X, faces, petal = _sheets_in_the_band()
-    c = ct.Contact.build(X, faces, petal, gap=GAP, stiffness=0.1)
+    c = Contact.build(X, faces, petal, gap=GAP, stiffness=0.1)
     assert c.active_count(X) > 10
     _check(c, X, 1e-3 * GAP, moving=np.flatnonzero(np.repeat(petal == 1, 3)), rtol=1e-5)
 
@@ -86,14 +91,14 @@ def test_connection_springs_gradient_and_hessian():
     rest = np.linalg.norm(X[pairs[:, 0]] - X[pairs[:, 1]], axis=1) * [0.7, 1.3, 1.0, 0.9]
     conn = fx.Connections(pairs, rest, 10 * rest, 0.2, np.array([True, True, True, False]),
                           np.full(4, -1))
-    _check(ct.Springs(conn), X, 1e-6)
+    _check(Springs(conn), X, 1e-6)
 
 
 def test_the_fused_elastic_unit_is_stretch_plus_bending(petal):
     """The solvers run stretch and bending in one pass; it is the sum of the two units
     (forces to rounding, Hessians likewise), and the explicit step's forces are its."""
     v, model, X, curl = petal
-    elastic = terms.Elastic.of(model, curl).at(0.6)
+    elastic = Elastic.of(model, curl).at(0.6)
     F = np.zeros_like(X)
     energy = elastic.forces(X, F)
     parts = [elastic.stretch, elastic.bending]
@@ -106,7 +111,7 @@ def test_the_fused_elastic_unit_is_stretch_plus_bending(petal):
     # the state's forces at rest (what the explicit step starts from) are the unit's
     control = Control("linear", 100.0)
     state = State.at_rest(model, v, control)
-    plain = terms.Elastic.of(model).at(0.0)
+    plain = Elastic.of(model).at(0.0)
     F0 = np.zeros_like(v)
     assert plain.forces(v, F0) == state.potential_energy
     assert np.array_equal(F0, state.forces)
@@ -114,13 +119,13 @@ def test_the_fused_elastic_unit_is_stretch_plus_bending(petal):
 
 def test_build_makes_only_the_terms_a_scene_calls_for(petal):
     v, model, X, curl = petal
-    bare = terms.build(model, fx.Effects())
+    bare = build(model, fx.Effects())
     assert bare.names() == ["stretch", "bending", "fixed_base"]
     plane = fx.CenterPlane(np.array([3, 4]), np.array([[1.0, 0, 0], [0, 1.0, 0]]),
                            np.zeros(2))
-    springs = ct.Springs(fx.Connections(np.array([[0, 5]]), np.ones(1), np.full(1, 2.0), 0.1,
+    springs = Springs(fx.Connections(np.array([[0, 5]]), np.ones(1), np.full(1, 2.0), 0.1,
                                         np.ones(1, bool), np.full(1, -1)))
-    full = terms.build(model, fx.Effects(curl=curl, center_plane=plane), springs=springs)
+    full = build(model, fx.Effects(curl=curl, center_plane=plane), springs=springs)
     assert full.names() == ["stretch", "bending", "connections", "fixed_base", "center_plane"]
     assert full.elastic.bending.curl is curl
     vec = np.ones((len(v), 3))
@@ -169,7 +174,7 @@ def test_every_integrator_holds_a_petal_that_does_not_grow(name):
     """Zero growth is an equilibrium: nothing moves further than the Newton solver's
     seeded symmetry-breaking nudge (1e-6 mesh units, the mean edge being 1), which its
     quasi-static path removes and its inertia term lets die out."""
-    from pipeline.sim.quasistatic import QuasiStatic
+    from pipeline.sim.solver.quasistatic import QuasiStatic
 
     v, _, rec = _bloom(name, curve="0", steps=6000, frames=3)
     assert np.abs(np.asarray(rec.positions) - v).max() <= QuasiStatic.perturbation

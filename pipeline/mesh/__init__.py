@@ -17,10 +17,10 @@ so a model in centimetres and the same model in metres give the same answer.
   edges resolved, slits zipped, bowtie fans dropped).
 """
 
-from .heightfield import HeightSheet, height_sheet
-from .lobes import Lobes, lobes
-from .midsurface import Midsurface, midsurface
-from .thickness import Thickness, thickness
+from pipeline.mesh.heightfield import HeightSheet, height_sheet
+from pipeline.mesh.lobes import Lobes, lobes
+from pipeline.mesh.midsurface import Midsurface, midsurface
+from pipeline.mesh.thickness import Thickness, thickness
 
 __all__ = ["HeightSheet", "Lobes", "Midsurface", "Thickness", "height_sheet", "lobes", "midsurface",
            "thickness"]

@@ -8,8 +8,8 @@ from typing import NamedTuple
 import numpy as np
 import scipy.sparse as sp
 
-from .. import topology
-from .repair import manifold_fans
+from pipeline.mesh import topology
+from pipeline.mesh.repair import manifold_fans
 
 #: grid nodes over the footprint's bounding box
 CELLS = 1600
@@ -36,7 +36,7 @@ class HeightSheet(NamedTuple):
 def _frame(v: np.ndarray, f: np.ndarray):
     """The best-fit plane (:func:`pipeline.mesh.lobes.plane_frame`), right-handed, its
     normal along the faces' winding."""
-    from .lobes import plane_frame
+    from pipeline.mesh.lobes import plane_frame
 
     centre, axes, _, _ = plane_frame(v, f)
     fn = topology.face_normals(v, f)

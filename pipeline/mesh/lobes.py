@@ -8,7 +8,7 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.csgraph import dijkstra
 
-from .. import topology
+from pipeline.mesh import topology
 
 #: faces farther from the axis than this fraction of the farthest make the angular profile
 OUTER = 0.4

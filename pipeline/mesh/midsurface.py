@@ -8,9 +8,9 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components
 
-from .. import clean, topology
-from .repair import manifold_fans
-from .thickness import thickness as measure_thickness
+from pipeline.mesh import clean, topology
+from pipeline.mesh.repair import manifold_fans
+from pipeline.mesh.thickness import thickness as measure_thickness
 
 #: least fraction of the area with a parallel layer behind it for a part to be a shell
 MIN_LAYERED = 0.3

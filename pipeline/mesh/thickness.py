@@ -6,7 +6,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from .. import topology
+from pipeline.mesh import topology
 
 #: a face counts as having a layer behind it when that layer's normal is within this
 #: angle of its own (either way round), i.e. the two are roughly parallel
@@ -47,7 +47,7 @@ def _component_width(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
 def _inward(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     """(F,) +1 where the inside of the face's closed component is along its normal, -1
     where against it, 0 for faces of open (or non-manifold) components."""
-    from .. import clean
+    from pipeline.mesh import clean
 
     oriented, _ = clean.orient_consistently(faces, len(vertices))
     flipped = np.any(oriented != faces, axis=1)

@@ -14,8 +14,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from . import effects as fx
-from .model import Model
+from pipeline.flower.axis import find_axes
+from pipeline.flower.growth import GrowthMap, assign_growth
+from pipeline.flower.measure import PetalFrames
+from pipeline.mesh import clean
+from pipeline.mesh.hinge import edge_lengths
+from pipeline.sim import effects as fx
+from pipeline.sim.model import Model
+from pipeline.sim.terms.elastic import internal_forces
 
 
 @dataclass
@@ -49,8 +55,8 @@ class Prepared:
 
     @classmethod
     def of(cls, vertices, faces, petal, axes, growth) -> Prepared:
-        """From the library's own results (:func:`pipeline.axis.find_axes`,
-        :func:`pipeline.growth.assign_growth`)."""
+        """From the library's own results (:func:`pipeline.flower.axis.find_axes`,
+        :func:`pipeline.flower.growth.assign_growth`)."""
         return cls(vertices, faces, petal, axes.base, axes.on_axis, axes.s, axes.x, axes.tip,
                    axes.plane, np.asarray(axes.flower_axis), growth.edges, growth.alpha,
                    growth.stiffness, growth.hinges, growth.rest_angle)
@@ -60,10 +66,6 @@ class Prepared:
                   alpha_add: float = 0.0, boundary_stiffness: float = 1.0) -> Prepared:
         """A bud mesh scaled to mean edge 1 (as `bloom remesh` leaves it), its axes and its
         growth map (``alpha_add``, ``boundary_stiffness``: the wrinkles of Eq. 12)."""
-        from .. import clean
-        from ..axis import find_axes
-        from ..growth import assign_growth
-
         v = np.asarray(vertices, dtype=np.float64)
         v = v / clean.mean_edge_length(v, faces)
         axes = find_axes(v, faces, petal)
@@ -93,9 +95,6 @@ class Prepared:
     def max_grown_edge(self) -> float:
         """The longest edge at full growth (``L (1 + max(alpha, 0))``, measured as the
         model measures its rest lengths): what the collision grid's cells must hold."""
-        from .. import clean
-        from .elastic import edge_lengths
-
         edges = np.ascontiguousarray(self.edges, dtype=np.int64).reshape(-1, 2)
         if len(edges) == 0:
             return clean.mean_edge_length(self.vertices, self.faces)
@@ -106,8 +105,45 @@ class Prepared:
     def frames(self, positions=None):
         """The petal frames the opening angle is measured in, at ``positions`` (default
         the rest state)."""
-        from ..measure import PetalFrames
-
         return PetalFrames.from_mesh(self.vertices if positions is None else positions,
                                      self.petal, self.base, self.on_axis, self.tip, self.plane,
                                      flower_axis=self.flower_axis)
+
+
+#: rest-state check: every vertex is nudged by this many mean edges (far above rounding,
+#: far below any motion that matters) ...
+REST_NUDGE = 1e-9
+
+
+#: ... and the force that comes back may be at most this many times (K_s + K_b) per unit
+#: of nudge. A sound mesh measures 5-8 times K_s (the stiffest vertex's springs); a
+#: triangle collapsed to a sliver makes its hinge ~ K_b / height^2 stiff: 1e15 measured.
+REST_STIFFNESS = 1000.0
+
+
+def rest_stiffness(vertices: np.ndarray, growth: GrowthMap, petal: np.ndarray, pinned: np.ndarray,
+                   stretch_stiffness: float, bending_stiffness: float, seed: int = 0) -> np.ndarray:
+    """``(P,)`` how stiff each petal's rest state is, in units of ``K_s + K_b``: the
+    largest force on a free vertex after every vertex is nudged at random by
+    ``REST_NUDGE`` (mesh units, mean edge 1), over the nudge.
+
+    At growth 0 the rest state is an equilibrium by construction (rest lengths and
+    angles are measured on it), so the force there is zero; what can be wrong is that
+    it is not a *sound* one: rounding, or the first step, moves a degenerate triangle's
+    normal by a lot, and its hinge pushes back with a force no time step can integrate.
+    The nudge measures that; more than ``REST_STIFFNESS`` is a broken rest state.
+    """
+    model = Model.build(vertices, growth.edges, growth.alpha, stretch_stiffness * growth.stiffness,
+                        growth.hinges, bending_stiffness, pinned)
+    rng = np.random.default_rng(seed)
+    X = vertices + rng.uniform(-REST_NUDGE, REST_NUDGE, vertices.shape)
+    F = np.zeros_like(X)
+    internal_forces(X, model.edge_indices, model.edge_rest_length, 0.0 * model.edge_growth,
+                            model.edge_stiffness, model.hinge_indices, model.hinge_rest_cos,
+                            model.hinge_rest_sin, model.hinge_stiffness, 0.0, F)
+    force = np.linalg.norm(F, axis=1)
+    force[model.pinned] = 0.0
+    force[~np.isfinite(force)] = np.inf
+    out = np.zeros(int(petal.max()) + 1 if len(petal) else 0)
+    np.maximum.at(out, petal, force)
+    return out / (REST_NUDGE * (stretch_stiffness + bending_stiffness))

@@ -20,9 +20,10 @@ from pathlib import Path
 import h5py
 import numpy as np
 
-from .effects import Effects
-from .model import State
-from .run import Recording
+from pipeline.artifact import atomic_path
+from pipeline.sim.effects import Effects
+from pipeline.sim.model import State
+from pipeline.sim.run import Recording
 
 VERSION = 1
 
@@ -39,12 +40,12 @@ def fingerprint(config_json: str, inputs: dict[str, str]) -> str:
     would splice two different runs into one artifact."""
     import numba
 
-    from .. import __version__
+    from pipeline import __version__
 
     config = json.loads(config_json)
     config.get("simulate", {}).pop("checkpoint_seconds", None)
     sources = hashlib.sha256()
-    for src in sorted(Path(__file__).parent.glob("*.py")):
+    for src in sorted(Path(__file__).parent.rglob("*.py")):
         sources.update(src.read_bytes())
     text = json.dumps({"config": config, "inputs": inputs, "v": VERSION,
                        "code": [__version__, sources.hexdigest(), np.__version__,
@@ -71,27 +72,22 @@ def _alive(pid: str) -> bool:
 def save(path: Path, key: str, state: State, effects: Effects, rec: Recording) -> None:
     """Write the checkpoint (atomically: a kill while writing leaves the previous one;
     the half-written file of such a kill is removed by the next save)."""
-    for stale in path.parent.glob(f"{path.name}.tmp-*"):
-        if not _alive(stale.name.rsplit("-", 1)[-1]):  # never another live writer's
+    for stale in path.parent.glob(f".{path.stem}.tmp-*{path.suffix}"):
+        pid = stale.name[len(f".{path.stem}.tmp-"):-len(path.suffix) or None]
+        if not _alive(pid):  # never another live writer's
             stale.unlink(missing_ok=True)
-    tmp = path.with_name(f"{path.name}.tmp-{os.getpid()}")
-    try:
-        with h5py.File(tmp, "w") as f:
-            f.attrs["fingerprint"] = key
-            f.attrs["step"] = state.step
-            f.attrs["potential_energy"] = state.potential_energy
-            for name in ("positions", "velocities", "forces"):
-                f[f"state/{name}"] = getattr(state, name)
-            for name, a in _bundle_arrays(effects):
-                f[f"effects/{name}"] = a
-            f["frames/time"] = np.asarray(rec.time)
-            f["frames/positions"] = np.asarray(rec.positions)
-            for name, values in rec.diagnostics.items():
-                f[f"diagnostics/{name}"] = np.asarray(values)
-        os.replace(tmp, path)
-    finally:
-        if tmp.exists():
-            tmp.unlink()
+    with atomic_path(path) as tmp, h5py.File(tmp, "w") as f:
+        f.attrs["fingerprint"] = key
+        f.attrs["step"] = state.step
+        f.attrs["potential_energy"] = state.potential_energy
+        for name in ("positions", "velocities", "forces"):
+            f[f"state/{name}"] = getattr(state, name)
+        for name, a in _bundle_arrays(effects):
+            f[f"effects/{name}"] = a
+        f["frames/time"] = np.asarray(rec.time)
+        f["frames/positions"] = np.asarray(rec.positions)
+        for name, values in rec.diagnostics.items():
+            f[f"diagnostics/{name}"] = np.asarray(values)
 
 
 def load(path: Path, key: str, state: State, effects: Effects) -> Recording | None:

@@ -23,137 +23,12 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .. import topology
+from pipeline.sim.explicit.pushback import Collisions
+from pipeline.sim.terms.center_plane import CenterPlane, project_out_normals
+from pipeline.sim.terms.connections import Connections
+from pipeline.sim.terms.growth import Curl
 
 ORDER = ("curl", "wrinkles", "collisions", "connections", "center_plane")
-
-
-@dataclass
-class Curl:
-    theta0: np.ndarray  #: (H,) rest dihedral angle at t = 0
-    beta: float
-    cos_t: np.ndarray  #: (H,) work arrays: cos and sin of the rest angle at the current step
-    sin_t: np.ndarray
-
-    @classmethod
-    def build(cls, rest_angle: np.ndarray, beta: float) -> Curl:
-        theta0 = np.ascontiguousarray(rest_angle, dtype=np.float64)
-        return cls(theta0, float(beta), np.cos(theta0), np.sin(theta0))
-
-
-@dataclass
-class CenterPlane:
-    vertices: np.ndarray  #: (C,) constrained vertices (axis vertices that are not pinned)
-    normals: np.ndarray  #: (C, 3) unit normal of each one's center plane
-    height: np.ndarray  #: (C,) each one's distance along its normal at the start
-
-    @classmethod
-    def build(cls, positions, on_axis, pinned, petal, plane) -> CenterPlane:
-        idx = np.flatnonzero(np.asarray(on_axis, bool) & ~np.asarray(pinned, bool))
-        normals = np.asarray(plane, dtype=np.float64)[np.asarray(petal)[idx], :3]
-        normals = normals / np.linalg.norm(normals, axis=1, keepdims=True)
-        height = np.einsum("ij,ij->i", np.asarray(positions)[idx], normals)
-        return cls(idx.astype(np.int64), np.ascontiguousarray(normals), height)
-
-    def drift(self, positions) -> float:
-        """Largest change of a constrained vertex's distance to its plane (should be ~0)."""
-        if len(self.vertices) == 0:
-            return 0.0
-        now = np.einsum("ij,ij->i", np.asarray(positions)[self.vertices], self.normals)
-        return float(np.abs(now - self.height).max())
-
-
-@dataclass
-class Connections:
-    pairs: np.ndarray  #: (C, 2) vertex pairs, the first on the outer petal's rim
-    rest: np.ndarray  #: (C,) rest length (the initial distance)
-    limit: np.ndarray  #: (C,) breaking length
-    stiffness: float
-    alive: np.ndarray  #: (C,) bool, updated by the kernel
-    broken_step: np.ndarray  #: (C,) step at which each broke (-1: intact)
-
-    @classmethod
-    def build(cls, vertices, faces, petal, pinned, s, layer, *, stiffness: float,
-              critical_stretch: float, max_distance: float, min_s: float) -> Connections:
-        """Pairs chosen from the bud's geometry: every rim vertex of a petal (past
-        ``min_s`` from its base) with the nearest vertex of an inner petal within
-        ``max_distance``. A pair breaks when longer than ``critical_stretch`` times its
-        rest length (at least one mean edge, so that touching pairs do not snap at once).
-        """
-        from scipy.spatial import cKDTree
-
-        v = np.asarray(vertices, dtype=np.float64)
-        rim = topology.boundary_vertices(faces, len(v)) & ~np.asarray(pinned, bool) & (s > min_s)
-        pairs = []
-        for p in range(int(petal.max()) + 1):
-            inner = np.flatnonzero((layer[petal] < layer[p]) & ~np.asarray(pinned, bool))
-            mine = np.flatnonzero(rim & (petal == p))
-            if len(inner) == 0 or len(mine) == 0:
-                continue
-            dist, j = cKDTree(v[inner]).query(v[mine], distance_upper_bound=max_distance)
-            ok = np.isfinite(dist)
-            pairs += list(zip(mine[ok].tolist(), inner[j[ok]].tolist(), strict=True))
-        pairs = np.asarray(pairs, dtype=np.int64).reshape(-1, 2)
-        rest = np.linalg.norm(v[pairs[:, 0]] - v[pairs[:, 1]], axis=1)
-        limit = critical_stretch * np.maximum(rest, 1.0)
-        return cls(pairs, rest, limit, float(stiffness), np.ones(len(pairs), dtype=bool),
-                   np.full(len(pairs), -1, dtype=np.int64))
-
-
-@dataclass
-class Collisions:
-    faces: np.ndarray  #: (F, 3)
-    face_petal: np.ndarray  #: (F,)
-    vertex_petal: np.ndarray  #: (V,)
-    side: np.ndarray  #: (V, P) +-1: the side of petal Q (along its normals) vertex v belongs on
-    params: np.ndarray  #: (cell size, offset, margin, slack)
-    normals: np.ndarray  #: (F, 3) work array: unit face normals at the current step
-    start: np.ndarray  #: grid work arrays: hash table of cells, counting sort
-    count: np.ndarray
-    items: np.ndarray
-    reference: np.ndarray  #: (V, 3) positions when the grid was last built
-    pair_start: np.ndarray  #: (V+1,) near pairs (CSR): faces near each vertex
-    pair_faces: np.ndarray
-    best_face: np.ndarray  #: (P,) work arrays of the nearest face per petal
-    best_dist: np.ndarray
-    near: np.ndarray  #: (V, P) int8: vertex was over or under that petal at the last step
-    #: gap the quasi-static solver's contact barrier keeps between petals (mesh units);
-    #: the push-back above does not use it
-    thickness: float = 0.01
-
-    @classmethod
-    def build(cls, vertices, faces, petal, *, offset: float, max_edge: float,
-              margin: float = 0.2, slack: float = 0.1, thickness: float = 0.01) -> Collisions:
-        """Which side of another petal a vertex belongs on is the side it is on when it
-        comes near that petal (within the margin, over or under one of its faces): the
-        kernel records it then. For vertices near another petal in the bud that is the
-        bud's side (inner petals inside outer ones, an imbricate rim in its order), taken
-        at the first step; for the others, the side they arrive on, round the petal's
-        rim, as the bud opens. Petals that touch in the bud start with no contact."""
-        v = np.asarray(vertices, dtype=np.float64)
-        f = np.ascontiguousarray(faces, dtype=np.int64)
-        petal = np.ascontiguousarray(petal, dtype=np.int64)
-        count = int(petal.max()) + 1
-        size = 4 * len(f) + 1
-        cell = max_edge + 2.0 * (margin + offset + slack)
-        return cls(f, np.ascontiguousarray(petal[f[:, 0]]), petal, np.ones((len(v), count)),
-                   np.array([cell, offset, margin, slack]), np.zeros((len(f), 3)),
-                   np.zeros(size + 1, dtype=np.int64), np.zeros(size, dtype=np.int64),
-                   np.zeros(27 * len(f), dtype=np.int64), v.copy(),
-                   np.zeros(len(v) + 1, dtype=np.int64), np.zeros(64 * len(v), dtype=np.int64),
-                   np.zeros(count, dtype=np.int64), np.zeros(count),
-                   np.zeros((len(v), count), dtype=np.int8), float(thickness))
-
-    def near_pairs(self, X, reach: float) -> int:
-        """List the near pairs at ``X`` (as the kernel does when it rebuilds)."""
-        from . import pushback
-
-        free = np.ones(len(X))
-        cell = self.params[0]
-        lost = pushback.build_face_grid(X, self.faces, reach, cell, self.start, self.count, self.items)
-        return lost + pushback.near_pairs(X, self.faces, self.face_petal, self.vertex_petal, free,
-                                         reach, cell, self.start, self.count, self.items,
-                                         self.pair_start, self.pair_faces)
 
 
 def petal_layers(vertices, petal, axis_point, axis_dir) -> np.ndarray:
@@ -213,7 +88,10 @@ Bundle = namedtuple("Bundle", [
     "plane_height",
 ])
 
+
 _F8 = np.zeros(0)
+
+
 _I8 = np.zeros(0, dtype=np.int64)
 
 
@@ -253,8 +131,6 @@ class Effects:
     def constrain(self, forces: np.ndarray) -> None:
         """Apply the constraints to forces computed outside :func:`kernels.advance`."""
         if self.center_plane is not None:
-            from .constraints import project_out_normals
-
             project_out_normals(forces, self.center_plane.vertices, self.center_plane.normals)
 
     def frame_diagnostics(self, positions=None, growth: float = 0.0) -> dict:
@@ -301,3 +177,7 @@ def build(names, *, vertices, faces, petal, pinned, on_axis, plane, s, rest_angl
     if "center_plane" in names:
         fx.center_plane = CenterPlane.build(vertices, on_axis, pinned, petal, plane)
     return fx
+
+
+#: a scene with no effects
+NO_EFFECTS = Effects()

@@ -6,7 +6,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from . import kernels
+from pipeline.mesh.hinge import edge_lengths, hinge_cos_sin
+from pipeline.sim.terms.elastic import internal_forces
+from pipeline.sim.terms.growth import SCHEDULE_CODES, growth_value
 
 
 def _c(a, dtype) -> np.ndarray:
@@ -17,7 +19,7 @@ def hinge_order(edges: np.ndarray, hinges: np.ndarray) -> tuple[np.ndarray, np.n
     """The edges in the order the force kernel reads fastest: edge h is hinge h's edge,
     as ``(i, j)`` of the hinge, wherever hinge h's edge is among ``edges`` (and not
     already taken by an earlier hinge); the other edges fill the remaining places in
-    their given order. Then :func:`kernels.internal_forces` does edge h and hinge h in
+    their given order. Then :func:`internal_forces` does edge h and hinge h in
     one pass. Hinges keep their order (effects index them).
 
     Returns ``(order, reordered)``: ``edges[order]``, with the hinge's orientation where
@@ -90,12 +92,12 @@ class Model:
                 raise ValueError(f"{name} index a vertex outside 0..{n - 1}")
         order, edges = hinge_order(edges, hinges)
         rest = np.empty(len(edges))
-        kernels.edge_lengths(X, edges, rest)
+        edge_lengths(X, edges, rest)
         if np.any(rest <= 0.0):
             raise ValueError(f"{int(np.sum(rest <= 0))} edges have zero length")
         cos0 = np.empty(len(hinges))
         sin0 = np.empty(len(hinges))
-        kernels.hinge_cos_sin(X, hinges, cos0, sin0)
+        hinge_cos_sin(X, hinges, cos0, sin0)
         vmass = np.full(n, float(mass))
         inv = 1.0 / vmass
         inv[_c(pinned, bool)] = 0.0
@@ -126,7 +128,7 @@ class State:
     def at_rest(cls, model: Model, positions, control: Control) -> State:
         X = _c(positions, np.float64).copy()
         state = cls(X, np.zeros_like(X), np.zeros_like(X), 0, 0.0, np.zeros_like(X))
-        state.potential_energy = kernels.internal_forces(
+        state.potential_energy = internal_forces(
             X, model.edge_indices, model.edge_rest_length, model.edge_growth,
             model.edge_stiffness, model.hinge_indices, model.hinge_rest_cos,
             model.hinge_rest_sin, model.hinge_stiffness, control.growth_at(0.0), state.forces)
@@ -152,10 +154,10 @@ class Control:
 
     @property
     def schedule_code(self) -> int:
-        return kernels.SCHEDULE_CODES[self.schedule]
+        return SCHEDULE_CODES[self.schedule]
 
     def growth_at(self, t: float) -> float:
-        return float(kernels.growth_value(self.schedule_code, float(t), float(self.ramp_time),
+        return float(growth_value(self.schedule_code, float(t), float(self.ramp_time),
                                           self.table))
 
     @classmethod

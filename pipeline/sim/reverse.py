@@ -18,11 +18,25 @@ and recorded (:func:`distance_to_model`).
 
 from __future__ import annotations
 
+import copy
 import dataclasses
+import logging
+import time
 
 import numpy as np
 
-from .model import Model, State
+from pipeline.errors import BloomError
+from pipeline.mesh.hinge import edge_lengths, hinge_cos_sin
+from pipeline.sim.effects import flower_axis_or_guess
+from pipeline.sim.model import Model, State
+from pipeline.sim.solver.quasistatic import NotConverged, QuasiStatic
+from pipeline.sim.terms.contact import ContactError
+
+log = logging.getLogger("bloom")
+
+#: growth.start = open: the nudge toward closing that picks the bud's branch, in petal
+#: lengths at the tip (see :func:`find_bud`)
+LIFT = 0.05
 
 
 class Backward:
@@ -63,13 +77,11 @@ class _Bud:
 def rest_at(model: Model, positions) -> Model:
     """``model`` with its rest lengths and angles measured on ``positions`` (the growth
     ratios kept): rest lengths ``L / (1 + alpha)``, so that they are ``positions``' at A = 1."""
-    from . import kernels
-
     X = np.ascontiguousarray(positions, dtype=np.float64)
     length = np.empty(model.edge_count)
-    kernels.edge_lengths(X, model.edge_indices, length)
+    edge_lengths(X, model.edge_indices, length)
     cos0, sin0 = np.empty(model.hinge_count), np.empty(model.hinge_count)
-    kernels.hinge_cos_sin(X, model.hinge_indices, cos0, sin0)
+    hinge_cos_sin(X, model.hinge_indices, cos0, sin0)
     return dataclasses.replace(model, edge_rest_length=length / (1.0 + model.edge_growth),
                                hinge_rest_cos=cos0, hinge_rest_sin=sin0)
 
@@ -84,8 +96,6 @@ def find_bud(model: Model, open_positions, effects, *, stages: int, tolerance: f
     lengths and angles measured there), and the bud it reaches is then settled at A = 0
     on the model itself (``settle_effects``: fresh effects for that solve), so the bud
     is the model's own equilibrium, on the branch the lift chose."""
-    from .quasistatic import QuasiStatic
-
     backward = Backward()
     solver = QuasiStatic(stages=stages, tolerance=tolerance)
     start = np.asarray(open_positions, dtype=np.float64)
@@ -129,3 +139,44 @@ def distance_to_model(positions, model_positions, petal, base) -> float:
     """RMS distance of the vertices from the model, over the mean petal length."""
     d = np.linalg.norm(np.asarray(positions) - np.asarray(model_positions), axis=1)
     return float(np.sqrt(np.mean(d ** 2)) / petal_lengths(model_positions, petal, base).mean())
+
+
+def open_start(cfg, model: Model, positions, rest_angle, params: dict, build_effects, petal,
+               base, s, x, flower_axis, where: str):
+    """``growth.start = "open"``: the model at A = 1, the bud at A = 0. Returns the bud's
+    positions, the model, rest angles and effect parameters that grow from it back to
+    the mesh, and figures for the artifact (``bud_seconds``, ``bud_newton_iterations``,
+    ``bud_distance``). ``build_effects(positions)`` builds the scene's effects at
+    ``positions``. Raises :class:`BloomError` naming the key to change."""
+    close = cfg["growth.close"]
+    try:
+        model = open_model(model, close)
+        if "curl" in cfg.effects_enabled():
+            params = copy.deepcopy(params)
+            params["curl"]["beta"] = close * params["curl"]["beta"]
+            rest_angle = open_rest_angle(rest_angle, params["curl"]["beta"])
+    except ValueError as exc:
+        raise BloomError(str(exc), where=where) from None
+    clock = time.perf_counter()
+    try:
+        _, up = flower_axis_or_guess(positions, flower_axis)
+        size = LIFT * petal_lengths(positions, petal, base).mean()
+        lift = closing_lift(positions, s, x, base, up, size)
+        bud, solver = find_bud(model, positions, build_effects(positions + lift),
+                               stages=cfg["simulate.stages"], tolerance=cfg["simulate.tolerance"],
+                               lift=lift, settle_effects=build_effects(positions))
+    except NotConverged as exc:
+        raise BloomError(f"growth.close: finding the bud, the quasi-static solver found {exc} "
+                         f"(petal {int(petal[exc.vertex])}); remedy: a smaller growth.close, or "
+                         "more simulate.stages", where=where) from None
+    except ContactError as exc:
+        raise BloomError(f"{exc.key}: finding the bud: {exc}", where=where) from None
+    except ValueError as exc:
+        raise BloomError(f"growth.start: finding the bud: {exc}", where=where) from None
+    seconds = time.perf_counter() - clock
+    moved = distance_to_model(bud, positions, petal, base)
+    log.info("growth.start = open: found the bud in %.2f s (%d Newton iterations); it is %.3g "
+             "petal lengths (RMS) from the model", seconds, solver.iterations, moved)
+    return bud, model, rest_angle, params, {"bud_seconds": seconds,
+                                            "bud_newton_iterations": solver.iterations,
+                                            "bud_distance": moved}

@@ -8,10 +8,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..measure import PetalFrames
-from .effects import Effects
-from .integrators import NO_EFFECTS, Diverged
-from .model import Control, Model, State
+from pipeline.flower.measure import PetalFrames
+from pipeline.sim.effects import NO_EFFECTS, Effects
+from pipeline.sim.explicit.semi_implicit import Diverged
+from pipeline.sim.model import Control, Model, State
 
 #: energy guard: while growth holds, kinetic + potential energy may only fall (Eq. 8 with
 #: eta < 1/2, collisions and breaking springs all remove energy); a rise by more than

@@ -1,0 +1,69 @@
+"""The axis stage: each petal's base, tip, center plane and cross-section coordinates
+(:func:`pipeline.flower.axis.find_axes`) -> axis.h5."""
+
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+
+import numpy as np
+
+from pipeline import artifact
+from pipeline.config import Config
+from pipeline.directions import DIRECTIONS
+from pipeline.errors import BloomError
+from pipeline.flower.axis import BASE_REACH, BadPetal, WeakBase, check_axes, find_axes
+
+log = logging.getLogger("bloom")
+
+#: what the later stages need of remesh.h5, carried forward
+CARRIED = ("mesh/vertices", "mesh/faces", "mesh/petal", "mesh/part_names", "mesh/part", "mesh/thickness",
+           "input/asset", "bind")
+
+
+def run(remesh_h5: str | Path, out: str | Path, cfg: Config, *, overwrite: bool = False) -> None:
+    """Find each petal's base, tip, center plane and cross-section coordinates."""
+    out = artifact.check_output(out, "axis", overwrite)
+    with artifact.Artifact(remesh_h5, needs="remesh", reader="axis") as src:
+        v, f, petal = src["mesh/vertices"], src["mesh/faces"], src["mesh/petal"]
+        # the scene's up: the key, else the file's own (remesh records it; "" if the format
+        # has none), else +z
+        up = cfg["scene.up"]
+        if up == "auto":
+            up = str(src.attrs.get("file_up", "")) or "+z"
+            if up not in DIRECTIONS:
+                raise BloomError(f"file_up: {up!r} is not one of {', '.join(DIRECTIONS)}; set "
+                                 "scene.up", where=remesh_h5)
+        try:
+            axes = find_axes(v, f, petal, base_mode=cfg["axis.base"],
+                             base_fraction=cfg["axis.base_fraction"],
+                             planes=src["mesh/plane"] if "mesh/plane" in src else None,
+                             flower_axis=cfg["axis.flower_axis"], up=np.array(DIRECTIONS[up]))
+            check_axes(axes, petal)  # no NaN, x in [-1, 1], s in [0, 1], a base and a tip
+        except BadPetal as exc:
+            fix = f" (the key to change: {exc.key})" if exc.key else ""
+            raise BloomError(f"{exc}{fix}", where=remesh_h5) from None
+        except WeakBase as exc:  # held on a line, the petal has no equilibrium to find
+            raise BloomError(f"axis.base_fraction: {exc}; remedy: an axis.base_fraction above "
+                             f"{BASE_REACH:g} (the widening's reach; now "
+                             f"{cfg['axis.base_fraction']:g}), another axis.base end, or a mesh "
+                             "whose petal base is not a straight row", where=remesh_h5) from None
+        for p in axes.widened:
+            log.warning("petal %d: its base was on a line (it could spin about it): widened to "
+                        "%d fixed vertices", p, int(axes.base[petal == p].sum()))
+        for p in range(len(axes.tip)):
+            mine = petal == p
+            log.info("petal %d: %d base vertices, %d on the axis, tip %d, x in [%.3f, %.3f]",
+                     p, int(axes.base[mine].sum()), int(axes.on_axis[mine].sum()),
+                     int(axes.tip[p]), axes.x[mine].min(), axes.x[mine].max())
+        attrs = {"scale": src.attrs["scale"], "flower_axis": axes.flower_axis, "up": up}
+        with artifact.writing(out, stage="axis", config_json=cfg.to_json(),
+                              inputs=artifact.input_hashes(cfg, remesh_h5), attrs=attrs, previous=src) as h5:
+            src.copy_to(h5, CARRIED)
+            artifact.put(h5, "axis/base", axes.base, "(V,) fixed base vertices")
+            artifact.put(h5, "axis/on_axis", axes.on_axis, "(V,) vertices on the petal axis")
+            artifact.put(h5, "axis/tip", axes.tip.astype(np.int64), "(P,) tip vertex per petal")
+            artifact.put(h5, "axis/plane", axes.plane, "(P, 4) center plane: unit normal, offset")
+            artifact.put(h5, "axis/x", axes.x, "(V,) cross-section coordinate in [-1, 1]")
+            artifact.put(h5, "axis/s", axes.s, "(V,) distance from the base, 0 at base, 1 at tip")
+    log.info("wrote %s", out)

@@ -1,0 +1,201 @@
+"""The simulate stage: grow the petals and integrate (Eq. 6-8) -> sim.h5.
+
+:func:`run` builds the model and the scene's effects from growth.h5
+(:class:`pipeline.sim.build.Prepared`), finds the bud first for an open start
+(:func:`pipeline.sim.reverse.open_start`), integrates frame by frame
+(:func:`pipeline.sim.run.run`, checkpointing as it goes so that ``--resume`` continues
+an interrupted run), and writes the frames and diagnostics. What the solver cannot do
+becomes one line naming the key to change (:func:`_refusal`).
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from pathlib import Path
+
+import numpy as np
+
+from pipeline import artifact
+from pipeline.config import Config
+from pipeline.errors import BloomError
+from pipeline.progress import Progress
+from pipeline.sim import checkpoint
+from pipeline.sim.build import Prepared
+from pipeline.sim.explicit.semi_implicit import Diverged
+from pipeline.sim.integrators import make_integrator
+from pipeline.sim.model import Control, State
+from pipeline.sim.reverse import distance_to_model, open_start
+from pipeline.sim.run import run as integrate
+from pipeline.sim.solver.quasistatic import NotConverged
+
+log = logging.getLogger("bloom")
+
+#: what the later stages need of growth.h5, carried forward
+CARRIED = ("mesh/faces", "mesh/petal", "axis/base", "axis/on_axis", "axis/x", "axis/s", "axis/tip",
+           "axis/plane", "growth/hinges", "input/asset", "bind")
+
+
+def run(growth_h5: str | Path, out: str | Path, cfg: Config, *, overwrite: bool = False,
+        resume: bool = False, progress: bool | None = None) -> None:
+    """Simulate the bloom of the petals in ``growth_h5`` and write the frames to ``out``.
+
+    ``resume``: continue from the checkpoint an interrupted run of the same inputs and
+    config left next to ``out``. ``progress``: a bar (default: when stderr is a
+    terminal)."""
+    where = str(cfg.path) if cfg.path else "defaults"
+    out = artifact.check_output(out, "simulate", overwrite)
+    sim = cfg.section("simulate")
+    steps, frames, h = sim["steps"], sim["frames"], sim["h"]
+    with artifact.Artifact(growth_h5, needs="growth", reader="simulate") as src:
+        prep = Prepared.from_artifact(src)
+        v, petal, base = prep.vertices, prep.petal, prep.base
+        try:
+            model = prep.model(sim["stretch_stiffness"], sim["bending_stiffness"], sim["mass"])
+        except ValueError as exc:
+            raise BloomError(f"cannot build the model: {exc}", where=growth_h5) from None
+        params = cfg.nested().get("effects", {})
+        rest_angle = prep.rest_angle
+        max_edge = prep.max_grown_edge()  # once: the bud search changes the model's rest lengths
+
+        def build_effects(positions):
+            return prep.effects(cfg.effects_enabled(), params, positions=positions,
+                                rest_angle=rest_angle, max_edge=max_edge)
+
+        model_positions, bud_info = None, {}
+        if cfg["growth.start"] == "open":
+            model_positions = np.asarray(v)
+            v, model, rest_angle, params, bud_info = open_start(
+                cfg, model, model_positions, rest_angle, params, build_effects, petal, base,
+                prep.s, prep.x, prep.flower_axis, where)
+        petals = prep.frames(v)
+        if cfg["growth.keys"]:
+            control = Control.keyed(cfg["growth.keys"], frames, steps, h)
+        else:
+            control = Control(cfg["growth.schedule"], cfg["growth.ramp"] * steps * h)
+        integrator = make_integrator(sim["integrator"], sim["eta"], sim["damping"],
+                                     sim["speed_limit"], sim["stages"], sim["tolerance"],
+                                     sim["substeps"], sim["inertia"])
+        effects = build_effects(v)
+        state = State.at_rest(model, v, control)
+        effects.constrain(state.forces)
+        inputs = artifact.input_hashes(cfg, growth_h5)
+        ckpt = checkpoint.path_for(out)
+        key = checkpoint.fingerprint(cfg.to_json(), inputs)
+        dynamic = sim["integrator"] != "quasi-static"  # its solver state is not checkpointed
+        resumed = checkpoint.load(ckpt, key, state, effects) if resume and dynamic else None
+        resumed_step = state.step
+        if resumed is not None:
+            log.info("resuming from step %d (%s)", state.step, ckpt)
+        saver = _Saver(ckpt, key, effects, sim["checkpoint_seconds"] if dynamic else 0.0)
+        log.info("%d vertices (%d fixed), %d springs, %d hinges; %d steps of h = %g, %d frames; "
+                 "effects: %s", model.vertex_count, int(model.pinned.sum()), model.edge_count,
+                 model.hinge_count, steps, h, frames, ", ".join(effects.names) or "none")
+        if effects.connections is not None:
+            log.info("%d connection springs between petals", len(effects.connections.pairs))
+        with Progress(steps, "simulate", progress) as bar:
+            try:
+                rec, wall = integrate(model, state, control, integrator, steps=steps,
+                                      frames=frames, h=h, petals=petals, effects=effects,
+                                      progress=bar.update, resume=resumed, checkpoint=saver)
+            except (Diverged, NotConverged, ValueError, RuntimeError) as exc:
+                ckpt.unlink(missing_ok=True)  # a failed run's checkpoint would fail again
+                raise _refusal(exc, sim, steps, petal, where) from None
+        diag = rec.arrays()
+        positions = np.asarray(rec.positions)
+        if not np.all(np.isfinite(positions)):
+            ckpt.unlink(missing_ok=True)
+            raise BloomError("the simulation diverged (non-finite positions); try a smaller "
+                             "simulate.h or a smaller simulate.eta", where=where)
+        tail = max(1, (frames - 1) // 10)
+        opening = diag.get("opening_angle", np.zeros(frames))
+        stepped = max(steps - resumed_step, 1)  # the steps this run took (after a resume)
+        log.info("%.2f s (%.3f ms/step); opening %.1f deg, change over the last 10%% %.3f deg; "
+                 "final kinetic energy %.3g, max speed %.3g", wall, 1e3 * wall / stepped,
+                 opening[-1], opening[-1] - opening[-1 - tail], diag["kinetic_energy"][-1],
+                 diag["max_speed"][-1])
+        attrs = {"scale": src.attrs["scale"], "flower_axis": src.attrs["flower_axis"],
+                 "steps": steps, "h": h,
+                 "wall_seconds": wall, "ms_per_step": 1e3 * wall / stepped,
+                 "effects": ",".join(effects.names),
+                 "integrator": sim["integrator"], "fps": cfg["render.fps"]}
+        if resumed is not None:  # then wall_seconds covers this run's steps only
+            attrs["resumed_from_step"] = resumed_step
+        if model_positions is not None:
+            attrs["growth_start"] = "open"
+            attrs["distance_to_model"] = distance_to_model(positions[-1], model_positions,
+                                                           petal, base)
+            attrs.update(bud_info)
+            log.info("last frame %.3g petal lengths (RMS) from the model",
+                     attrs["distance_to_model"])
+        with artifact.writing(out, stage="simulate", config_json=cfg.to_json(),
+                              inputs=inputs, attrs=attrs, previous=src) as h5:
+            src.copy_to(h5, CARRIED)
+            artifact.put(h5, "frames/time", np.asarray(rec.time), "(T,) time of each frame")
+            artifact.put(h5, "frames/frame", np.arange(len(rec.time), dtype=np.int64),
+                         "(T,) frame number of each frame (growth.keys' frames; USD time codes)")
+            artifact.put(h5, "frames/positions", positions, "(T, V, 3) vertex positions")
+            if model_positions is not None:
+                artifact.put(h5, "open/model", model_positions,
+                             "(V, 3) the open model (the input mesh) the bloom ends on")
+                artifact.put(h5, "open/bud", v, "(V, 3) the bud found from it (frame 0)")
+            for name, values in diag.items():
+                artifact.put(h5, f"diagnostics/{name}", values)
+            if effects.connections is not None:
+                c = effects.connections
+                artifact.put(h5, "effects/connections/pairs", c.pairs,
+                             "(C, 2) connected vertices, the first on the outer petal's rim")
+                artifact.put(h5, "effects/connections/broken_step", c.broken_step,
+                             "(C,) step at which each spring broke, -1 if intact")
+    ckpt.unlink(missing_ok=True)
+    log.info("wrote %s", out)
+
+
+def _refusal(exc: Exception, sim: dict, steps: int, petal, where: str) -> BloomError:
+    """What the integrator could not do, as one line naming the key to change."""
+    if isinstance(exc, Diverged):
+        if sim["substeps"]:  # a fixed substep: the step may simply be too large
+            return BloomError(
+                f"simulate.h: the simulation {exc} (of {steps}, {sim['substeps']} "
+                "substep(s) each); likely cause: the time step is too large for the "
+                "stiffness; remedy: simulate.substeps = 0 (chosen from the stable "
+                "step), a smaller simulate.h, or simulate.integrator = quasi-static",
+                where=where)
+        return BloomError(
+            f"simulate.steps: the simulation {exc} (of {steps}); the substep was "
+            "already chosen from the stable step and halved after each divergence, "
+            "so the motion itself runs away; likely cause: growth too fast for the "
+            "steps, or vertices faster than simulate.speed_limit; remedy: more "
+            "simulate.steps, or simulate.integrator = quasi-static", where=where)
+    if isinstance(exc, NotConverged):  # the cause, as the solver names it, picks the key
+        name = f"petal {int(petal[exc.vertex])}" if len(petal) else "the mesh"
+        if exc.cause == "weak":
+            return BloomError(
+                f"axis.base_fraction: the quasi-static solver found {exc}; {name}'s base "
+                "is a line and it would spin about it; remedy: rerun bloom axis (it "
+                "widens such a base) or a larger axis.base_fraction", where=where)
+        remedy = ("more simulate.stages, a larger simulate.tolerance, or a dynamic "
+                  "integrator (it follows a snap)")
+        if exc.growth == 0.0:  # growth has not started: not the growth curve's doing
+            remedy = "check the mesh (bloom inspect), or a dynamic integrator"
+        return BloomError(f"simulate.stages: the quasi-static solver found {exc} ({name}); "
+                          f"remedy: {remedy}", where=where)
+    if isinstance(exc, ValueError):  # what the integrator cannot do with this scene
+        return BloomError(f"simulate.integrator: {exc}", where=where)
+    key = getattr(exc, "key", None) or (  # (contact.ContactError names its key)
+        "effects.collisions" if "collision" in str(exc) else "simulate")
+    return BloomError(f"{key}: {exc}", where=where)
+
+
+class _Saver:
+    """Writes a checkpoint after a frame when ``every`` wall seconds have passed."""
+
+    def __init__(self, path, key, effects, every: float):
+        self.path, self.key, self.effects, self.every = path, key, effects, every
+        self.clock = time.monotonic
+        self.last = self.clock()
+
+    def __call__(self, rec, state) -> None:
+        if self.every > 0 and self.clock() - self.last >= self.every:
+            checkpoint.save(self.path, self.key, state, self.effects, rec)
+            self.last = self.clock()

@@ -1,0 +1,404 @@
+"""Petal axis, base, tip, center plane and cross-section coordinates.
+
+Per petal (a connected component):
+
+- center plane: the petal's mirror plane (:func:`symmetry.mirror_plane`);
+- the flower's axis: given (``flower_axis``, a direction), or with several petals the
+  least-squares intersection of their center planes (they all contain it). A given
+  direction is taken through the point closest (least squares) to all center planes
+  within the plane across it; where the planes do not fix that point (one petal, or
+  petals sharing one plane), the petals' mean centroid fixes it (a lone petal: its
+  base's centroid). The axis points from the receptacle toward the tips: a given
+  direction as given; a found one by the petals (their tips rise along it) or, where
+  they do not tell (a flat open flower), by ``up``;
+- base: the end attached to the receptacle: with several petals (and an axis), the end
+  nearer the flower's axis; a lone petal's, its narrow end, or with a given axis its
+  end lowest along it. The fixed base vertices are the boundary vertices within
+  ``base_fraction`` of the petal's length from that end;
+- tip: the far end of the axis: of the axis vertices, the one farthest from the base
+  along the mesh;
+- s: distance from the base along the mesh, over the tip's (0 at the base, 1 at the
+  tip and beyond: a petal's corners may reach a little farther than its tip);
+- x: cross-section coordinate: distance along the mesh from the axis vertices, signed
+  by the side of the center plane and divided by the boundary's distance at the same s
+  on the same side (0 on the axis, +-1 on the two boundary curves).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.sparse.csgraph import connected_components, dijkstra
+
+from pipeline.directions import parse_direction
+from pipeline.mesh import symmetry, topology
+
+
+@dataclass
+class PetalAxes:
+    base: np.ndarray  #: (V,) bool, fixed base vertices
+    on_axis: np.ndarray  #: (V,) bool, vertices on or of an edge crossing the center plane
+    tip: np.ndarray  #: (P,) int, tip vertex of each petal
+    plane: np.ndarray  #: (P, 4) unit normal and offset of each center plane
+    x: np.ndarray  #: (V,) cross-section coordinate in [-1, 1]
+    s: np.ndarray  #: (V,) normalized distance from the base in [0, 1]
+    flower_axis: np.ndarray  #: (6,) point and unit direction of the flower's axis (nan if unknown)
+    widened: tuple = ()  #: petals whose base was on a line and got more fixed vertices
+
+
+#: a petal's fixed base vertices must stray at least this far (fraction of the petal's
+#: length) from their own line: a base on a line leaves the petal free to turn about it
+#: (a zero-stiffness mode, and a stiffness that vanishes with the width as it shrinks).
+#: The project's buds' bases stray 0.016-0.021; a flat petal's straight base row, 0.
+MIN_BASE_WIDTH = 0.005
+#: how far along the petal (fraction of its length) a base may be widened
+BASE_REACH = 0.25
+
+
+class WeakBase(ValueError):
+    """A petal whose base cannot be widened to :data:`MIN_BASE_WIDTH`."""
+
+    def __init__(self, petal: int, count: int, width: float):
+        self.petal, self.count, self.width = petal, count, width
+        super().__init__(f"petal {petal}'s base is a line: its {count} fixed vertices stray "
+                         f"{width:.2g} of its length from one line (at least "
+                         f"{MIN_BASE_WIDTH:g} is needed, and no vertices near the base end "
+                         "widen it), so the petal would spin about that line")
+
+
+def base_width(fixed: np.ndarray, points: np.ndarray) -> float:
+    """How far the fixed points stray from their own line: the largest distance of one
+    from the line through their centroid along their principal direction, over the
+    extent of ``points`` (the petal) along its principal direction. Scale-free; 0 for
+    points on a line (or fewer than three)."""
+    fixed = np.asarray(fixed, dtype=np.float64)
+    pts = np.asarray(points, dtype=np.float64)
+    if len(fixed) < 3 or len(pts) < 2:
+        return 0.0
+    centred = fixed - fixed.mean(axis=0)
+    direction = np.linalg.svd(centred, full_matrices=False)[2][0]
+    off = centred - np.outer(centred @ direction, direction)
+    along = np.linalg.svd(pts - pts.mean(axis=0), full_matrices=False)[2][0]
+    length = float(np.ptp(pts @ along))
+    return float(np.linalg.norm(off, axis=1).max() / length) if length > 0.0 else 0.0
+
+
+def _widen_base(base: np.ndarray, boundary: np.ndarray, proj: np.ndarray, pts: np.ndarray,
+                sub, limit: float) -> bool:
+    """Add vertices to ``base`` (in place), nearest the base end first (by ``proj``),
+    until it strays :data:`MIN_BASE_WIDTH` from a line: boundary vertices first, then
+    rings of interior vertices around the base, none farther than ``limit`` along the
+    axis. Returns whether it got there (``base`` is then the smallest such set)."""
+    if base_width(pts[base], pts) >= MIN_BASE_WIDTH:
+        return True
+    near = proj <= limit
+    for v in np.flatnonzero(boundary & near & ~base)[np.argsort(proj[boundary & near & ~base],
+                                                                kind="stable")]:
+        base[v] = True
+        if base_width(pts[base], pts) >= MIN_BASE_WIDTH:
+            return True
+    while True:  # interior rings: the neighbours of the base, nearest the end first
+        ring = np.zeros(len(base), dtype=bool)
+        ring[sub[np.flatnonzero(base)].indices] = True
+        ring &= near & ~base
+        if not ring.any():
+            return False
+        for v in np.flatnonzero(ring)[np.argsort(proj[ring], kind="stable")]:
+            base[v] = True
+            if base_width(pts[base], pts) >= MIN_BASE_WIDTH:
+                return True
+
+
+def flower_axis(planes: np.ndarray) -> np.ndarray | None:
+    """The line where the petals' center planes (nearly) meet, as ``(point, direction)``.
+
+    None when fewer than two planes or when they are (nearly) parallel.
+    """
+    if len(planes) < 2:
+        return None
+    n = planes[:, :3]
+    w, vecs = np.linalg.eigh(n.T @ n)
+    if w[1] < 0.05 * w[2]:  # all normals nearly parallel: no common line
+        return None
+    direction = vecs[:, 0]
+    point, *_ = np.linalg.lstsq(np.vstack([n, direction]), np.r_[planes[:, 3], 0.0], rcond=None)
+    return np.r_[point, direction]
+
+
+_axis_from_planes = flower_axis  # find_axes's own argument is named flower_axis
+
+class BadPetal(ValueError):
+    """A petal that has no sound axis: refused (one line naming the petal and, where one
+    would help, the key)."""
+
+    def __init__(self, petal: int, reason: str, key: str | None = None):
+        self.petal, self.key = petal, key
+        super().__init__(f"petal {petal}: {reason}")
+
+
+def check_axes(axes: PetalAxes, petal: np.ndarray) -> None:
+    """Raise :class:`BadPetal` for the first petal whose axes are not sound: a value not
+    finite, x outside [-1, 1], s outside [0, 1], fewer than 3 base vertices, or no tip
+    (a tip that is not one of its vertices, or is a base vertex)."""
+    petal = np.asarray(petal)
+    count = len(axes.tip)
+    if not np.all(np.isfinite(axes.plane)):
+        p = int(np.flatnonzero(~np.all(np.isfinite(axes.plane), axis=1))[0])
+        raise BadPetal(p, "its center plane is not finite")
+    for p in range(count):
+        mine = petal == p
+        x, s = axes.x[mine], axes.s[mine]
+        if not (np.all(np.isfinite(x)) and np.all(np.isfinite(s))):
+            raise BadPetal(p, f"its x or s is not finite at {int((~np.isfinite(x + s)).sum())} "
+                           "vertices")
+        if x.size and (x.min() < -1.0 or x.max() > 1.0):
+            raise BadPetal(p, f"x in [{x.min():.3g}, {x.max():.3g}], outside [-1, 1]")
+        if s.size and (s.min() < 0.0 or s.max() > 1.0):
+            raise BadPetal(p, f"s in [{s.min():.3g}, {s.max():.3g}], outside [0, 1]")
+        held = int(axes.base[mine].sum())
+        if held < 3:
+            raise BadPetal(p, f"{held} base vertices (at least 3 hold a petal)",
+                           "axis.base_fraction")
+        tip = int(axes.tip[p])
+        if not (0 <= tip < len(petal)) or petal[tip] != p or axes.base[tip]:
+            raise BadPetal(p, "no tip beyond its base", "axis.base_fraction")
+
+
+def _sound_plane(plane: np.ndarray) -> bool:
+    n = plane[:3]
+    return bool(np.all(np.isfinite(plane)) and np.linalg.norm(n) > 1e-9)
+
+
+def _unit_plane(plane: np.ndarray) -> np.ndarray:
+    """The plane with a unit normal (left as is, bit for bit, when it already has one)."""
+    norm = np.linalg.norm(plane[:3])
+    return plane if abs(norm - 1.0) <= 1e-9 else plane / norm
+
+
+def _given_axis_point(planes: np.ndarray, direction: np.ndarray, centroid: np.ndarray):
+    """The point of the line along ``direction`` closest (least squares) to all center
+    planes, in the plane across ``direction`` through ``centroid``; along a direction
+    the planes do not fix (their normals, projected across ``direction``, do not span
+    it), ``centroid``'s coordinate is kept."""
+    # an orthonormal basis across the direction
+    helper = np.eye(3)[int(np.argmin(np.abs(direction)))]
+    b1 = np.cross(direction, helper)
+    b1 /= np.linalg.norm(b1)
+    b2 = np.cross(direction, b1)
+    basis = np.stack([b1, b2], axis=1)  # (3, 2)
+    m = planes[:, :3] @ basis  # (P, 2): residual n.(c + B y) - d = m y - r
+    r = planes[:, 3] - planes[:, :3] @ centroid
+    w, vecs = np.linalg.eigh(m.T @ m)
+    fixed = w >= 0.05 * len(planes)  # unit normals: each fixed direction gets ~P/2
+    y = np.zeros(2)
+    for k in np.flatnonzero(fixed):
+        y += vecs[:, k] * (vecs[:, k] @ (m.T @ r)) / w[k]
+    return centroid + basis @ y
+
+
+def _distance_to_line(points: np.ndarray, line: np.ndarray) -> np.ndarray:
+    p, d = line[:3], line[3:]
+    r = points - p
+    return np.linalg.norm(r - np.outer(r @ d, d), axis=1)
+
+
+def _petal_ends(points: np.ndarray, plane: np.ndarray):
+    """Unit length direction (in the center plane) and the projections along it."""
+    n = plane[:3]
+    c = points.mean(axis=0)
+    flat = (points - c) - np.outer((points - c) @ n, n)
+    _, _, vt = np.linalg.svd(flat, full_matrices=False)
+    direction = vt[0] - n * (vt[0] @ n)
+    norm = np.linalg.norm(direction)
+    if not norm > 1e-9:  # the points on a line along the normal: no length (the caller refuses)
+        return np.full(3, np.nan), np.zeros(len(points))
+    direction /= norm
+    return direction, (points - c) @ direction
+
+
+def _end_width(points: np.ndarray, proj: np.ndarray, plane: np.ndarray, low_end: bool) -> float:
+    span = proj.max() - proj.min()
+    near = proj <= proj.min() + 0.15 * span if low_end else proj >= proj.max() - 0.15 * span
+    across = points[near] @ plane[:3]
+    return float(across.max() - across.min())
+
+
+def find_axes(vertices: np.ndarray, faces: np.ndarray, petal: np.ndarray, *,
+              base_mode: str = "auto", base_fraction: float = 0.04,
+              planes: np.ndarray | None = None, flower_axis=None,
+              up: np.ndarray | None = None) -> PetalAxes:
+    """Axes of every petal of a cleaned mesh (see the module docstring).
+
+    ``base_mode``: auto, narrow, wide, or a direction (+x ... -z) the base end lies
+    towards (it wins over the flower's axis for choosing the base end). ``planes``: the
+    petals' center planes if known (remesh records them); a plane that is not finite or
+    has no normal is found again from the petal. ``flower_axis``: None or "auto" (found
+    from the center planes), or the direction of the flower's axis (a vector or a key
+    value, see :func:`parse_direction`), pointing from the receptacle toward the tips.
+    ``up``: the scene's up direction, which orients a found axis where the petals do not.
+
+    Raises :class:`BadPetal` (a petal with no sound axis) or :class:`WeakBase`.
+    """
+    v = np.asarray(vertices, dtype=np.float64)
+    petal = np.asarray(petal)
+    nv = len(v)
+    count = int(petal.max()) + 1
+    if isinstance(flower_axis, str):
+        given = parse_direction(flower_axis)
+    elif flower_axis is None:
+        given = None
+    else:
+        given = np.asarray(flower_axis, dtype=np.float64).reshape(3)
+        if not np.all(np.isfinite(given)) or not np.any(given):
+            raise ValueError(f"flower_axis: not a direction: {flower_axis!r}")
+        given = given / np.linalg.norm(given)
+    edges, _, _ = topology.unique_edges(faces)
+    boundary = topology.boundary_vertices(faces, nv)
+    graph = topology.edge_graph(v, edges)
+
+    sizes = np.bincount(petal, minlength=count)
+    if np.any(sizes < 3):
+        p = int(np.flatnonzero(sizes < 3)[0])
+        raise BadPetal(p, f"{sizes[p]} vertices: no petal to hold (at least 3, and some beyond "
+                       "its base)")
+    if planes is None:
+        planes = np.array([symmetry.mirror_plane(v[petal == p])[0] for p in range(count)])
+    planes = np.array(planes, dtype=np.float64)
+    for p in range(count):  # a plane of no normal (or not finite): found again from the petal
+        if not _sound_plane(planes[p]):
+            planes[p] = symmetry.mirror_plane(v[petal == p])[0]
+            if not _sound_plane(planes[p]):
+                raise BadPetal(p, "no center plane: its vertices do not span a sheet")
+        planes[p] = _unit_plane(planes[p])
+    if given is not None:
+        centroid = np.mean([v[petal == p].mean(axis=0) for p in range(count)], axis=0)
+        axis_line = np.r_[_given_axis_point(planes, given, centroid), given]
+    else:
+        axis_line = _axis_from_planes(planes) if base_mode == "auto" else None
+    # with one petal, no line tells its base: the end lowest along a given axis does
+    lowest = given is not None and count == 1
+
+    base = np.zeros(nv, dtype=bool)
+    widened = []
+    on_axis = np.zeros(nv, dtype=bool)
+    tips = np.zeros(count, dtype=np.int64)
+    x = np.zeros(nv)
+    s = np.zeros(nv)
+    for p in range(count):
+        idx = np.flatnonzero(petal == p)
+        pts = v[idx]
+        sub = graph[idx][:, idx].tocsr()
+        pieces = connected_components(sub, directed=False)[0]
+        if pieces > 1:  # distances along the mesh would be infinite between the pieces
+            raise BadPetal(p, f"in {pieces} pieces (not connected along the mesh): a petal is "
+                           "one connected sheet")
+        direction, proj = _petal_ends(pts, planes[p])
+        if not np.all(np.isfinite(direction)) or np.ptp(proj) <= 0.0:
+            raise BadPetal(p, "no length in its center plane: its vertices do not span a sheet")
+        if base_mode == "auto" and lowest:
+            span = proj.max() - proj.min()
+            low_end = pts[proj <= proj.min() + 0.15 * span].mean(axis=0) @ given
+            high_end = pts[proj >= proj.max() - 0.15 * span].mean(axis=0) @ given
+            base_low = low_end <= high_end
+        elif base_mode == "auto" and axis_line is not None:
+            lo = _distance_to_line(pts[[np.argmin(proj)]], axis_line)[0]
+            hi = _distance_to_line(pts[[np.argmax(proj)]], axis_line)[0]
+            base_low = lo <= hi
+        elif base_mode in ("auto", "narrow", "wide"):
+            narrow_low = (_end_width(pts, proj, planes[p], True)
+                          <= _end_width(pts, proj, planes[p], False))
+            base_low = narrow_low if base_mode != "wide" else not narrow_low
+        else:
+            toward = np.zeros(3)
+            toward["xyz".index(base_mode[1])] = 1.0 if base_mode[0] == "+" else -1.0
+            base_low = pts[np.argmin(proj)] @ toward >= pts[np.argmax(proj)] @ toward
+        if not base_low:
+            proj = -proj
+            direction = -direction
+        span = proj.max() - proj.min()
+        bnd = boundary[idx]
+        mine_base = bnd & (proj <= proj.min() + base_fraction * span)
+        if mine_base.sum() < 3:  # a petal held by fewer than 3 vertices can spin
+            order = np.argsort(np.where(bnd, proj, np.inf), kind="stable")
+            mine_base[order[:3]] = True
+        # held on a line, it could spin about it: widen the base, within a quarter of the
+        # petal (or base_fraction: the fixed part should stay a base, not become the petal)
+        reach = proj.min() + max(BASE_REACH, base_fraction) * span
+        held = int(mine_base.sum())
+        if not _widen_base(mine_base, bnd, proj, pts, sub, reach):
+            raise WeakBase(p, int(mine_base.sum()), base_width(pts[mine_base], pts))
+        if mine_base.sum() > held:
+            widened.append(p)
+        base[idx] = mine_base
+
+        dist_base = dijkstra(sub, indices=np.flatnonzero(mine_base), min_only=True)
+
+        # the axis: vertices on the center plane and the ends of edges crossing it
+        side = pts @ planes[p][:3] - planes[p][3]
+        mine_axis = np.abs(side) <= 1e-6 * span
+        side[mine_axis] = 0.0  # on the plane up to rounding: not a crossing
+        local_edges = np.searchsorted(idx, edges[np.isin(edges[:, 0], idx)])
+        crossing = side[local_edges[:, 0]] * side[local_edges[:, 1]] < 0
+        mine_axis[local_edges[crossing].ravel()] = True
+        if not mine_axis.any():
+            mine_axis[np.argmin(np.abs(side))] = True
+        # the tip: the axis's far end (the petal's far end where the axis stays in the base)
+        tip_local = int(np.flatnonzero(mine_axis)[np.argmax(dist_base[mine_axis])])
+        if not dist_base[tip_local] > 0.0:
+            tip_local = int(np.argmax(dist_base))
+            if not dist_base[tip_local] > 0.0:
+                raise BadPetal(p, f"all its {len(idx)} vertices are base vertices: no tip beyond "
+                               "its base (a petal of a few triangles; remesh it finer)",
+                               "remesh.petal_vertices")
+        tips[p] = idx[tip_local]
+        s[idx] = np.minimum(dist_base / dist_base[tip_local], 1.0)
+
+        # orient the plane normal: (normal, base->tip chord, outward) right-handed
+        chord = pts[tip_local] - pts[mine_base].mean(axis=0)
+        outward = pts[mine_axis].mean(axis=0) - pts.mean(axis=0)
+        if np.cross(chord, outward) @ planes[p][:3] < 0:
+            planes[p] = -planes[p]
+            side = -side
+        on_axis[idx] = mine_axis
+
+        # cross-section coordinate
+        g = dijkstra(sub, indices=np.flatnonzero(mine_axis), min_only=True)
+        sign = np.where(mine_axis, 0.0, np.sign(side))
+        xs = np.zeros(len(idx))
+        rim = bnd & ~mine_base & ~mine_axis
+        for sg in (-1.0, 1.0):
+            ring = rim & (sign == sg)
+            here = sign == sg
+            if not ring.any() or not here.any():
+                continue
+            order = np.argsort(s[idx][ring], kind="stable")
+            width = np.interp(s[idx][here], s[idx][ring][order], g[ring][order])
+            xs[here] = sg * np.clip(g[here] / np.maximum(width, 1e-12), 0.0, 1.0)
+            xs[ring] = sg
+        x[idx] = xs
+
+    if axis_line is None:
+        line = np.full(6, np.nan)
+    else:
+        line = axis_line.copy()
+        if given is None:
+            line[3:] = _oriented(line[3:], v, base, tips, petal, up)
+        elif count == 1:  # a lone petal: the axis passes through its base
+            line[:3] = v[base].mean(axis=0)
+    axes = PetalAxes(base, on_axis, tips, planes, x, s, line, tuple(widened))
+    check_axes(axes, petal)
+    return axes
+
+
+def _oriented(direction: np.ndarray, v: np.ndarray, base: np.ndarray, tips: np.ndarray,
+              petal: np.ndarray, up: np.ndarray | None) -> np.ndarray:
+    """A found axis direction pointed from the receptacle toward the tips: by the petals
+    when their tips rise along it by a tenth of their base-to-tip chords; else by ``up``."""
+    chords = np.array([v[t] - v[base & (petal == p)].mean(axis=0) for p, t in enumerate(tips)])
+    rise = float((chords @ direction).sum())
+    if abs(rise) >= 0.1 * float(np.linalg.norm(chords, axis=1).sum()):
+        return direction if rise > 0 else -direction
+    if up is not None and abs(float(np.asarray(up) @ direction)) > 1e-9:
+        return direction if float(np.asarray(up) @ direction) > 0 else -direction
+    return direction

@@ -1,0 +1,481 @@
+"""Which parts of a flower model are petals: judged by shape and placement, named by hint.
+
+A part is first measured on its own (:func:`_measure`): its length (first principal
+extent), its mean width (area over length; half of that for a closed or two-layer
+shell, whose area counts both sides), how thick it is for its width (ray-cast, see
+:func:`pipeline.mesh.thickness.thickness`), whether it is open (boundary after
+welding) and whether it is compact. That gives its form:
+
+- ``narrow``: mean width under ``NARROW`` of its length (a stem, a filament, a style);
+- ``shell``: thin closed shell or two layers (``LAYERED`` of its area has a roughly
+  parallel layer behind it, at under ``THIN`` of its width): a thick petal's form;
+- ``sheet``: open, one layer (boundary at least ``OPEN`` times the square root of the
+  area): a petal's or a leaf's form;
+- ``blob``: closed and compact (third extent at least ``COMPACT`` of the first): an
+  anther, a receptacle;
+- ``solid``: anything else.
+
+Then placement decides. The petals are a ring: the largest group of at least three
+alike sheets or shells (area within ``ALIKE_AREA``, length within ``ALIKE_LENGTH``)
+whose centroids lie at similar distances (spread under ``RING_SPREAD``) from the line
+through their mean along the normal of their plane, at azimuths all around it. That
+line is the flower's axis; where the petals come nearest it is the base; up is where
+their centroids are. A part that is itself a ring (petals joined in one mesh: round
+in plan) stands for the ring when there is none and the file has other parts.
+Around that frame: a narrow or solid part on the axis reaching further below the base
+than above it is the stem; above it, the pistil; a compact one at the base, the
+receptacle; off the axis above the base and within the ring, a stamen; another sheet
+level with the ring, a petal; a smaller sheet at the base, a sepal; a sheet off the
+ring, a leaf.
+
+A part made of 2 to ``MAX_PIECES`` alike sheets or shells (five petals in one OBJ
+group) is judged piece by piece, and gets its pieces' most common verdict.
+
+Assumed: one flower per file (a branch of many blossoms has many rings; only the
+largest is found). Where the petals lie flat (a daisy seen edge-on), up along the axis
+is a guess, so a stem and a pistil may swap.
+
+A name containing petal, stem, leaf, sepal, stamen (anther, filament), pistil or
+receptacle (one of them only) decides the kind instead; petals are still told thin or
+thick by shape. Generic names (Circle.003, pCube14, Cylinder01, part_3) leave it to
+shape. Every tolerance is relative to a part's or the flower's size.
+"""
+
+from __future__ import annotations
+
+import fnmatch
+import re
+from dataclasses import dataclass
+
+import numpy as np
+
+from pipeline.mesh import clean, topology
+from pipeline.mesh.thickness import thickness
+
+KINDS = ("petal", "thick petal", "stem", "leaf", "sepal", "stamen", "pistil", "receptacle", "other")
+PETAL_KINDS = ("petal", "thick petal")
+
+WELD = 1e-5  #: vertices closer than this fraction of a part's diagonal are one
+NARROW = 0.1  #: mean width / length below this: a stem, filament or style
+LAYERED = 0.3  #: area fraction with a parallel layer behind it that makes a shell ...
+THIN = 0.2  #: ... when that layer is nearer than this fraction of the width
+OPEN = 1.0  #: an open sheet's boundary is at least this times sqrt(area)
+COMPACT = 0.5  #: third / first principal extent of a blob
+MAJOR = 0.2  #: a connected piece with this fraction of its part's largest piece's area counts
+MAX_PIECES = 64  #: a part of more alike pieces than this is judged whole (time)
+ALIKE_AREA = 2.0  #: petals of one ring differ in area by less than this factor ...
+ALIKE_LENGTH = 1.5  #: ... and in length by less than this one
+RING_SPREAD = 0.35  #: std / mean of the petals' distances from the axis
+ROUND = 0.7  #: second / first extent of a part that is a whole ring of petals
+ON_AXIS = 0.05  #: a part is on the axis when its centroid is nearer than its own
+#: half-width or this fraction of the petals' length
+
+NAMES = {
+    "petal": "petal", "stem": "stem", "stalk": "stem", "leaf": "leaf", "leaves": "leaf",
+    "sepal": "sepal", "calyx": "sepal", "stamen": "stamen", "anther": "stamen",
+    "filament": "stamen", "pistil": "pistil", "stigma": "pistil", "receptacle": "receptacle",
+}
+
+
+@dataclass(frozen=True)
+class Verdict:
+    """What a part is (one of ``KINDS``) and why, with the measurements."""
+
+    kind: str
+    reason: str
+
+    @property
+    def is_petal(self) -> bool:
+        return self.kind in PETAL_KINDS
+
+
+@dataclass
+class _Shape:
+    """Measurements of one part, or of one connected piece of a part."""
+
+    vertices: np.ndarray  #: (V, 3) welded
+    centroid: np.ndarray  #: (3,) area-weighted
+    axes: np.ndarray  #: (3, 3) principal directions, rows, longest first
+    extents: np.ndarray  #: (3,) max - min along each
+    area: float
+    length: float  #: first extent
+    width: float  #: mean width (area / length, halved for a closed or layered shell)
+    thickness: float  #: relative to the width; 0 for an open single sheet, inf if unknown
+    layered: float  #: area fraction that has a parallel layer behind it
+    form: str  #: narrow, shell, sheet, blob or solid
+
+
+def _measure(vertices: np.ndarray, faces: np.ndarray) -> _Shape:
+    v = np.asarray(vertices, dtype=np.float64)
+    f = np.asarray(faces, dtype=np.int64)
+    diag = float(np.linalg.norm(np.ptp(v[f.ravel()], axis=0))) if len(f) else 0.0
+    v, f, _ = clean.weld(v, f, WELD * diag) if diag > 0 else (v, f, 0)
+    used = np.unique(f)
+    remap = np.zeros(len(v), dtype=np.int64)
+    remap[used] = np.arange(used.size)
+    v, f = v[used], remap[f]
+    tri = v[f]
+    cross = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    face_area = 0.5 * np.linalg.norm(cross, axis=1)
+    area = float(face_area.sum())
+    centres = tri.mean(axis=1)
+    weight = face_area / area if area > 0 else np.full(len(f), 1.0 / max(len(f), 1))
+    centroid = weight @ centres
+    d = centres - centroid
+    cov = (d * weight[:, None]).T @ d + 1e-30 * np.eye(3)
+    _, vecs = np.linalg.eigh(cov)
+    axes = vecs[:, ::-1].T
+    extents = np.ptp((v - centroid) @ axes.T, axis=0)
+    length = float(max(extents[0], 1e-300))
+    _, he_edge, count = topology.unique_edges(f)
+    edges = np.stack([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]]).reshape(-1, 2)
+    boundary = count[he_edge] == 1
+    boundary_length = float(np.linalg.norm(v[edges[boundary, 0]] - v[edges[boundary, 1]], axis=1).sum())
+    th = thickness(v, f)
+    is_shell = th.layered_fraction >= LAYERED and th.relative_thickness <= THIN
+    is_open = boundary_length >= OPEN * np.sqrt(area) and not is_shell
+    width = area / length if is_open else 0.5 * area / length
+    if width < NARROW * length:
+        form = "narrow"
+    elif is_shell:
+        form = "shell"
+    elif is_open:
+        form = "sheet"
+    elif extents[2] >= COMPACT * length:
+        form = "blob"
+    else:
+        form = "solid"
+    rel = 0.0 if form == "sheet" else float(th.relative_thickness)
+    return _Shape(v, centroid, axes, extents, area, length, width, rel, th.layered_fraction, form)
+
+
+def _pieces(vertices: np.ndarray, faces: np.ndarray) -> list[_Shape]:
+    """The part's connected pieces, if it is 2 to ``MAX_PIECES`` alike sheets or shells
+    (five petals in one group) and perhaps a few crumbs; else ``[]`` (judged whole)."""
+    f = np.asarray(faces, dtype=np.int64)
+    welded = _welded_faces(vertices, f)
+    label = topology.components(welded, len(vertices))[welded[:, 0]]
+    count = int(label.max()) + 1 if len(label) else 0
+    if count < 2:
+        return []
+    tri = vertices[f]
+    face_area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
+    area = np.bincount(label, weights=face_area, minlength=count)
+    major = np.flatnonzero(area >= MAJOR * area.max())
+    if not 2 <= major.size <= MAX_PIECES or area[major].min() * ALIKE_AREA < area.max():
+        return []
+    shapes = [_measure(vertices, f[label == c]) for c in major]
+    if any(s.form not in ("sheet", "shell") for s in shapes):
+        return []
+    return shapes
+
+
+def _welded_faces(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """Faces re-indexed so that vertices within the weld tolerance share an index
+    (the first of each group), the vertex array itself unchanged."""
+    from scipy.spatial import cKDTree
+
+    v = np.asarray(vertices, dtype=np.float64)
+    diag = float(np.linalg.norm(np.ptp(v[faces.ravel()], axis=0)))
+    pairs = cKDTree(v).query_pairs(WELD * diag, output_type="ndarray") if diag > 0 else []
+    if len(pairs) == 0:
+        return faces
+    import scipy.sparse as sp
+    from scipy.sparse.csgraph import connected_components
+
+    n = len(v)
+    g = sp.coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(n, n))
+    _, group = connected_components(g, directed=False)
+    first = np.full(group.max() + 1, n)
+    np.minimum.at(first, group, np.arange(n))
+    return first[group][faces]
+
+
+def _name_kind(name: str) -> str | None:
+    words = set(re.findall(r"[a-z]+", name.lower()))
+    found = {kind for key, kind in NAMES.items()
+             if key in words or any(w.startswith(key) for w in words)}
+    return found.pop() if len(found) == 1 else None
+
+
+def _describe(s: _Shape) -> str:
+    if s.form == "sheet":
+        return f"an open sheet {s.width / s.length:.2f} as wide as long"
+    if s.form == "shell":
+        return (f"a thin shell ({s.thickness:.2f} of its width thick over {s.layered:.0%} of it), "
+                f"{s.width / s.length:.2f} as wide as long")
+    if s.form == "narrow":
+        return f"long and narrow (mean width {s.width / s.length:.3f} of its length)"
+    if s.form == "blob":
+        return f"a compact blob ({s.extents[2] / s.length:.2f} as thick as long)"
+    return f"a solid {s.width / s.length:.2f} as wide as long"
+
+
+@dataclass
+class _Frame:
+    """The flower's axis and the petals' ring."""
+
+    origin: np.ndarray  #: (3,) a point on the axis
+    axis: np.ndarray  #: (3,) unit, up (from the base toward the petals)
+    base: float  #: axial coordinate of the petals' base
+    radius: float  #: median distance of the petals' centroids from the axis
+    length: float  #: median length of a petal
+    members: list  #: indices of the units in the ring
+    how: str  #: how the ring was found, for the reasons
+
+    def axial(self, p: np.ndarray) -> np.ndarray:
+        return (p - self.origin) @ self.axis
+
+    def radial(self, p: np.ndarray) -> np.ndarray:
+        d = p - self.origin
+        return np.linalg.norm(d - (d @ self.axis)[..., None] * self.axis, axis=-1)
+
+
+def _ring(units: list[_Shape], candidates: list[int]) -> _Frame | None:
+    """The largest ring of at least three alike sheets or shells around a common axis.
+
+    Each candidate gathers the ones alike it; a group that does not ring an axis sheds
+    the member farthest from the group's median centroid (a leaf below) and is tried
+    again."""
+    best = None
+    for c in candidates:
+        a, length = units[c].area, units[c].length
+        group = [k for k in candidates
+                 if abs(np.log(units[k].area / a)) < np.log(ALIKE_AREA) / 2
+                 and abs(np.log(units[k].length / length)) < np.log(ALIKE_LENGTH) / 2]
+        frame = None
+        while len(group) >= 3 and (frame := _fit_ring(units, group)) is None:
+            p = np.array([units[k].centroid for k in group])
+            group.pop(int(np.argmax(np.linalg.norm(p - np.median(p, axis=0), axis=1))))
+        if frame is None:
+            continue
+        key = (len(group), sum(units[k].area for k in group))
+        if best is None or key > best[0]:
+            best = (key, frame)
+    return best[1] if best else None
+
+
+def _fit_ring(units: list[_Shape], group: list[int]) -> _Frame | None:
+    p = np.array([units[k].centroid for k in group])
+    centre = p.mean(axis=0)
+    _, _, vt = np.linalg.svd(p - centre)
+    normal = vt[2]
+    d = p - centre
+    radial_vec = d - np.outer(d @ normal, normal)
+    radius = np.linalg.norm(radial_vec, axis=1)
+    lengths = np.array([units[k].length for k in group])
+    if radius.mean() < 0.05 * np.median(lengths) or radius.std() > RING_SPREAD * radius.mean():
+        return None
+    unit_dirs = radial_vec / radius[:, None]
+    if np.linalg.norm(unit_dirs.mean(axis=0)) > 0.5:  # all to one side: not around an axis
+        return None
+    frame = _Frame(centre, normal, 0.0, float(np.median(radius)), float(np.median(lengths)),
+                   list(group), f"one of {len(group)} alike ringed around the flower's axis")
+    bases = []
+    for k in group:
+        v = units[k].vertices
+        bases.append(frame.axial(v[np.argmin(frame.radial(v))]))
+    return _orient(frame, float(np.median(bases)), frame.axial(p).mean())
+
+
+def _orient(frame: _Frame, base: float, centre: float) -> _Frame:
+    """Point the axis from the base toward the petals (kept as fitted if they are flat)."""
+    if centre < base - 0.05 * frame.length:
+        frame.axis = -frame.axis
+        base, centre = -base, -centre
+    frame.base = base
+    return frame
+
+
+def _round_part(units: list[_Shape], candidates: list[int]) -> _Frame | None:
+    """A single part that is a whole ring of petals (round in plan)."""
+    round_ = [k for k in candidates if units[k].extents[1] >= ROUND * units[k].extents[0]]
+    if not round_:
+        return None
+    k = max(round_, key=lambda k: units[k].area)
+    s = units[k]
+    frame = _Frame(s.centroid, s.axes[2], 0.0, 0.25 * s.length, 0.5 * s.length, [k],
+                   "the largest thin part, round in plan: the petals in one piece")
+    v = s.vertices
+    r = frame.radial(v)
+    near = r <= 0.1 * r.max() + 1e-12
+    return _orient(frame, float(np.median(frame.axial(v[near]))), float(frame.axial(v).mean()))
+
+
+def voxel_cubes(vertices: np.ndarray, faces: np.ndarray) -> tuple[int, float] | None:
+    """``(cubes, side)`` when a part is voxel art: every face axis-aligned and every vertex
+    on one cubic lattice, with more than one cube's worth of lattice points; else None."""
+    v = np.asarray(vertices, dtype=np.float64)
+    f = np.asarray(faces, dtype=np.int64)
+    if len(f) < 12:
+        return None
+    v = v[np.unique(f)]
+    fn = topology.face_normals(np.asarray(vertices, dtype=np.float64), f)
+    n = np.abs(fn) / np.maximum(np.linalg.norm(fn, axis=1), np.finfo(float).tiny)[:, None]
+    if n.max(axis=1).min() < 1.0 - 1e-6:
+        return None
+    size = float(np.ptp(v, axis=0).max())
+    steps = []
+    for axis in range(3):
+        u = np.unique(v[:, axis])
+        gaps = np.diff(u)
+        if gaps.size == 0 or gaps.min() <= 1e-9 * size:
+            return None
+        steps.append(gaps.min())
+    step = min(steps)
+    if max(steps) > step * (1 + 1e-6):
+        return None
+    k = (v - v.min(axis=0)) / step
+    if np.abs(k - np.round(k)).max() > 1e-4:
+        return None
+    points = len(np.unique(np.round(k).astype(np.int64), axis=0))
+    if points <= 8:
+        return None
+    return max(1, len(f) // 12), step
+
+
+def classify(parts) -> list[Verdict]:
+    """Tell each part of a flower model what it is.
+
+    Parameters
+    ----------
+    parts : sequence of objects with ``name``, ``vertices (V, 3)`` and ``faces (F, 3)``
+        (:class:`pipeline.io.meshfile.Part`), in any units.
+
+    Returns
+    -------
+    list of Verdict
+        One per part, in order: ``kind`` in ``KINDS``, ``reason`` a short phrase with
+        the measurements.
+
+    Notes
+    -----
+    Deterministic, and scale-free: a model in centimetres and the same in metres get
+    the same verdicts. A part made of several alike sheets (five petals in one OBJ
+    group) is judged as those petals, and is a petal if they are. See the module notes
+    for the rules and thresholds.
+    """
+    parts = list(parts)
+    wholes = [_measure(p.vertices, p.faces) for p in parts]
+    # units: parts, or the alike pieces of a part that is several petals
+    units: list[_Shape] = []
+    owner: list[int] = []
+    for i, (p, whole) in enumerate(zip(parts, wholes, strict=True)):
+        pieces = _pieces(np.asarray(p.vertices, dtype=np.float64), np.asarray(p.faces))
+        for s in pieces or [whole]:
+            units.append(s)
+            owner.append(i)
+    hinted = [_name_kind(p.name) for p in parts]
+    candidates = [u for u, s in enumerate(units)
+                  if s.form in ("sheet", "shell") and hinted[owner[u]] in (None, "petal")]
+    frame = _ring(units, candidates) or (_round_part(units, candidates) if len(parts) > 1 else None)
+
+    verdicts = []
+    for i, p in enumerate(parts):
+        voxels = voxel_cubes(p.vertices, p.faces)
+        if voxels is not None:
+            verdicts.append(Verdict("other", f"voxel cubes (up to {voxels[0]} cubes of side "
+                                             f"{voxels[1]:.3g}, every face on one lattice): voxel art "
+                                             "has no petal surfaces to simulate"))
+            continue
+        mine = [u for u in range(len(units)) if owner[u] == i]
+        shape = wholes[i] if len(mine) == 1 else None
+        if hinted[i] is not None:
+            kind = hinted[i]
+            forms = {units[u].form for u in mine}
+            if kind == "petal" and "shell" in forms:
+                kind = "thick petal"
+            verdicts.append(Verdict(kind, f"named {p.name!r}; {_describe(units[mine[0]])}"))
+            continue
+        if shape is None:  # several alike petals in one part
+            kinds = [_place(units, u, frame) for u in mine]
+            kind = max(set(k for k, _ in kinds), key=lambda k: (sum(1 for q, _ in kinds if q == k), k))
+            why = next(r for k, r in kinds if k == kind)
+            verdicts.append(Verdict(kind, f"{len(mine)} pieces; {why}"))
+        else:
+            verdicts.append(Verdict(*_place(units, mine[0], frame)))
+    return verdicts
+
+
+def _place(units: list[_Shape], u: int, frame: _Frame | None) -> tuple[str, str]:
+    """Kind and reason of one unit from its form and where it sits in the flower."""
+    s = units[u]
+    what = _describe(s)
+    petal = "thick petal" if s.form == "shell" else "petal"
+    if frame is None:
+        if s.form in ("sheet", "shell"):
+            return petal, f"{what}; no ring of petals, so taken for a lone petal"
+        return "other", f"{what}; no ring of petals to place it by"
+    L = frame.length
+    v = s.vertices
+    axial = frame.axial(v) - frame.base
+    below, above = float(max(-axial.min(), 0.0)), float(max(axial.max(), 0.0))
+    centre_axial = float(frame.axial(s.centroid) - frame.base)
+    centre_radial = float(frame.radial(s.centroid))
+    attach = float(frame.radial(v).min())
+    on_axis = centre_radial <= max(0.5 * s.width, ON_AXIS * L)
+    if u in frame.members:
+        return petal, f"{what}, {frame.how}, attached {attach / L:.2f} of its length from the axis"
+    if s.form in ("sheet", "shell"):
+        level = abs(centre_axial - float(np.median([frame.axial(units[m].centroid) - frame.base
+                                                    for m in frame.members])))
+        if (0.5 * frame.radius <= centre_radial <= 1.6 * frame.radius and level < 0.5 * L
+                and attach < 0.5 * L and s.length > 0.5 * L):
+            return petal, f"{what}, level with the ring of petals ({centre_radial / frame.radius:.2f} " \
+                          "of its radius from the axis)"
+        if s.length < 0.7 * L and attach < 0.3 * L and -0.3 * L < centre_axial < 0.3 * L:
+            return "sepal", (f"{what}, {s.length / L:.2f} of a petal's length, at the petals' base "
+                             f"({centre_axial / L:+.2f} petal lengths along the axis)")
+    if on_axis or s.form not in ("sheet", "shell"):
+        return _place_solid(s, what, frame, below, above, centre_axial, centre_radial, on_axis)
+    return "leaf", (f"{what}, off the ring of petals ({centre_axial / L:+.2f} petal lengths "
+                    f"along the axis from their base, {centre_radial / L:.2f} from the axis)")
+
+
+def _place_solid(s: _Shape, what: str, frame: _Frame, below: float, above: float,
+                 centre_axial: float, centre_radial: float, on_axis: bool) -> tuple[str, str]:
+    L = frame.length
+    if on_axis:
+        if s.form == "blob" and s.length < 0.3 * L and abs(centre_axial) < 0.5 * s.length:
+            return "receptacle", (f"{what} on the flower's axis at the petals' base, "
+                                  f"{s.length / L:.2f} of a petal's length")
+        if below > above and below > 0.1 * L:
+            return "stem", (f"{what} on the flower's axis, reaching {below / L:.2f} petal lengths "
+                            "below the petals' base")
+        if above >= below and above > 0.1 * L:
+            return "pistil", (f"{what} on the flower's axis, reaching {above / L:.2f} petal lengths "
+                              "above the petals' base")
+        return "other", f"{what} on the flower's axis"
+    if centre_axial > 0 and centre_radial < frame.radius + 0.5 * L:
+        return "stamen", (f"{what}, off the axis ({centre_radial / L:.2f} petal lengths) inside the "
+                          f"ring of petals, {centre_axial / L:+.2f} above their base")
+    if centre_axial < 0 and s.form == "narrow":
+        return "stem", f"{what}, below the petals' base ({centre_axial / L:+.2f} petal lengths)"
+    return "other", (f"{what}, {centre_radial / L:.2f} petal lengths from the axis and "
+                     f"{centre_axial / L:+.2f} along it from the petals' base")
+
+
+def select(names, kinds, petals_globs=(), exclude_globs=()) -> list[bool]:
+    """Which parts are petals: the verdict, overridden by the scene's globs.
+
+    Parameters
+    ----------
+    names : sequence of str
+        The parts' names.
+    kinds : sequence of str or Verdict
+        The verdicts of :func:`classify` (or their kinds).
+    petals_globs, exclude_globs : sequence of str
+        ``scene.petals`` and ``scene.exclude``: fnmatch patterns over part names
+        (case-sensitive). A part matching ``petals_globs`` is a petal whatever its
+        verdict; a part matching ``exclude_globs`` is never one (exclude wins).
+
+    Returns
+    -------
+    list of bool, one per part.
+    """
+    out = []
+    for name, kind in zip(names, kinds, strict=True):
+        kind = getattr(kind, "kind", kind)
+        chosen = kind in PETAL_KINDS or any(fnmatch.fnmatchcase(name, g) for g in petals_globs)
+        out.append(chosen and not any(fnmatch.fnmatchcase(name, g) for g in exclude_globs))
+    return out

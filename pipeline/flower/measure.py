@@ -1,0 +1,181 @@
+"""Measurements of a bloom: opening angle per petal, energies."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from pipeline.mesh import topology
+
+
+@dataclass
+class PetalFrames:
+    """Per petal, what the opening angle is measured against (taken on the initial mesh).
+
+    The opening angle is the rotation of the chord from the base's centre to the tip,
+    within the plane of the initial chord and the petal's outward direction (from the
+    petal's centroid toward its midrib, i.e. away from the cup); positive is outward.
+    In a flower (its axis known), outward is also away from the axis: a petal whose cup
+    does not tell (nearly flat, or cupped the other way, as in a dense bud's inner
+    whorls) has its direction turned to agree with the flower's, see :func:`_away`.
+    """
+
+    base_centers: np.ndarray  #: (P, 3) centroid of each petal's fixed base vertices
+    tips: np.ndarray  #: (P,) tip vertex index
+    chord_dirs: np.ndarray  #: (P, 3) unit initial chord
+    outward_dirs: np.ndarray  #: (P, 3) unit outward direction, perpendicular to the chord
+
+    @classmethod
+    def from_mesh(cls, vertices, petal, base, on_axis, tips, plane,
+                  flower_axis=None) -> PetalFrames:
+        """``flower_axis``: (6,) point and unit direction from the receptacle toward
+        the tips (nan or None: a lone petal, none)."""
+        v = np.asarray(vertices, dtype=np.float64)
+        count = int(petal.max()) + 1 if len(petal) else 0
+        centers, chords, outs = [], [], []
+        for p in range(count):
+            mine = petal == p
+            b = mine & base
+            centroid = v[mine].mean(axis=0)
+            center = v[b].mean(axis=0) if b.any() else centroid
+            chord = v[tips[p]] - center
+            length = np.linalg.norm(chord)
+            chord /= length
+            axis_pts = mine & on_axis
+            ref = v[axis_pts].mean(axis=0) if axis_pts.any() else centroid
+            out = ref - centroid
+            out -= chord * (out @ chord)
+            if np.linalg.norm(out) < 1e-9:  # a flat petal: take its normal (plane x chord)
+                out = np.cross(plane[p, :3], chord)
+            out /= np.linalg.norm(out)
+            away = _away((center, centroid), chord, length, flower_axis)
+            if away is not None and out @ away < 0.0:
+                out = -out
+            centers.append(center)
+            chords.append(chord)
+            outs.append(out)
+        return cls(np.array(centers).reshape(-1, 3), np.asarray(tips, dtype=np.int64),
+                   np.array(chords).reshape(-1, 3), np.array(outs).reshape(-1, 3))
+
+    def opening_angles(self, X) -> np.ndarray:
+        """``(P,)`` opening angle of each petal in degrees (0 on the initial mesh)."""
+        chord = np.asarray(X)[self.tips] - self.base_centers
+        along = np.einsum("ij,ij->i", chord, self.chord_dirs)
+        out = np.einsum("ij,ij->i", chord, self.outward_dirs)
+        return np.degrees(np.arctan2(out, along))
+
+
+def _away(where, chord, length: float, flower_axis) -> np.ndarray | None:
+    """The way a petal opens, as the flower tells it: away from the axis and down it,
+    ``r - a`` (``r`` the unit direction from the axis to the petal, ``a`` the axis's),
+    without its part along the petal's chord. For a closed bud's petal that is ``r``;
+    for one lying flat, ``-a``; for one at 45 degrees, both. ``where``: the petal's base
+    centre, then its centroid: ``r`` is the first's that is off the axis by more than a
+    fiftieth of the petal's ``length``. The base first: a bud's petal may lean over the
+    axis (an open lily's bud, found backward, has one whose centroid is across it); the
+    centroid where the bases meet on the axis (an open flower of sheets joined at its
+    centre). None where it does not tell: no axis, both on it, or a petal along
+    ``r - a`` itself (turned down 45 degrees)."""
+    fa = None if flower_axis is None else np.asarray(flower_axis, dtype=np.float64)
+    if fa is None or fa.shape != (6,) or not np.all(np.isfinite(fa)):
+        return None
+    a = fa[3:] / np.linalg.norm(fa[3:])
+    for point in where:
+        r = point - fa[:3]
+        r -= a * (r @ a)
+        size = np.linalg.norm(r)
+        if size > 0.02 * length:
+            break
+    else:
+        return None
+    d = r / size - a
+    d -= chord * (d @ chord)
+    return d if np.linalg.norm(d) > 0.25 else None
+
+
+def crossings(X, faces, petal) -> int:
+    """Edges of one petal that pass through a face of another: 0 when no petal has gone
+    through another. Needs no history, so any frame can be checked alone."""
+    from pipeline.sim.explicit.pushback import build_face_grid, edges_through_faces
+
+    X = np.ascontiguousarray(X, dtype=np.float64)
+    faces = np.ascontiguousarray(faces, dtype=np.int64)
+    petal = np.asarray(petal, dtype=np.int64)
+    edges, _, _ = topology.unique_edges(faces)
+    length = np.linalg.norm(X[edges[:, 0]] - X[edges[:, 1]], axis=1)
+    cell = float(max(length.max(), 1e-9))
+    size = 4 * len(faces) + 1
+    start, count = np.zeros(size + 1, dtype=np.int64), np.zeros(size, dtype=np.int64)
+    items = np.zeros(27 * len(faces), dtype=np.int64)
+    build_face_grid(X, faces, 0.0, cell, start, count, items)
+    return int(edges_through_faces(X, edges, petal[edges[:, 0]], faces, petal[faces[:, 0]],
+                                           cell, start, count, items))
+
+
+def section_weights(hinges, hinge_edge_ends_s, hinge_edge_ends_x) -> np.ndarray:
+    """Weight of each hinge in the cross-section curvature: how much its edge runs along
+    the petal (along s rather than across x), so that its fold bends the cross-section."""
+    ds = hinge_edge_ends_s[:, 1] - hinge_edge_ends_s[:, 0]
+    dx = hinge_edge_ends_x[:, 1] - hinge_edge_ends_x[:, 0]
+    return ds ** 2 / np.maximum(ds ** 2 + dx ** 2, 1e-300)
+
+
+def cross_section_curvature(X, hinges, weights, petal_of_hinge, petals: int) -> np.ndarray:
+    """``(P,)`` mean |dihedral angle| (radians per mean edge) over each petal's hinges
+    that run along the petal, weighted by :func:`section_weights`."""
+    from pipeline.mesh.hinge import dihedral_angles
+
+    theta = np.abs(dihedral_angles(np.asarray(X, dtype=np.float64), hinges))
+    out = np.zeros(petals)
+    for p in range(petals):
+        mine = petal_of_hinge == p
+        w = weights[mine]
+        out[p] = float((w * theta[mine]).sum() / max(w.sum(), 1e-300))
+    return out
+
+
+def wrinkle_count(X, loops, vertex_normals) -> int:
+    """Sign changes, along each boundary loop, of the rim's normal displacement from its
+    neighbours' mean two vertices away: ``(x_i - (x_{i-2} + x_{i+2}) / 2) . n_i``; values
+    under 0.01 mean edges are ignored. A smoothly curved rim has none or two; each
+    wrinkle adds two."""
+    total = 0
+    for loop in loops:
+        if len(loop) < 5:
+            continue
+        x = X[loop]
+        d = np.einsum("ij,ij->i", x - 0.5 * (np.roll(x, 2, axis=0) + np.roll(x, -2, axis=0)),
+                      vertex_normals[loop])
+        sign = np.sign(np.where(np.abs(d) < 0.01, 0.0, d))
+        sign = sign[sign != 0]
+        if len(sign) > 1:
+            total += int(np.sum(sign != np.roll(sign, 1)))
+    return total
+
+
+def gaussian_curvature_sign(X, faces, petal, interior) -> np.ndarray:
+    """``(P,)`` sign of each petal's total Gaussian curvature over its interior vertices
+    (angle defect 2 pi - sum of angles): +1 cup-like, -1 saddle-like."""
+    X = np.asarray(X, dtype=np.float64)
+    p = X[faces]
+    angles = np.zeros((len(faces), 3))
+    for k in range(3):
+        a = p[:, (k + 1) % 3] - p[:, k]
+        b = p[:, (k + 2) % 3] - p[:, k]
+        cos = np.einsum("ij,ij->i", a, b) / (np.linalg.norm(a, axis=1) * np.linalg.norm(b, axis=1))
+        angles[:, k] = np.arccos(np.clip(cos, -1.0, 1.0))
+    total = np.zeros(len(X))
+    np.add.at(total, faces.ravel(), angles.ravel())
+    defect = np.where(interior, 2.0 * np.pi - total, 0.0)
+    count = int(petal.max()) + 1
+    return np.array([np.sign(defect[petal == q].sum()) for q in range(count)], dtype=np.int64)
+
+
+def rim_bending(X, hinges, rim) -> float:
+    """Mean |dihedral angle| (radians) over the hinges that touch the boundary (``rim``,
+    a per-hinge mask): how sharply the rim is folded. A buckled rim scores high."""
+    from pipeline.mesh.hinge import dihedral_angles
+
+    theta = np.abs(dihedral_angles(np.asarray(X, dtype=np.float64), hinges))
+    return float(theta[rim].mean()) if rim.any() else 0.0

@@ -1,0 +1,625 @@
+"""From a user's mesh to clean, isotropic, symmetric petal sheets at mean edge 1.
+
+The remesh stage's work, as a library function the tests call directly:
+
+1. clean (weld, drop degenerate and duplicate faces, orient) and refuse what cannot
+   be simulated: non-manifold edges, closed surfaces (thick petals, a receptacle:
+   refused, or dropped when the scene says so), two-layer slabs;
+2. split petals: one connected component is one petal;
+3. scale so the mean edge is 1;
+4. per petal: find the center plane; remesh to the target edge (boundary included);
+   make the petal mirror-symmetric about its plane;
+5. scale again so the result's mean edge is exactly 1.
+
+:func:`prepare` takes one mesh; :func:`prepare_parts` (the stage's) takes a file's named
+parts: it classifies them, cleans each petal part on its own (dust dropped, a thick
+petal replaced by its mid-surface), reports every part that cannot be simulated in one
+error, and then runs steps 3 to 5 on the petal sheets.
+"""
+
+from __future__ import annotations
+
+import fnmatch
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from pipeline.errors import BloomError
+from pipeline.mesh import clean, remesh, repair, symmetry, topology
+
+#: how close to the center plane (in mean edges) a vertex is snapped onto it before the
+#: cut, with and without a remesh after (remeshed souki202: 0.05 gives min angle 6.0
+#: deg, 0.1 gives 1.5, 0.2 gives 0.35)
+SNAP, SNAP_REMESHED = 0.2, 0.05
+#: a sharp rim corner (the tip) this close to the plane (in mean edges) goes onto it before
+#: a remesh (souki202's needle tips, 0.15 off the plane, made a 142 deg notch between two
+#: tips whose one triangle cannot have both other angles at 20 deg)
+SNAP_CORNER = 0.5
+#: a petal with fewer vertices than this (and no remesh.target_edge or petal_vertices set)
+#: is remeshed to about this many: a coarse model has too few hinges to bend smoothly
+MIN_PETAL_VERTICES = 100
+DUST = 0.01  #: connected pieces under this fraction of their part's area are dropped
+LAYERED = 0.5  #: a sheet this much of whose area has a second layer behind it is a slab
+#: a mid-surface must cover at least this fraction of half its shell's area (a shell's
+#: two sides each have about half): less, and it is a few faces left over, not a petal
+MIN_MID_AREA = 0.25
+#: a folded or degenerate triangle under this fraction of the median area is refused
+FLAT_AREA = 0.01
+
+
+@dataclass
+class Petals:
+    vertices: np.ndarray  #: (V, 3) mean edge 1
+    faces: np.ndarray  #: (F, 3)
+    petal: np.ndarray  #: (V,) petal id
+    plane: np.ndarray  #: (P, 4) center plane of each petal (unit normal, offset)
+    scale: float  #: mesh units per input unit
+    asymmetry_before: np.ndarray  #: (P,) RMS mirror distance before, in output units
+    asymmetry_after: np.ndarray  #: (P,)
+    report: clean.CleanReport
+    edge_target: np.ndarray  #: (P,) remesh target edge in input units (0: not remeshed)
+    dropped: list = field(default_factory=list)  #: descriptions of parts left out
+    notes: list = field(default_factory=list)  #: one line per thing worth telling
+    #: petals that could not be made mirror-symmetric (symmetrize asked): a later stage can
+    #: turn on the center-plane constraint for them
+    unsymmetrized: list = field(default_factory=list)
+    min_angle: np.ndarray = None  #: (P,) smallest angle per petal, corners excepted (remesh.quality)
+    part: np.ndarray = None  #: (V,) the input part each vertex came from
+    thickness: np.ndarray = None  #: (V,) mid-surface thickness in output units (0: a sheet)
+    parts: list = field(default_factory=list)  #: per input part: {name, kind, reason, role}
+    kept_parts: dict = field(default_factory=dict)  #: input index -> (vertices, faces), not petals
+
+
+def _submesh(faces: np.ndarray, idx: np.ndarray) -> np.ndarray:
+    keep = np.isin(faces[:, 0], idx)
+    return np.searchsorted(idx, faces[keep])
+
+
+def prepare(vertices: np.ndarray, faces: np.ndarray, *, where: str, target_edge: float = 0.0,
+            petal_vertices: int = 0, symmetrize: bool = True,
+            closed_parts: str = "refuse") -> Petals:
+    """Clean, split, remesh and symmetrize (see the module notes).
+
+    Raises :class:`BloomError` (naming ``where``, the input file) for meshes that are
+    not petal sheets, saying how to fix the input.
+    """
+    v, f, report = clean.clean_mesh(vertices, faces)
+    if len(f) == 0:
+        raise BloomError("no triangles left after removing degenerate faces", where=where)
+    _, _, count = topology.unique_edges(f)
+    if np.any(count > 2):
+        raise BloomError(f"{int(np.sum(count > 2))} non-manifold edges (an edge shared by 3+ "
+                         "faces); repair the mesh (e.g. merge by distance, delete loose "
+                         "duplicate faces) and export again", where=where)
+    v, f, dropped = _open_parts(v, f, closed_parts, where)
+    petal = topology.components(f, len(v))
+    for p in range(int(petal.max()) + 1):
+        idx = np.flatnonzero(petal == p)
+        fraction, gap = clean.layered_fraction(v[idx], _submesh(f, idx))
+        if fraction > LAYERED:
+            raise BloomError(f"petal {p} is two layers ({fraction:.0%} of it has a second, "
+                             f"opposite-facing layer {gap:.3g} units behind it): a thick "
+                             "petal cut open is not a sheet; delete one side (or the "
+                             "Solidify/Extrude) and export the single surface", where=where)
+
+    return _build(v, f, petal, report, target_edge=target_edge, petal_vertices=petal_vertices,
+                  where=where,
+                  symmetrize=symmetrize, dropped=dropped)
+
+
+def _build(v, f, petal, report, *, target_edge, petal_vertices, symmetrize, dropped=(),
+           labels=None, part_of=None, thick=None, notes=None, where: str = "") -> Petals:
+    """Steps 3 to 5 (see the module notes) on clean petal sheets ``v, f`` labelled ``petal``.
+
+    ``labels[p]`` names petal ``p`` in the notes ("petal 3 (Cylinder04)"); ``part_of[p]`` is
+    the input part it came from; ``thick[p]`` is None for a sheet, else ``(points, thickness)``
+    of its mid-surface in input units (carried to the remeshed vertices by nearest point).
+    """
+    count = int(petal.max()) + 1
+    labels = labels or [f"petal {p}" for p in range(count)]
+    scale = 1.0 / clean.mean_edge_length(v, f)
+    v = v * scale
+    out_v, out_f, out_petal, planes, before, after, targets = [], [], [], [], [], [], []
+    offset = 0
+    notes = list(notes or [])
+    out_part, out_thick = [], []
+    unsymmetrized, quality, broken = [], [], []
+    for p in range(count):
+        idx = np.flatnonzero(petal == p)
+        pts, lf = v[idx], _submesh(f, idx)
+        plane, err = symmetry.mirror_plane(pts)
+        before.append(err)
+        h = (target_edge * scale if target_edge > 0 else
+             remesh.target_for_vertices(pts, lf, petal_vertices) if petal_vertices > 0 else 0.0)
+        if h == 0.0 and len(pts) < MIN_PETAL_VERTICES:  # a coarse model: too few hinges to bend
+            h = remesh.target_for_vertices(pts, lf, MIN_PETAL_VERTICES)
+            notes.append(f"{labels[p]}: {len(pts)} vertices: remeshed to about {MIN_PETAL_VERTICES} "
+                         "(remesh.petal_vertices sets it)")
+        pts, lf, h, note, mirrored = _petal(pts, lf, plane, h, symmetrize, labels[p], scale)
+        notes += note
+        if symmetrize and not mirrored:
+            unsymmetrized.append(p)
+        face_quality = remesh.face_quality(pts, lf)
+        quality.append(float(face_quality.min()))  # remesh.quality
+        area = 0.5 * np.linalg.norm(topology.face_normals(pts, lf), axis=1)
+        bad = face_quality == 0.0  # inverted or degenerate
+        flat = int(np.sum(bad & (area < FLAT_AREA * np.median(area))))
+        if flat:  # its bending force is singular: the simulator gains energy from it
+            broken.append(f"{labels[p]}: {flat} folded triangle(s) of almost no area")
+        elif bad.any():
+            notes.append(f"{labels[p]}: warning: {int(bad.sum())} triangle(s) folded over "
+                         "their neighbours after remeshing")
+        elif quality[-1] < remesh.MIN_ANGLE:
+            notes.append(f"{labels[p]}: warning: smallest angle {quality[-1]:.1f} deg is still below "
+                         f"{remesh.MIN_ANGLE:g} after remeshing")
+        ratio = remesh.edge_ratio(pts, lf)
+        if ratio < remesh.MIN_EDGE:
+            notes.append(f"{labels[p]}: warning: shortest edge {ratio:.2f} of "
+                         f"the mean is still below {remesh.MIN_EDGE:g} after remeshing")
+        after.append(symmetry.asymmetry(pts, plane) if symmetrize or h else err)
+        targets.append(h)
+        planes.append(plane)
+        out_v.append(pts)
+        out_f.append(lf + offset)
+        out_petal.append(np.full(len(pts), p, dtype=np.int64))
+        out_part.append(np.full(len(pts), part_of[p] if part_of is not None else 0, dtype=np.int64))
+        out_thick.append(_carried_thickness(pts, thick[p] if thick is not None else None, scale))
+        offset += len(pts)
+    if broken:
+        raise BloomError(f"{len(broken)} petal(s) still fold after remeshing: " + "; ".join(broken)
+                         + "; the sheet folds over itself (a mid-surface of a crumpled shell, or "
+                         "a self-intersecting petal); repair it in the modelling tool, or leave "
+                         "it out with scene.exclude", where=where)
+    v, f = np.vstack(out_v), np.vstack(out_f)
+    again = 1.0 / clean.mean_edge_length(v, f)
+    planes = np.array(planes)
+    planes[:, 3] *= again
+    return Petals(v * again, f, np.concatenate(out_petal), planes, scale * again,
+                  np.asarray(before) * again, np.asarray(after) * again, report,
+                  np.asarray(targets) / scale, dropped=list(dropped), notes=notes,
+                  unsymmetrized=unsymmetrized, min_angle=np.asarray(quality),
+                  part=np.concatenate(out_part), thickness=np.concatenate(out_thick) * again)
+
+
+def _carried_thickness(pts: np.ndarray, thick, scale: float) -> np.ndarray:
+    """(len(pts),) thickness at a petal's (scaled) vertices: 0 for a sheet, else that of the
+    nearest mid-surface vertex, in the same scaled units."""
+    if thick is None:
+        return np.zeros(len(pts))
+    from scipy.spatial import cKDTree
+
+    points, value = thick
+    _, nearest = cKDTree(np.asarray(points) * scale).query(pts)
+    return np.asarray(value, dtype=np.float64)[nearest] * scale
+
+
+def _one_line(text: str) -> str:
+    return " ".join(str(text).split())
+
+
+def _pieces(v: np.ndarray, f: np.ndarray) -> list[tuple[np.ndarray, np.ndarray]]:
+    """A clean mesh's connected pieces, each ``(vertices, faces)``, in order of first vertex."""
+    label = topology.components(f, len(v))
+    out = []
+    for p in range(int(label.max()) + 1):
+        idx = np.flatnonzero(label == p)
+        out.append((v[idx], _submesh(f, idx)))
+    return out
+
+
+def _area(v: np.ndarray, f: np.ndarray) -> float:
+    return 0.5 * float(np.linalg.norm(topology.face_normals(v, f), axis=1).sum())
+
+
+def _is_closed(v: np.ndarray, f: np.ndarray) -> bool:
+    return not topology.boundary_vertices(f, len(v)).any()
+
+
+def _thick_sheets(v, f, pieces):
+    """Mid-surfaces of a thick petal part: one per closed piece (several solidified petals in
+    one group), else one of the whole part (two separate open sides). Returns ``[(vertices, faces,
+    thickness)]``; raises ValueError with midsurface's reason."""
+    if len(pieces) == 1 or not any(_is_closed(pv, pf) for pv, pf in pieces):
+        return [_mid(v, f)]
+    made, failed = [], []
+    for k, (pv, pf) in enumerate(pieces):
+        try:
+            made.append(_mid(pv, pf))
+        except ValueError as exc:
+            failed.append(f"piece {k + 1} of {len(pieces)}: {exc}")
+    if failed:
+        raise ValueError("; ".join(failed))
+    return made
+
+
+def _mid(v, f):
+    from pipeline.mesh.midsurface import midsurface
+
+    m = midsurface(v, f)
+    sv, sf, t = _cleaned_sheet(m.vertices, m.faces, m.thickness)
+    kept = _area(sv, sf) / max(0.5 * _area(v, f), 1e-300) if len(sf) else 0.0
+    if kept < MIN_MID_AREA:
+        raise ValueError(f"its mid-surface covers only {kept:.0%} of one side ({len(sf)} faces); "
+                         "the part is not two parallel sides (a low-poly cage, a crumpled or "
+                         "self-intersecting shell?)")
+    return sv, sf, t
+
+
+def _cleaned_sheet(vertices, faces, thickness):
+    """A made sheet cleaned (:func:`clean.clean_mesh`) with its per-vertex thickness carried
+    to the vertices kept (matched by position: welding merges and reorders)."""
+    from scipy.spatial import cKDTree
+
+    sv, sf, _ = clean.clean_mesh(vertices, faces)
+    _, nearest = cKDTree(vertices).query(sv)
+    return sv, sf, np.asarray(thickness)[nearest]
+
+
+def _lobe_sheets(v, f):
+    """Sheets of a petal part that has no mid-surface: one per lobe of the ring it makes
+    (:func:`pipeline.mesh.lobes.lobes`; the hub where they join left out), each sampled as a
+    height field (:func:`pipeline.mesh.heightfield.height_sheet`). Returns
+    ``[(vertices, faces, thickness)]``, lobes under ``DUST`` of the largest left out;
+    raises ValueError for a lobe that is two layers as far apart as a solid's
+    (``MAX_RELATIVE_THICKNESS`` of its width: a box, a sphere, a block of voxels)."""
+    from pipeline.mesh.heightfield import height_sheet
+    from pipeline.mesh.lobes import lobes
+    from pipeline.mesh.midsurface import MAX_RELATIVE_THICKNESS
+
+    split = lobes(v, f)
+    made = []
+    for k in range(split.count):
+        mine = (split.label == k) & (split.radius >= split.hub_radius)
+        if not mine.any():
+            continue
+        h = height_sheet(v, f[mine])
+        if h.two_sided and h.relative_thickness > MAX_RELATIVE_THICKNESS:
+            raise ValueError(f"a solid: {h.relative_thickness:.2f} as thick as wide")
+        sv, sf, t = _cleaned_sheet(h.vertices, h.faces, h.thickness)
+        if len(sf):
+            made.append((sv, sf, t))
+    areas = np.array([_area(sv, sf) for sv, sf, _ in made])
+    return [m for m, a in zip(made, areas, strict=True) if a >= DUST * areas.max()] if made else []
+
+
+#: the petals of a ring split from one sheet differ in area by at most this factor
+ALIKE_LOBES = 4.0
+
+
+def _ring_petals(v, f):
+    """The petals of one sheet that is a ring of them joined at a hub
+    (:func:`pipeline.mesh.lobes.lobes`), or None when it is not (fewer than three lobes, or
+    lobes unlike in area by more than ``ALIKE_LOBES``). The hub is left out, and so is
+    every face touching a vertex of another petal, so that no two petals share a point."""
+    from pipeline.mesh.lobes import lobes
+
+    split = lobes(v, f)
+    if split.count < 3:
+        return None
+    d = v - split.centre
+    radius = np.linalg.norm(d - np.outer(d @ split.axis, split.axis), axis=1)
+    # cut along the mesh's own edges: a face is out when any corner is inside the hub
+    label = np.where(radius[f].min(axis=1) >= split.hub_radius, split.label, -1)
+    pairs = np.unique(np.stack([f[label >= 0].ravel(), np.repeat(label[label >= 0], 3)], 1), axis=0)
+    shared = np.bincount(pairs[:, 0], minlength=len(v)) > 1
+    ok = (label >= 0) & ~shared[f].any(axis=1)
+    near_cut = radius[f].min(axis=1) < split.hub_radius + 3.0 * clean.mean_edge_length(v, f)
+    out = []
+    for k in range(split.count):
+        mine = np.flatnonzero(ok & (label == k))
+        for _ in range(8):  # teeth left along the cut: faces there with two edges on the rim
+            _, he_edge, count = topology.unique_edges(f[mine])
+            tooth = ((count[he_edge] == 1).reshape(3, -1).sum(axis=0) >= 2) & near_cut[mine]
+            if not tooth.any() or tooth.all():
+                break
+            mine = mine[~tooth]
+        if mine.size == 0:
+            return None
+        used = np.unique(f[mine])
+        pieces = _pieces(v[used], np.searchsorted(used, f[mine]))
+        out.append(max(pieces, key=lambda pc: _area(*pc)))
+    areas = np.array([_area(pv, pf) for pv, pf in out])
+    return out if areas.max() <= ALIKE_LOBES * areas.min() else None
+
+
+@dataclass
+class _Judged:
+    name: str
+    vertices: np.ndarray
+    faces: np.ndarray
+
+
+def _unique_faces(faces: np.ndarray) -> np.ndarray:
+    """Faces without repeats of the same three vertices (whichever way wound), first kept."""
+    f = np.asarray(faces, dtype=np.int64)
+    _, first = np.unique(np.sort(f, axis=1), axis=0, return_index=True)
+    return f if len(first) == len(f) else f[np.sort(first)]
+
+
+def prepare_parts(mesh_file, *, where: str, target_edge: float = 0.0, petal_vertices: int = 0,
+                  symmetrize: bool = True, closed_parts: str = "refuse", petals_globs=(),
+                  exclude_globs=(), dust: float = DUST) -> Petals:
+    """The remesh stage on a file's named parts (:func:`pipeline.io.meshfile.read_parts`).
+
+    Each part is classified (:func:`pipeline.flower.classify.classify`) and chosen by the
+    scene's globs (:func:`~pipeline.flower.classify.select`). A chosen part is cleaned on its
+    own, loses its dust (connected pieces under ``dust`` of its area), and gives one sheet
+    per connected piece; a thick petal (or a closed or two-layer piece) becomes its
+    mid-surface. The sheets then go through steps 3 to 5 of :func:`prepare`. Parts that
+    are not petals are returned untouched in ``kept_parts``.
+
+    Raises one :class:`BloomError` naming every petal part that cannot be simulated (and,
+    when no petal is left, what every part is).
+    """
+    from pipeline.flower.classify import classify, select
+
+    parts = list(mesh_file.parts)
+    # judged without stacked duplicate faces (a face written twice, either way round, would
+    # close a sheet into a "solid"); the parts themselves are kept as read
+    verdicts = classify([_Judged(p.name, p.vertices, _unique_faces(p.faces)) for p in parts])
+    names = [p.name for p in parts]
+    chosen = select(names, verdicts, petals_globs, exclude_globs)
+    excluded = [not c and any(fnmatch.fnmatchcase(n, g) for g in exclude_globs)
+                for n, c in zip(names, chosen, strict=True)]
+    total = clean.CleanReport()
+    sheets = []  # (vertices, faces, part index, thickness or None)
+    problems, failing, dropped, notes, info = [], [], [], [], []
+    for i, (part, verdict) in enumerate(zip(parts, verdicts, strict=True)):
+        role = "petal" if chosen[i] else "excluded" if excluded[i] else "kept"
+        info.append({"name": part.name, "kind": verdict.kind, "reason": _one_line(verdict.reason),
+                     "role": role})
+        if not chosen[i]:
+            continue
+        label = f"{part.name}"
+        v, f, report = clean.clean_mesh(part.vertices, part.faces)
+        for key in ("welded", "degenerate_faces", "duplicate_faces", "opposite_duplicate_faces",
+                    "unreferenced", "flipped_faces"):
+            setattr(total, key, getattr(total, key) + getattr(report, key))
+        if len(f) == 0:
+            problems.append(f"{label}: no triangles left after removing degenerate faces")
+            failing.append(part.name)
+            continue
+        _, _, count = topology.unique_edges(f)
+        if np.any(count > 2):  # a rib or fin on the sheet, sheets welded along a seam
+            bad = int(np.sum(count > 2))
+            f, gone = repair.resolve_nonmanifold_edges(v, f)
+            total.nonmanifold_edges += bad
+            total.nonmanifold_faces += gone
+            notes.append(f"{label}: {bad} non-manifold edges: kept the two faces the surface "
+                         f"goes on through at each, dropped {gone} face(s)")
+        v, f, copies = repair.split_fans(v, f)  # pieces touching at a vertex come apart
+        total.split_vertices += copies
+        pieces = _pieces(v, f)
+        areas = np.array([_area(pv, pf) for pv, pf in pieces])
+        small = areas < dust * areas.sum()
+        if small.any() and not small.all():
+            total.dust_pieces += int(small.sum())
+            total.dust_faces += int(sum(len(pieces[k][1]) for k in np.flatnonzero(small)))
+            notes.append(f"{label}: dropped {int(small.sum())} piece(s) of dust (under {dust:.0%} "
+                         "of its area)")
+            pieces = [pc for pc, s in zip(pieces, small, strict=True) if not s]
+            keep = np.concatenate([pv for pv, _ in pieces])
+            v, f = keep, np.vstack([pf + o for (_, pf), o in
+                                    zip(pieces, np.cumsum([0] + [len(pv) for pv, _ in pieces[:-1]]),
+                                        strict=True)])
+        # told by the cleaned geometry: a closed or two-layer piece, or (a thick petal's two
+        # separate sides) a part of several pieces that is two layers; a stacked duplicate
+        # that made the verdict "thick" is gone by now
+        thick = any(_is_closed(pv, pf) or clean.layered_fraction(pv, pf)[0] > LAYERED
+                    for pv, pf in pieces)
+        if not thick and verdict.kind == "thick petal" and len(pieces) > 1:
+            thick = clean.layered_fraction(v, f)[0] > LAYERED
+        if not thick:
+            sheets += [(pv, pf, i, None) for pv, pf in pieces]
+            continue
+        try:
+            made = _thick_sheets(v, f, pieces)
+        except (ValueError, RuntimeError, np.linalg.LinAlgError) as exc:
+            try:  # no clean mid-surface: a coarse cage, hems, petals joined at a hub
+                made = _lobe_sheets(v, f)
+            except ValueError:
+                made = None
+            if made:
+                total.height_sheets += len(made)
+                notes.append(f"{label}: no mid-surface ({_one_line(exc)}); simulated as "
+                             f"{len(made)} sheet(s) sampled over its lobes")
+                sheets += [(sv, sf, i, (sv, t)) for sv, sf, t in made]
+                continue
+            if closed_parts == "drop" and all(_is_closed(pv, pf) for pv, pf in pieces):
+                dropped.append(f"{part.name} (closed, {len(v)} vertices: {_one_line(exc)})")
+                info[-1]["role"] = "kept"  # carried forward untouched, as a part that is not a petal
+                continue
+            problems.append(f"{label}: cannot become a sheet: {_one_line(exc)}")
+            failing.append(part.name)
+            continue
+        total.midsurfaces += len(made)
+        notes.append(f"{label}: a thick petal: simulated as its mid-surface "
+                     + ", ".join(f"(thickness {np.median(t):.3g})" for _, _, t in made))
+        sheets += [(sv, sf, i, (sv, t)) for sv, sf, t in made]
+    if problems and sheets:
+        raise BloomError(f"{len(problems)} petal part(s) cannot be simulated: " + "; ".join(problems)
+                         + "; fix them, or leave them out with scene.exclude = ["
+                         + ", ".join(f'"{name}"' for name in failing) + "]", where=where)
+    if not sheets:
+        others = [f"{d['name']}: {d['kind']} (not a petal{', excluded' if d['role'] == 'excluded' else ''}: "
+                  f"{d['reason']})" for d in info if d["role"] != "petal"]
+        hint = ("; name the petals with scene.petals = [\"glob\"]" if not problems else
+                "; repair the part(s) named and export again, or name the petals with scene.petals")
+        raise BloomError("no petals: " + "; ".join(problems + others) + hint, where=where)
+    split_sheets = []
+    for sv, sf, i, t in sheets:  # petals joined in one sheet at a hub (a low-poly star)
+        petals_of = _ring_petals(sv, sf)
+        if petals_of is None:
+            split_sheets.append((sv, sf, i, t))
+            continue
+        total.ring_splits += 1
+        notes.append(f"{names[i]}: one sheet of {len(petals_of)} petals joined at a hub: split into "
+                     "its petals, the hub left out")
+        split_sheets += [(pv, pf, i, t) for pv, pf in petals_of]
+    sheets = split_sheets
+    for k, (sv, sf, i, t) in enumerate(sheets):
+        sv, sf, zipped = repair.zip_slits(sv, sf)  # a sliver dropped in a mid-surface, a seam
+        if zipped:
+            total.zipped_vertices += zipped
+            notes.append(f"{names[i]}: closed a slit in its sheet ({zipped} rim vertex pair(s) merged)")
+            sheets[k] = (sv, sf, i, t)
+    offsets = np.cumsum([0] + [len(sv) for sv, _, _, _ in sheets])
+    v = np.vstack([sv for sv, _, _, _ in sheets])
+    f = np.vstack([sf + o for (_, sf, _, _), o in zip(sheets, offsets, strict=False)])
+    petal = np.concatenate([np.full(len(sv), k, dtype=np.int64) for k, (sv, _, _, _) in enumerate(sheets)])
+    labels = [f"petal {k} ({names[i]})" for k, (_, _, i, _) in enumerate(sheets)]
+    result = _build(v, f, petal, total, target_edge=target_edge, petal_vertices=petal_vertices,
+                    where=where,
+                    symmetrize=symmetrize, dropped=dropped, labels=labels,
+                    part_of=[i for _, _, i, _ in sheets], thick=[t for _, _, _, t in sheets],
+                    notes=notes)
+    result.parts = info
+    result.kept_parts = {i: (np.asarray(p.vertices), np.asarray(p.faces))
+                         for i, p in enumerate(parts) if info[i]["role"] != "petal"}
+    return result
+
+
+def _remesh_half(h: float):
+    """The remesh step of :func:`symmetry.mirrored_mesh`: isotropic at ``h``, then
+    :func:`remesh.improve` with the cut's vertices free to slide along it (they get
+    first coordinate 0 there, and sliding between two of them keeps it exactly 0)."""
+    def redo(v, f, fixed):
+        v, f, fixed = remesh.isotropic(v, f, h, fixed=fixed)
+        seam = topology.boundary_vertices(f, len(v)) & (v[:, 0] == 0.0) & ~fixed
+        v, f, fixed, _ = remesh.improve(v, f, fixed, seam)
+        return v, f, fixed
+    return redo
+
+
+def _remeshed(pts, lf, h):
+    """A sheet remeshed at edge ``h`` and improved towards the quality bound. If it
+    misses the bound, remeshed once more from there, kept if that meets it: the
+    improvement can clip a needle off the rim (:func:`remesh.improve`), whose short base
+    is then a rim edge that the remesh's boundary pass collapses."""
+    pts, lf, _ = remesh.isotropic(pts, lf, h)
+    pts, lf, _, _ = remesh.improve(pts, lf)
+    if not remesh.meets_bound(pts, lf):
+        again, again_f, _ = remesh.isotropic(pts, lf, h)
+        again, again_f, _, _ = remesh.improve(again, again_f)
+        if remesh.meets_bound(again, again_f):
+            return again, again_f
+    return pts, lf
+
+
+def _shortfall(pts, lf) -> str:
+    """What of the quality bound a sheet misses, for the notes ("" if it meets it:
+    :func:`remesh.meets_bound`)."""
+    worst, ratio = remesh.quality(pts, lf), remesh.edge_ratio(pts, lf)
+    why = []
+    if worst < remesh.MIN_ANGLE:
+        why.append(f"triangles below {remesh.MIN_ANGLE:g} deg (min {worst:.1f} deg)")
+    if ratio < remesh.MIN_EDGE:
+        why.append(f"edges below {remesh.MIN_EDGE:g} of the mean (shortest {ratio:.2f})")
+    return " and ".join(why)
+
+
+def _fixed_quality(pts, lf, h, what, scale):
+    """The sheet itself if it meets :data:`remesh.MIN_ANGLE`, else remeshed at ``h``."""
+    why = _shortfall(pts, lf)
+    if not why:
+        return pts, lf, []
+    # the user's triangles if moving vertices along the surface is enough
+    moved, _, _, _ = remesh.improve(pts, lf, moves_only=True)
+    if remesh.meets_bound(moved, lf):
+        count = int(np.sum(np.any(moved != pts, axis=1)))
+        return moved, lf, [f"{what}: {why}: moved {count} vertices along the surface, triangles kept"]
+    pts, lf = _remeshed(pts, lf, h)
+    return pts, lf, [f"{what}: {why}: "
+                     f"remeshed at edge {h / scale:.4g}"]
+
+
+def _petal(pts, lf, plane, h, symmetrize, what, scale):
+    """One petal's sheet made symmetric (if asked) and of :data:`remesh.MIN_ANGLE` quality.
+
+    Returns ``(vertices, faces, h, notes, mirrored)``; ``h`` is the remesh target used
+    (0: the input's own triangles were kept)."""
+    own = clean.mean_edge_length(pts, lf)
+    if not symmetrize:
+        if h:
+            pts, lf = _remeshed(pts, lf, h)
+            return pts, lf, h, [], False
+        out, out_f, note = _fixed_quality(pts, lf, own, what, scale)
+        return out, out_f, (own if len(out_f) != len(lf) or np.any(out_f != lf) else 0.0), note, False
+    if h == 0.0:
+        partner = symmetry.mirror_pairs(pts, plane, lf)
+        if partner is not None:
+            paired = symmetry.symmetrize(pts, plane, partner)
+            why = _shortfall(paired, lf)
+            if not why:
+                return paired, lf, 0.0, [], True
+            # keep the user's (paired) triangles: move vertices in the tangent plane only,
+            # then average with the mirror image again (pairs stay pairs)
+            moved, _, _, _ = remesh.improve(paired, lf, moves_only=True)
+            changed = np.any(moved != paired, axis=1)
+            changed |= changed[partner]
+            moved[changed] = symmetry.symmetrize(moved, plane, partner)[changed]
+            if remesh.meets_bound(moved, lf):
+                count = int(changed.sum())
+                return moved, lf, 0.0, [f"{what}: {why}: moved {count} vertices along the "
+                                        "surface, triangles kept"], True
+        else:
+            try:
+                # snap near-plane vertices so the cut makes few slivers; kept if it makes none
+                cut, cut_f, _ = symmetry.mirrored_mesh(pts, lf, plane, snap=SNAP * own)
+                why = _shortfall(cut, cut_f)
+                if not why:
+                    return cut, cut_f, 0.0, [f"{what}: cut along its center plane and mirrored"], True
+            except ValueError:
+                why = _shortfall(pts, lf)
+    target = h or own
+    try:
+        # before a remesh (which resamples the cut) snap far less, or the snap distorts the half
+        out, out_f, _ = symmetry.mirrored_mesh(pts, lf, plane, snap=SNAP_REMESHED * own,
+                                               remesh=_remesh_half(target),
+                                               snap_corners=SNAP_CORNER * own)
+    except ValueError as exc:
+        fixed, fixed_f, note = _fixed_quality(pts, lf, target, what, scale)
+        kept = len(fixed_f) == len(lf) and np.all(fixed_f == lf)
+        return fixed, fixed_f, (0.0 if kept else target), note + [
+            f"{what}: warning: cannot be mirrored ({exc}); left unsymmetrized"], False
+    missed = _shortfall(out, out_f)
+    if topology.components(out_f, len(out)).max() > 0:
+        missed = "pieces (the center plane cuts the petal more than once)"
+    if missed:
+        # the cut met the rim in a notch or a slit the mirrored remesh cannot mend, or cut
+        # a curled petal into pieces; the simulator needs a sound sheet more than symmetry
+        fixed, fixed_f = _remeshed(pts, lf, target)
+        if not _shortfall(fixed, fixed_f) or missed.startswith("pieces"):
+            return fixed, fixed_f, target, [
+                f"{what}: warning: mirrored, it kept {missed}; remeshed at edge "
+                f"{target / scale:.4g}, unsymmetrized"], False
+    if h:
+        return out, out_f, h, [f"{what}: cut along its center plane and mirrored, remeshed at "
+                               f"edge {h / scale:.4g}"], True
+    return out, out_f, target, [f"{what}: {why or 'not mirror-paired'}: cut along its center "
+                                f"plane, remeshed at edge "
+                                f"{target / scale:.4g} and mirrored"], True
+
+
+def _open_parts(v: np.ndarray, f: np.ndarray, closed_parts: str, where: str):
+    """Drop or refuse closed components. Returns ``(vertices, faces, dropped)``."""
+    part = topology.components(f, len(v))
+    boundary = topology.boundary_vertices(f, len(v))
+    closed = [p for p in range(int(part.max()) + 1) if not boundary[part == p].any()]
+    if not closed:
+        return v, f, []
+    count = int(part.max()) + 1
+    sizes = ", ".join(f"part {p} ({int((part == p).sum())} vertices)" for p in closed[:4])
+    more = "" if len(closed) <= 4 else f" and {len(closed) - 4} more"
+    if closed_parts == "refuse" or len(closed) == count:
+        hint = ("; or set remesh.closed_parts = \"drop\" to leave them out"
+                if len(closed) < count else "")
+        what = ("the mesh is a closed surface (a thick or solidified petal), not a sheet"
+                if count == 1 else f"{len(closed)} of {count} parts are closed surfaces "
+                f"(thick petals, a receptacle or a stem?): {sizes}{more}")
+        raise BloomError(f"{what}; export each petal as a single open surface (e.g. without "
+                         f"Solidify, or one side of it){hint}", where=where)
+    keep = ~np.isin(part, closed)
+    faces_kept = f[keep[f[:, 0]]]
+    remap = np.cumsum(keep) - 1
+    return v[keep], remap[faces_kept], [f"closed {sizes}{more}"]

@@ -1,0 +1,438 @@
+"""Binding a mesh to the simulated sheet, and deforming it by the sheet's frames.
+
+As Blender's Surface Deform and Houdini's Point Deform bind: each point of the user's
+mesh is bound to the sheet's rest mesh by its closest point there (a triangle and
+barycentric coordinates) and its offset from that point in the sheet's local frame. A
+frame of the sheet moves the closest point with its triangle and turns the offset
+with the frame, so a thick petal's two sides stay as far apart as they were, and a
+point off the sheet's rim stays where it was relative to the rim.
+
+The local frame at a point of a triangle: the normal is the barycentric blend of the
+sheet's vertex normals (area-weighted), so it turns continuously from one triangle to
+the next (no pop where two neighbouring points are bound to different triangles); the
+first tangent is the triangle's first edge with its normal part removed; the second
+completes the right-handed frame.
+
+Notes
+-----
+Deforming the rest sheet gives every point back where it was (up to rounding): the
+binding is exact at rest.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numba import njit
+
+from pipeline.mesh.topology import components, vertex_normals
+
+#: points are bound in chunks of this many (bounds the memory of the candidate pairs)
+CHUNK = 4096
+
+
+@dataclass
+class Binding:
+    face: np.ndarray  #: (n,) int64 the sheet triangle each point is bound to
+    bary: np.ndarray  #: (n, 3) barycentric coordinates of its closest point there
+    offset: np.ndarray  #: (n, 3) from the closest point, in the local frame (t1, t2, n)
+
+
+@njit(cache=True)
+def _closest_bary(p, a, b, c):
+    """Barycentric coordinates of the point of triangle ``a, b, c`` closest to ``p``
+    (Ericson, Real-Time Collision Detection, 5.1.5); a degenerate triangle gives its
+    nearest corner."""
+    ab0, ab1, ab2 = b[0] - a[0], b[1] - a[1], b[2] - a[2]
+    ac0, ac1, ac2 = c[0] - a[0], c[1] - a[1], c[2] - a[2]
+    ap0, ap1, ap2 = p[0] - a[0], p[1] - a[1], p[2] - a[2]
+    d1 = ab0 * ap0 + ab1 * ap1 + ab2 * ap2
+    d2 = ac0 * ap0 + ac1 * ap1 + ac2 * ap2
+    if d1 <= 0.0 and d2 <= 0.0:
+        return 1.0, 0.0, 0.0
+    bp0, bp1, bp2 = p[0] - b[0], p[1] - b[1], p[2] - b[2]
+    d3 = ab0 * bp0 + ab1 * bp1 + ab2 * bp2
+    d4 = ac0 * bp0 + ac1 * bp1 + ac2 * bp2
+    if d3 >= 0.0 and d4 <= d3:
+        return 0.0, 1.0, 0.0
+    vc = d1 * d4 - d3 * d2
+    if vc <= 0.0 and d1 >= 0.0 and d3 <= 0.0 and d1 - d3 != 0.0:
+        t = d1 / (d1 - d3)
+        return 1.0 - t, t, 0.0
+    cp0, cp1, cp2 = p[0] - c[0], p[1] - c[1], p[2] - c[2]
+    d5 = ab0 * cp0 + ab1 * cp1 + ab2 * cp2
+    d6 = ac0 * cp0 + ac1 * cp1 + ac2 * cp2
+    if d6 >= 0.0 and d5 <= d6:
+        return 0.0, 0.0, 1.0
+    vb = d5 * d2 - d1 * d6
+    if vb <= 0.0 and d2 >= 0.0 and d6 <= 0.0 and d2 - d6 != 0.0:
+        t = d2 / (d2 - d6)
+        return 1.0 - t, 0.0, t
+    va = d3 * d6 - d5 * d4
+    if va <= 0.0 and d4 - d3 >= 0.0 and d5 - d6 >= 0.0 and (d4 - d3) + (d5 - d6) != 0.0:
+        t = (d4 - d3) / ((d4 - d3) + (d5 - d6))
+        return 0.0, 1.0 - t, t
+    denom = va + vb + vc
+    if denom != 0.0 and np.isfinite(denom):
+        v, w = vb / denom, vc / denom
+        return 1.0 - v - w, v, w
+    best, k = np.inf, 0  # degenerate: the nearest corner
+    for j, corner in enumerate((a, b, c)):
+        d = (p[0] - corner[0]) ** 2 + (p[1] - corner[1]) ** 2 + (p[2] - corner[2]) ** 2
+        if d < best:
+            best, k = d, j
+    return (1.0 if k == 0 else 0.0), (1.0 if k == 1 else 0.0), (1.0 if k == 2 else 0.0)
+
+
+@njit(cache=True)
+def _nearest_kernel(q, X, F, rows, cand, face, bary, dist, has):
+    for k in range(len(rows)):
+        r, f = rows[k], cand[k]
+        a, b, c = X[F[f, 0]], X[F[f, 1]], X[F[f, 2]]
+        u, v, w = _closest_bary(q[r], a, b, c)
+        d = 0.0
+        for i in range(3):
+            d += (u * a[i] + v * b[i] + w * c[i] - q[r, i]) ** 2
+        d = np.sqrt(d)
+        if not has[r] or d < dist[r] or (d == dist[r] and f < face[r]):
+            has[r] = True
+            face[r], dist[r] = f, d
+            bary[r, 0], bary[r, 1], bary[r, 2] = u, v, w
+
+
+def closest_points(points: np.ndarray, vertices: np.ndarray, faces: np.ndarray,
+                   allowed: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """For each point, the closest point on the triangles ``faces`` (only those where
+    ``allowed``, a ``(F,) bool``): ``(face (n,), bary (n, 3))``. Ties go to the lower
+    face index, so the answer does not depend on the search's order.
+
+    Exact: the closest vertex is at distance d0, so the closest point lies in a
+    triangle with a vertex within ``d0 + longest edge`` of the point; all of those are
+    measured."""
+    import scipy.sparse as sp
+    from scipy.spatial import cKDTree
+
+    P = np.asarray(points, dtype=np.float64)
+    X = np.asarray(vertices, dtype=np.float64)
+    F = np.asarray(faces, dtype=np.int64)
+    ids = np.flatnonzero(np.ones(len(F), dtype=bool) if allowed is None else allowed)
+    if len(ids) == 0:
+        raise ValueError("no triangles to bind to")
+    used = np.unique(F[ids])
+    tree = cKDTree(X[used])
+    longest = float(np.max(np.linalg.norm(X[F[ids]] - X[F[ids][:, [1, 2, 0]]], axis=2)))
+    # the allowed triangles at each of the tree's vertices
+    slot = np.searchsorted(used, F[ids])
+    incident = sp.csr_matrix((np.ones(slot.size, dtype=np.int8), (slot.ravel(), np.repeat(ids, 3))),
+                             shape=(len(used), len(F)))
+    face = np.empty(len(P), dtype=np.int64)
+    bary = np.empty((len(P), 3))
+    for lo in range(0, len(P), CHUNK):
+        q = P[lo:lo + CHUNK]
+        d0, _ = tree.query(q)
+        near = tree.query_ball_point(q, (d0 + longest) * (1 + 1e-9))
+        count = np.fromiter((len(v) for v in near), dtype=np.int64, count=len(near))
+        hits = sp.csr_matrix((np.ones(count.sum(), dtype=np.int8),
+                              np.fromiter((k for v in near for k in v), dtype=np.int64,
+                                          count=int(count.sum())),
+                              np.r_[0, np.cumsum(count)]), shape=(len(q), len(used)))
+        pairs = (hits @ incident).tocoo()
+        r, f, b, _ = nearest_among(q, X, F, pairs.row.astype(np.int64), pairs.col.astype(np.int64))
+        face[lo + r], bary[lo + r] = f, b
+    return face, bary
+
+
+def nearest_among(q: np.ndarray, vertices: np.ndarray, faces: np.ndarray, rows: np.ndarray,
+                  cand: np.ndarray):
+    """The nearest of some candidate triangles to each query point: the pairs
+    ``(rows[k], cand[k])`` say that triangle ``cand[k]`` is a candidate for point
+    ``q[rows[k]]``. Returns ``(row, face, bary, distance)``, one entry per row that has
+    candidates, in row order; ties go to the lower face index (so the answer does not
+    depend on the candidates' order)."""
+    n = len(q)
+    face = np.zeros(n, dtype=np.int64)
+    bary = np.zeros((n, 3))
+    dist = np.zeros(n)
+    has = np.zeros(n, dtype=np.bool_)
+    _nearest_kernel(np.ascontiguousarray(q, dtype=np.float64),
+                    np.ascontiguousarray(vertices, dtype=np.float64),
+                    np.ascontiguousarray(faces, dtype=np.int64),
+                    np.asarray(rows, dtype=np.int64), np.asarray(cand, dtype=np.int64),
+                    face, bary, dist, has)
+    r = np.flatnonzero(has)
+    return r, face[r], bary[r], dist[r]
+
+
+def local_frames(vertices: np.ndarray, faces: np.ndarray, face: np.ndarray, bary: np.ndarray,
+                 normals: np.ndarray | None = None) -> np.ndarray:
+    """``(n, 3, 3)`` rows t1, t2, n of the local frame at each bound point (see the module
+    notes); ``normals`` are the sheet's vertex normals (computed if not given)."""
+    X = np.asarray(vertices, dtype=np.float64)
+    F = np.asarray(faces, dtype=np.int64)
+    if normals is None:
+        normals = vertex_normals(X, F)
+    tri = F[face]
+    n = np.einsum("ij,ijk->ik", bary, normals[tri])
+    fn = np.cross(X[tri[:, 1]] - X[tri[:, 0]], X[tri[:, 2]] - X[tri[:, 0]])
+    weak = np.linalg.norm(n, axis=1) < 1e-6  # normals cancel (a fold): the triangle's own
+    n[weak] = fn[weak]
+    n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
+    e = X[tri[:, 1]] - X[tri[:, 0]]
+    t1 = e - n * np.einsum("ij,ij->i", e, n)[:, None]
+    t1 /= np.maximum(np.linalg.norm(t1, axis=1, keepdims=True), 1e-300)
+    t2 = np.cross(n, t1)
+    return np.stack([t1, t2, n], axis=1)
+
+
+def bind(points: np.ndarray, vertices: np.ndarray, faces: np.ndarray,
+         allowed: np.ndarray | None = None) -> Binding:
+    """Bind ``points`` to the sheet ``vertices, faces`` (its triangles where ``allowed``)."""
+    face, bary = closest_points(points, vertices, faces, allowed)
+    X = np.asarray(vertices, dtype=np.float64)
+    F = np.asarray(faces, dtype=np.int64)
+    on = np.einsum("ij,ijk->ik", bary, X[F[face]])
+    frames = local_frames(X, F, face, bary)
+    offset = np.einsum("ikj,ij->ik", frames, np.asarray(points, dtype=np.float64) - on)
+    return Binding(face, bary, offset)
+
+
+def deform(vertices: np.ndarray, faces: np.ndarray, binding: Binding,
+           normals: np.ndarray | None = None) -> np.ndarray:
+    """``(n, 3)`` the bound points on the sheet posed at ``vertices``."""
+    X = np.asarray(vertices, dtype=np.float64)
+    F = np.asarray(faces, dtype=np.int64)
+    on = np.einsum("ij,ijk->ik", binding.bary, X[F[binding.face]])
+    frames = local_frames(X, F, binding.face, binding.bary, normals)
+    return on + np.einsum("ikj,ik->ij", frames, binding.offset)
+
+
+def rotations(vertices: np.ndarray, faces: np.ndarray, binding: Binding, rest_frames: np.ndarray,
+              normals: np.ndarray | None = None) -> np.ndarray:
+    """``(n, 3, 3)`` the rotation that takes each bound point's rest frame to its frame on
+    the sheet posed at ``vertices`` (to turn the input's own normals with it)."""
+    frames = local_frames(vertices, faces, binding.face, binding.bary, normals)
+    return np.einsum("nki,nkj->nij", frames, rest_frames)
+
+
+BIND_GROUP = "bind"
+
+
+def bind_parts(asset, scale: float, vertices: np.ndarray, faces: np.ndarray,
+               vertex_part: np.ndarray) -> dict[int, Binding]:
+    """Bind each part of ``asset`` (:class:`pipeline.io.userasset.Asset`, input units) that
+    has sheet vertices (``vertex_part``: the input part of each sheet vertex) to its own
+    sheet triangles (mesh units: the input times ``scale``). Parts without a sheet (not
+    petals) get no binding: they stay where they are."""
+    F = np.asarray(faces, dtype=np.int64)
+    face_part = np.asarray(vertex_part)[F[:, 0]] if len(F) else np.zeros(0, dtype=np.int64)
+    face_piece = components(F, len(vertices))[F[:, 0]] if len(F) else np.zeros(0, dtype=np.int64)
+    out = {}
+    for i, part in enumerate(asset.parts):
+        allowed = face_part == i
+        if allowed.any():
+            points = np.asarray(part.points) * scale
+            b = bind(points, vertices, F, allowed)
+            _keep_to_own_petal(b, points, part.triangles(), vertices, F, allowed, face_piece)
+            out[i] = b
+    return out
+
+
+def _keep_to_own_petal(b: Binding, points, triangles, vertices, faces, allowed,
+                       face_piece) -> None:
+    """Where most of a connected piece of the input is bound to one sheet petal, bind
+    all of it to that petal (in place): a piece is one petal's surface (both sides of a
+    thick one), and its points that lay closer to another petal, where petals overlap
+    or meet at the hub, would otherwise follow that petal through the bloom and tear
+    the surface. A piece no petal has most of (a sheet that was several petals, split
+    by remesh) keeps each point's closest petal."""
+    piece = components(np.asarray(triangles, dtype=np.int64).reshape(-1, 3), len(points))
+    petal_of = face_piece[b.face]
+    for c in np.unique(piece):
+        idx = np.flatnonzero(piece == c)
+        values, counts = np.unique(petal_of[idx], return_counts=True)
+        main = values[np.argmax(counts)]
+        if len(values) == 1 or 2 * counts.max() <= len(idx):
+            continue
+        stray = idx[petal_of[idx] != main]
+        again = bind(points[stray], vertices, faces, allowed & (face_piece == main))
+        b.face[stray], b.bary[stray], b.offset[stray] = again.face, again.bary, again.offset
+
+
+def write_bindings(h5, bindings: dict[int, Binding]) -> None:
+    """Store bindings under ``bind/<part>/`` (see :func:`read_bindings`)."""
+    from pipeline.artifact import put
+
+    group = h5.require_group(BIND_GROUP)
+    group.attrs["doc"] = ("per input part that is a petal: its points (input/asset/<i>/points) "
+                          "bound to the sheet's rest mesh (mesh/vertices, mesh/faces)")
+    for i, b in sorted(bindings.items()):
+        put(h5, f"{BIND_GROUP}/{i}/face", b.face, "(n,) sheet triangle (row of mesh/faces)")
+        put(h5, f"{BIND_GROUP}/{i}/bary", b.bary, "(n, 3) barycentric coordinates of the closest point")
+        put(h5, f"{BIND_GROUP}/{i}/offset", b.offset,
+            "(n, 3) offset from it in the local frame (tangent, tangent, normal), mesh units")
+
+
+def read_bindings(src) -> dict[int, Binding]:
+    f = getattr(src, "file", src)
+    if BIND_GROUP not in f:
+        return {}
+    return {int(k): Binding(g["face"][()], g["bary"][()], g["offset"][()])
+            for k, g in f[BIND_GROUP].items()}
+
+
+#: a point faces the other side across the sheet when its distance to it at rest is the
+#: sum of the two offsets within this fraction, and their places on the sheet are closer
+#: than this fraction of that distance
+ACROSS = 0.2
+#: Gauss-Newton steps that restore a thick part's thickness in a frame (see keep_thickness)
+KEEP_STEPS = 3
+#: their damping: the least-squares system's diagonal is raised by this (its entries are
+#: dot products of unit vectors weighted by barycentric coordinates, so it is scale-free)
+KEEP_DAMPING = 1e-3
+
+
+@dataclass
+class Sides:
+    """A thick part's two sides, facing each other across the sheet (:func:`sides`)."""
+    point: np.ndarray  #: (k,) the part's points that face its other side across the sheet
+    positive: np.ndarray  #: (k,) bool: the point is on the sheet's positive side
+    rest: np.ndarray  #: (k,) its distance to the other side at rest (the thickness there)
+    rows: np.ndarray  #: (m,) a row of ``point`` ...
+    faces: np.ndarray  #: (m,) ... and a triangle of the other side near it (candidates)
+
+
+def sides(points: np.ndarray, triangles: np.ndarray, b: Binding, sheet: np.ndarray,
+          sheet_faces: np.ndarray, scale: float) -> Sides:
+    """The points of a part (``points``, ``triangles``: the input's, bound by ``b``) that
+    face the part's other side across the sheet at rest, on both sides: bound inside a
+    sheet triangle (:func:`interior`), their nearest point of the other side (its
+    triangles with every corner there, by the sign of the normal offset) as far as the
+    two offsets added (within ``ACROSS``) and over the same place of the sheet
+    (``sheet``: its rest vertices, in the points' units; ``scale``: mesh units per
+    those, the offsets' unit). A solidified petal's points are; a one-sided sheet's are
+    not (its offsets are small and its nearest other faces lie beside it, not across),
+    nor a hem's or a fold's. Each point's candidates for its nearest point in a frame
+    are the other side's triangles within two rings of its nearest one at rest."""
+    import scipy.sparse as sp
+
+    P = np.asarray(points, dtype=np.float64)
+    T = np.asarray(triangles, dtype=np.int64)
+    o = np.asarray(b.offset[:, 2], dtype=np.float64) / scale
+    S, SF = np.asarray(sheet, dtype=np.float64), np.asarray(sheet_faces, dtype=np.int64)
+    on = np.einsum("ij,ijk->ik", b.bary, S[SF[b.face]])  # each point's place on the sheet
+    point, positive, rest, rows, faces = [], [], [], [], []
+    count = 0
+    for positive_side in (True, False):
+        up = (o > 0.0) == positive_side
+        other_side = np.all(~up[T], axis=1)
+        mine = np.flatnonzero(up & interior(b))
+        if len(mine) == 0 or not other_side.any():
+            continue
+        face, bary = closest_points(P[mine], P, T, other_side)
+        near = np.einsum("ij,ijk->ik", bary, P[T[face]])
+        distance = np.linalg.norm(near - P[mine], axis=1)
+        across = np.abs(o[mine] - np.einsum("ij,ij->i", bary, o[T[face]]))
+        apart = np.linalg.norm(np.einsum("ij,ijk->ik", bary, on[T[face]]) - on[mine], axis=1)
+        keep = ((across > 0.0) & (np.abs(distance - across) <= ACROSS * across)
+                & (apart <= ACROSS * distance))
+        if not keep.any():
+            continue
+        # two rings of the other side's triangles (sharing a corner) about the nearest
+        other = np.flatnonzero(other_side)
+        corner = sp.csr_matrix((np.ones(3 * len(other)), (np.repeat(other, 3), T[other].ravel())),
+                               shape=(len(T), len(P)))
+        ring = (corner @ corner.T).astype(bool).astype(np.int8)
+        ring2 = (ring @ ring).tocsr()[face[keep]]
+        ring2.sort_indices()
+        point.append(mine[keep])
+        positive.append(np.full(int(keep.sum()), positive_side))
+        rest.append(distance[keep])
+        rows.append(count + np.repeat(np.arange(ring2.shape[0]), np.diff(ring2.indptr)))
+        faces.append(ring2.indices.astype(np.int64))
+        count += int(keep.sum())
+    if not point:
+        e = np.zeros(0, dtype=np.int64)
+        return Sides(e, np.zeros(0, dtype=bool), np.zeros(0), e, e)
+    return Sides(*(np.concatenate(a) for a in (point, positive, rest, rows, faces)))
+
+
+def two_sided(points: np.ndarray, triangles: np.ndarray, b: Binding, sheet: np.ndarray,
+              sheet_faces: np.ndarray, scale: float) -> np.ndarray:
+    """Indices of a part's points that measure its thickness: those of :func:`sides` on
+    the sheet's positive side. Empty: the part has no thickness to measure."""
+    s = sides(points, triangles, b, sheet, sheet_faces, scale)
+    return np.sort(s.point[s.positive])
+
+
+def keep_thickness(points: np.ndarray, triangles: np.ndarray, s: Sides,
+                   steps: int = KEEP_STEPS) -> np.ndarray:
+    """A thick part's points in a frame (``points``, deformed through the binding) moved
+    so that each point of ``s`` is again as far from the other side as at rest.
+
+    The binding offsets both sides along the sheet's normals, which keeps each point's
+    distance to the other side's *points*; but a coarse thick petal bent across few of its
+    faces has flat faces that cut chords across the bend, so its sides' *surfaces* come
+    closer (a point is t cos(theta/2) from the opposite chord) or part where it unbends.
+    Each Gauss-Newton step linearises every point's distance to its nearest point of the
+    other side (among its candidates), moving the point along the line to that nearest
+    point and the other side's triangle corners with their own, and solves the damped
+    least-squares system for the moves (damping ``KEEP_DAMPING`` on the moves from the
+    deformed points, so the smallest move that restores the thickness is taken). Points
+    not in ``s`` (rims, one-sided parts) are not moved. Deterministic: a fixed number of
+    steps, a direct solve (qdldl's LDL^T of the damped normal equations, positive
+    definite)."""
+    import qdldl
+    import scipy.sparse as sp
+
+    Q0 = np.asarray(points, dtype=np.float64)
+    if len(s.point) == 0:
+        return Q0
+    T = np.asarray(triangles, dtype=np.int64)
+    Q = Q0.copy()
+    n = len(s.point)
+    col = np.full(len(Q), -1, dtype=np.int64)
+    col[s.point] = np.arange(n)
+    identity = sp.identity(n, format="csc")
+    for _ in range(steps):
+        _, face, bary, distance = nearest_among(Q[s.point], Q, T, s.rows, s.faces)
+        live = distance > 1e-9 * s.rest  # a point on the other side: no direction to move
+        u = np.zeros((n, 3))
+        u[live] = (Q[s.point[live]] - np.einsum("ij,ijk->ik", bary[live], Q[T[face[live]]])) \
+            / distance[live, None]
+        r = np.where(live, s.rest - distance, 0.0)
+        I, J, V = [np.arange(n)], [np.arange(n)], [np.ones(n)]
+        for k in range(3):
+            c = col[T[face, k]]
+            ok = np.flatnonzero((c >= 0) & live)
+            I.append(ok)
+            J.append(c[ok])
+            V.append(-bary[ok, k] * np.einsum("ij,ij->i", u[ok], u[c[ok]]))
+        A = sp.csr_matrix((np.concatenate(V), (np.concatenate(I), np.concatenate(J))),
+                          shape=(n, n))
+        moved = np.einsum("ij,ij->i", Q[s.point] - Q0[s.point], u)
+        normal = sp.triu(A.T @ A + KEEP_DAMPING * identity, format="csc")
+        normal.sort_indices()
+        step = qdldl.Solver(normal).solve(A.T @ r - KEEP_DAMPING * moved)
+        Q[s.point] += step[:, None] * u
+    return Q
+
+
+def thickness(points: np.ndarray, triangles: np.ndarray, offset_normal: np.ndarray,
+              which: np.ndarray) -> np.ndarray:
+    """``(k,)`` a thick part's thickness at its points ``which`` (:func:`two_sided`):
+    each one's distance to the nearest point of the part's negative side (its triangles
+    with every corner on that side, by the sign of ``offset_normal``)."""
+    P = np.asarray(points, dtype=np.float64)
+    T = np.asarray(triangles, dtype=np.int64)
+    down_faces = np.all(~(np.asarray(offset_normal) > 0.0)[T], axis=1)
+    if len(which) == 0:
+        return np.zeros(0)
+    face, bary = closest_points(P[which], P, T, down_faces)
+    return np.linalg.norm(np.einsum("ij,ijk->ik", bary, P[T[face]]) - P[which], axis=1)
+
+
+def interior(b: Binding, margin: float = 1e-6) -> np.ndarray:
+    """``(n,) bool``: points bound inside their triangle (their offset is along the normal
+    only), not clamped to the sheet's rim."""
+    return np.all(b.bary > margin, axis=1)

@@ -1,0 +1,294 @@
+"""The user's asset as the file gives it: per part, its own vertices, polygons, UVs,
+normals and material names, for the export to give it back.
+
+:func:`pipeline.io.meshfile.read_parts` reads a file for simulating (trimesh's triangles;
+an OBJ's vertices split where its UVs are); :func:`read_asset` reads the same parts, in
+the same order and under the same names, as a modelling tool would write them back:
+
+- OBJ: parsed here. A part's points are the ``v`` lines its faces use, in file order;
+  its faces are the file's polygons (not triangulated), in file order; UVs (``vt``) and
+  normals (``vn``) are indexed per face corner (face-varying), as the file has them;
+  ``usemtl`` names each face's material.
+- glTF / GLB: through trimesh, as :func:`~pipeline.io.meshfile.read_parts` reads them (one
+  part per node with a mesh, its primitives joined, placed by the scene's transforms).
+  Points are the file's vertices in accessor order; UVs and normals are per vertex (the
+  format's own layout); each primitive's material names its faces.
+- STL, PLY, OFF: the parts :func:`~pipeline.io.meshfile.read_parts` finds, no UVs.
+
+:func:`write` and :func:`read` store an asset in an artifact under ``input/asset``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from pipeline.errors import BloomError
+
+GROUP = "input/asset"
+
+
+@dataclass
+class AssetPart:
+    """One part of the user's file, in the file's units and axes."""
+
+    name: str  #: the file's own name (as :func:`~pipeline.io.meshfile.read_parts` gives it)
+    points: np.ndarray  #: (n, 3) float64, the file's vertices of this part, in its order
+    face_counts: np.ndarray  #: (m,) int64, corners of each polygon
+    face_indices: np.ndarray  #: (sum(face_counts),) int64, into ``points``
+    uv: np.ndarray | None = None  #: (k, 2) float64 texture coordinates, or None
+    #: (sum(face_counts),) int64 into ``uv`` per face corner (face-varying); None with
+    #: ``uv`` given: one UV per point (vertex)
+    uv_indices: np.ndarray | None = None
+    normals: np.ndarray | None = None  #: (j, 3) float64 the file's normals, or None
+    normal_indices: np.ndarray | None = None  #: as ``uv_indices``, for ``normals``
+    materials: list = field(default_factory=list)  #: material names, first use first
+    face_material: np.ndarray | None = None  #: (m,) int64 into ``materials``, -1: none
+
+    def triangles(self) -> np.ndarray:
+        """``(F, 3)`` the polygons as fans from their first corner, in order."""
+        return fan_triangles(self.face_counts, self.face_indices)
+
+    def corner_points(self) -> np.ndarray:
+        """``(sum(face_counts),)`` the point index of each face corner (= face_indices)."""
+        return self.face_indices
+
+
+@dataclass
+class Asset:
+    parts: list[AssetPart]
+    up: str | None  #: "+y" for glTF; None where the file does not say
+    meters_per_unit: float | None  #: glTF 1; an OBJ's unit comment (Maya); else None
+    source: str = ""  #: the file it came from
+
+    @property
+    def names(self) -> list[str]:
+        return [p.name for p in self.parts]
+
+
+def fan_triangles(counts: np.ndarray, indices: np.ndarray) -> np.ndarray:
+    """Polygons (``counts``, flat ``indices``) as triangle fans, ``(sum(counts - 2), 3)``."""
+    counts = np.asarray(counts, dtype=np.int64)
+    indices = np.asarray(indices, dtype=np.int64)
+    start = np.r_[0, np.cumsum(counts)[:-1]]
+    fans = counts - 2
+    face = np.repeat(np.arange(len(counts)), fans)
+    k = np.arange(int(fans.sum())) - np.repeat(np.cumsum(fans) - fans, fans)
+    first = start[face]
+    return np.stack([indices[first], indices[first + k + 1], indices[first + k + 2]], axis=1)
+
+
+def fan_faces(counts: np.ndarray) -> np.ndarray:
+    """``(sum(counts - 2),)`` the polygon each fan triangle of :func:`fan_triangles` is in."""
+    counts = np.asarray(counts, dtype=np.int64)
+    return np.repeat(np.arange(len(counts)), counts - 2)
+
+
+def read_asset(path: str | Path) -> Asset:
+    """Read ``path`` as its parts with their own vertices, polygons, UVs, normals and
+    materials (see the module notes). Raises :class:`BloomError` naming the file."""
+    from pipeline.io.meshfile import _check_path, read_parts
+
+    path = Path(path)
+    where = _check_path(path)
+    suffix = path.suffix.lower()
+    if suffix == ".obj":
+        return _read_obj(path, where)
+    if suffix in (".glb", ".gltf"):
+        return _read_gltf(path, where)
+    mesh_file = read_parts(path)
+    parts = [AssetPart(p.name, p.vertices, np.full(len(p.faces), 3, dtype=np.int64),
+                       p.faces.ravel().copy(), face_material=np.full(len(p.faces), -1))
+             for p in mesh_file.parts]
+    return Asset(parts, mesh_file.up, mesh_file.meters_per_unit, str(path))
+
+
+# --- OBJ --------------------------------------------------------------------------------
+
+def _index(token: str, count: int, where: str, line_no: int) -> int:
+    i = int(token)
+    i = i - 1 if i > 0 else count + i
+    if not 0 <= i < count:
+        raise BloomError(f"line {line_no}: face refers to a vertex that does not exist", where=where)
+    return i
+
+
+def _read_obj(path: Path, where: str) -> Asset:
+    from pipeline.io.meshfile import _obj_units, obj_text
+
+    text = obj_text(path, where)
+    v, vt, vn = [], [], []
+    obj = group = named_group = None
+    material = None
+    parts: dict[tuple, dict] = {}  # (o, g) as trimesh keys them -> what the part collects
+    for line_no, raw in enumerate(text.split("\n"), start=1):
+        line = raw.strip()
+        if not line or line[0] == "#":
+            continue
+        tag, _, rest = line.partition(" ")
+        if tag == "v":
+            v.append([float(x) for x in rest.split()[:3]])
+        elif tag == "vt":
+            vals = rest.split()
+            vt.append([float(vals[0]), float(vals[1]) if len(vals) > 1 else 0.0])
+        elif tag == "vn":
+            vn.append([float(x) for x in rest.split()[:3]])
+        elif tag == "o":
+            obj, named_group = rest.strip(), None
+        elif tag == "g":
+            group = named_group = rest.strip()
+        elif tag == "usemtl":
+            material = rest.strip()
+        elif tag == "f":
+            key = (obj, group)
+            if key not in parts:  # named as pipeline.io.meshfile._obj_keys names it
+                if obj is not None and named_group is not None and named_group != obj:
+                    name = f"{obj}/{named_group}"
+                else:
+                    name = obj if obj is not None else named_group
+                parts[key] = {"name": name, "counts": [], "v": [], "vt": [], "vn": [],
+                              "mat": [], "has_vt": True, "has_vn": True}
+            part = parts[key]
+            corners = rest.split()
+            if len(corners) < 3:
+                continue
+            part["counts"].append(len(corners))
+            for c in corners:
+                fields = c.split("/")
+                part["v"].append(_index(fields[0], len(v), where, line_no))
+                if len(fields) > 1 and fields[1]:
+                    part["vt"].append(_index(fields[1], len(vt), where, line_no))
+                else:
+                    part["has_vt"] = False
+                if len(fields) > 2 and fields[2]:
+                    part["vn"].append(_index(fields[2], len(vn), where, line_no))
+                else:
+                    part["has_vn"] = False
+            part["mat"].append(material)
+    v_all = np.asarray(v, dtype=np.float64).reshape(-1, 3)
+    vt_all = np.asarray(vt, dtype=np.float64).reshape(-1, 2)
+    vn_all = np.asarray(vn, dtype=np.float64).reshape(-1, 3)
+    out = []
+    for k, part in enumerate(parts.values()):
+        if not part["counts"]:
+            continue
+        used, local = np.unique(np.asarray(part["v"], dtype=np.int64), return_inverse=True)
+        item = AssetPart(part["name"] or f"part_{k}", v_all[used],
+                         np.asarray(part["counts"], dtype=np.int64), local.astype(np.int64))
+        if part["has_vt"] and part["vt"]:
+            used_t, local_t = np.unique(np.asarray(part["vt"], dtype=np.int64), return_inverse=True)
+            item.uv, item.uv_indices = vt_all[used_t], local_t.astype(np.int64)
+        if part["has_vn"] and part["vn"]:
+            used_n, local_n = np.unique(np.asarray(part["vn"], dtype=np.int64), return_inverse=True)
+            item.normals, item.normal_indices = vn_all[used_n], local_n.astype(np.int64)
+        names = [m for m in dict.fromkeys(part["mat"]) if m is not None]
+        item.materials = names
+        item.face_material = np.asarray([names.index(m) if m is not None else -1
+                                         for m in part["mat"]], dtype=np.int64)
+        out.append(item)
+    if not np.all(np.isfinite(v_all)):
+        raise BloomError("non-finite (NaN or inf) vertex coordinates", where=where)
+    return Asset(out, None, _obj_units(text), str(path))
+
+
+# --- glTF --------------------------------------------------------------------------------
+
+def _read_gltf(path: Path, where: str) -> Asset:
+    from pipeline.io.meshfile import _gltf_header, _load, gltf_node_frames
+
+    scene = _load(path, where, force="scene")
+    header = _gltf_header(path)
+    meshes = header.get("meshes", [])
+    parts = []
+    for node, name, frames in gltf_node_frames(scene, header):
+        m = node.get("mesh")
+        prims = meshes[m].get("primitives", []) if m is not None and m < len(meshes) else []
+        file_normals = bool(prims) and all("NORMAL" in p.get("attributes", {}) for p in prims)
+        pts, tris, uvs, nrm, mats, face_mat = [], [], [], [], [], []
+        offset = 0
+        for transform, mesh in frames:
+            vtx = np.asarray(mesh.vertices, dtype=np.float64)
+            pts.append(vtx @ transform[:3, :3].T + transform[:3, 3])
+            tris.append(np.asarray(mesh.faces, dtype=np.int64) + offset)
+            offset += len(vtx)
+            uv = getattr(mesh.visual, "uv", None)
+            uvs.append(None if uv is None or len(uv) != len(vtx) else np.asarray(uv, dtype=np.float64))
+            if file_normals:
+                inv_t = np.linalg.inv(transform[:3, :3]).T  # normals go by the inverse transpose
+                n = np.asarray(mesh.vertex_normals, dtype=np.float64) @ inv_t.T
+                nrm.append(n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300))
+            material = getattr(getattr(mesh.visual, "material", None), "name", None)
+            if material is not None and material not in mats:
+                mats.append(material)
+            face_mat.append(np.full(len(mesh.faces), mats.index(material) if material is not None
+                                    else -1, dtype=np.int64))
+        if not pts:
+            continue
+        faces = np.vstack(tris)
+        part = AssetPart(name, np.vstack(pts), np.full(len(faces), 3, dtype=np.int64),
+                         faces.ravel().copy(), materials=mats, face_material=np.concatenate(face_mat))
+        if all(u is not None for u in uvs):
+            part.uv = np.vstack(uvs)
+        if file_normals:
+            part.normals = np.vstack(nrm)
+        parts.append(part)
+    return Asset(parts, "+y", 1.0, str(path))
+
+
+# --- in an artifact ------------------------------------------------------------------------
+
+def write(h5, asset: Asset) -> None:
+    """Store ``asset`` under ``input/asset`` of an open HDF5 file (see :func:`read`)."""
+    import h5py
+
+    from pipeline.artifact import put
+
+    group = h5.require_group(GROUP)
+    group.attrs["doc"] = ("the input's parts as the file gives them (input units and axes), "
+                          "for the export; part i is part i of mesh/part_names")
+    group.attrs["up"] = asset.up or ""
+    group.attrs["meters_per_unit"] = float(asset.meters_per_unit or 0.0)
+    for i, p in enumerate(asset.parts):
+        base = f"{GROUP}/{i}"
+        put(h5, f"{base}/points", p.points, "(n, 3) the part's vertices, in the file's order")
+        put(h5, f"{base}/face_counts", p.face_counts, "(m,) corners of each polygon")
+        put(h5, f"{base}/face_indices", p.face_indices, "(sum face_counts,) into points")
+        if p.uv is not None:
+            put(h5, f"{base}/uv", p.uv, "(k, 2) texture coordinates")
+            if p.uv_indices is not None:
+                put(h5, f"{base}/uv_indices", p.uv_indices, "per face corner, into uv")
+        if p.normals is not None:
+            put(h5, f"{base}/normals", p.normals, "(j, 3) the file's normals")
+            if p.normal_indices is not None:
+                put(h5, f"{base}/normal_indices", p.normal_indices, "per face corner, into normals")
+        put(h5, f"{base}/face_material", p.face_material if p.face_material is not None
+            else np.full(len(p.face_counts), -1, dtype=np.int64), "(m,) into materials, -1: none")
+        h5[base].create_dataset("materials", data=np.array(p.materials, dtype=object),
+                                dtype=h5py.string_dtype("utf-8"))
+        h5[base].attrs["name"] = p.name
+
+
+def read(src) -> Asset | None:
+    """The asset stored in an artifact (an :class:`~pipeline.artifact.Artifact` or an
+    h5py File), or None if it holds none."""
+    f = getattr(src, "file", src)
+    if GROUP not in f:
+        return None
+    group = f[GROUP]
+    parts = []
+    for i in range(len(group)):
+        g = group[str(i)]
+
+        def get(name, g=g):
+            return g[name][()] if name in g else None
+
+        parts.append(AssetPart(
+            str(g.attrs["name"]), get("points"), get("face_counts"), get("face_indices"),
+            get("uv"), get("uv_indices"), get("normals"), get("normal_indices"),
+            [m.decode() if isinstance(m, bytes) else str(m) for m in g["materials"][()]],
+            get("face_material")))
+    up = str(group.attrs.get("up", "")) or None
+    mpu = float(group.attrs.get("meters_per_unit", 0.0)) or None
+    return Asset(parts, up, mpu)

@@ -1,0 +1,64 @@
+"""How far a long stage has come: a bar on a terminal, log lines under make.
+
+A stage that may run for more than a few seconds reports its progress through
+:class:`Progress`: on a terminal (stderr a TTY) a bar redrawn in place; otherwise
+(under make, in a batch log) a log line when a tenth more is done or every
+:data:`EVERY` seconds, whichever comes later, so a log shows which stage, which part and
+how far without a line per step.
+"""
+
+from __future__ import annotations
+
+import logging
+import sys
+import time
+
+log = logging.getLogger("bloom")
+
+EVERY = 10.0  #: seconds between log lines at least (no bar)
+WIDTH = 30  #: characters of the bar
+
+
+class Progress:
+    """``with Progress(total, "simulate") as p: ... p.update(n)``; ``p.note(text)`` names
+    what is being worked on (a part, a petal). ``show``: force the bar on (True) or off
+    (False); default: on when stderr is a terminal. ``quiet``: no log lines either."""
+
+    def __init__(self, total: float, label: str, show: bool | None = None, quiet: bool = False):
+        self.total, self.label = max(float(total), 1e-300), label
+        self.bar = sys.stderr.isatty() if show is None else show
+        self.quiet = quiet or not log.isEnabledFor(logging.INFO)
+        self.done, self.what = 0.0, ""
+        self.start = self.last = time.monotonic()
+        self.logged = 0.0  #: fraction at the last log line
+
+    def __enter__(self) -> Progress:
+        return self
+
+    def __exit__(self, *exc) -> bool:
+        if self.bar:
+            sys.stderr.write("\n")
+            sys.stderr.flush()
+        return False
+
+    def note(self, what: str) -> None:
+        self.what = what
+        self._show()
+
+    def update(self, n: float = 1) -> None:
+        self.done = min(self.done + n, self.total)
+        self._show()
+
+    def _show(self) -> None:
+        now = time.monotonic()
+        share = self.done / self.total
+        if self.bar:
+            filled = int(WIDTH * share)
+            eta = (now - self.start) * (1 - share) / share if share > 0 else 0.0
+            sys.stderr.write(f"\r{self.label} [{'#' * filled}{'-' * (WIDTH - filled)}] "
+                             f"{100 * share:3.0f}%  {eta:5.0f} s left  {self.what[:40]:40s}")
+            sys.stderr.flush()
+        elif not self.quiet and now - self.last >= EVERY and share - self.logged >= 0.1 - 1e-12:
+            log.info("%s: %.0f%% done after %.0f s%s", self.label, 100 * share, now - self.start,
+                     f" ({self.what})" if self.what else "")
+            self.last, self.logged = now, share

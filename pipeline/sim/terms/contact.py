@@ -1,0 +1,333 @@
+"""Contact that cannot be crossed, for the quasi-static (Newton) energy.
+
+Contact (:class:`Contact`) is the incremental-potential barrier of IPC (Li et al. 2020)
+through ipctk: for every pair of primitives of two *different* petals (vertex-face,
+edge-edge, and their degenerate cases) closer than ``gap + band``, a barrier
+``kappa b(d)`` that is zero at ``d = gap + band`` and infinite at ``d = gap``. Every
+Newton step (line search, negative-curvature search) is first limited by continuous
+collision detection (:meth:`Contact.max_step`), so no iterate ever comes closer than
+``gap``, let alone crosses: the energy stays finite and the barrier keeps it that way.
+
+- Filter: a petal does not collide with itself. Its own elements are held apart by its
+  stretch and bending springs (a petal folding through itself is not what these scenes
+  do), and the paper's model has only contact between petals. The exact intersection
+  test of the report (:func:`frame_intersections`) checks self-intersections too.
+- ``gap`` is the key ``effects.collisions.thickness``; the band over which the barrier
+  acts is as wide again, so petals feel each other from ``2 gap`` on.
+- ``kappa`` makes the barrier as stiff, at the middle of its band, as the stiffest
+  stretch spring of the model: a pressing force of the order of the elastic forces
+  stops within the band (it scales with the problem, as the springs do).
+- The Hessian is ipctk's, projected to positive semi-definite per contact (it adds no
+  negative curvature of its own; the elastic Hessian stays exact).
+- ipctk sums on one thread (its parallel sums would depend on the scheduling, and the
+  artifacts must be bit-reproducible); its broad phase and CCD run in two threads
+  (:data:`THREADS`): the CCD's result is a minimum, and the active set the broad
+  phase's candidates give is sorted into one order (:func:`_canonical`).
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import os
+from contextlib import contextmanager
+from dataclasses import dataclass, field
+
+import numpy as np
+import scipy.sparse as sp
+
+from pipeline.sim.terms.term import Term
+
+
+class ContactError(RuntimeError):
+    """The bud cannot start under contact: ``key`` is the config key to name."""
+
+    def __init__(self, message: str, key: str = "effects.collisions"):
+        self.key = key
+        super().__init__(message)
+
+
+#: threads of the broad phase and of the CCD's narrow phase: the narrow phase's result is
+#: a minimum, and the active sets built from the broad phase are put in one order
+#: (:func:`_canonical`), so both give the same bits with any number
+THREADS = max(1, min(2, os.cpu_count() or 1))
+
+
+def _ipctk():
+    import ipctk
+
+    ipctk.set_num_threads(1)  # sums in a fixed order: bit-reproducible
+    return ipctk
+
+
+@contextmanager
+def _threads():
+    """ipctk on :data:`THREADS` threads inside the block, on one again after it."""
+    ipctk = _ipctk()
+    ipctk.set_num_threads(THREADS)
+    try:
+        yield
+    finally:
+        ipctk.set_num_threads(1)
+
+
+def _canonical(collisions) -> None:
+    """The active set ``collisions`` (an ipctk.NormalCollisions) with each kind of contact
+    sorted by its primitives' ids: the broad phase in threads finds its candidates in an
+    order the scheduling decides, and the barrier's sums run over the active set in its
+    order; sorted, they are the same bits with any number of threads."""
+    for kind, key in (("vv_collisions", lambda c: (c.vertex0_id, c.vertex1_id)),
+                      ("ev_collisions", lambda c: (c.edge_id, c.vertex_id)),
+                      ("ee_collisions", lambda c: (c.edge0_id, c.edge1_id)),
+                      ("fv_collisions", lambda c: (c.face_id, c.vertex_id))):
+        found = getattr(collisions, kind)
+        if len(found) > 1:
+            setattr(collisions, kind, sorted(found, key=key))
+
+
+def barrier_curvature(d: float, gap: float, band: float) -> float:
+    """``d^2/dd^2`` of ipctk's barrier (kappa = 1) at distance ``d`` from a primitive:
+    ``b(s) = -(s - S)^2 ln(s / S)`` of ``s = d^2 - gap^2``, ``S = (gap + band)^2 - gap^2``."""
+    s = d * d - gap * gap
+    S = (gap + band) ** 2 - gap * gap
+    r = s - S
+    log = math.log(s / S)
+    b1 = -2.0 * r * log - r * r / s
+    b2 = -2.0 * log - 4.0 * r / s + r * r / (s * s)
+    return b2 * 4.0 * d * d + 2.0 * b1
+
+
+@dataclass
+class Contact(Term):
+    """The barrier between petals and its CCD (see the module docstring)."""
+
+    name = "contact"
+
+    mesh: object  #: ipctk.CollisionMesh over all vertices, a petal never against itself
+    petal: np.ndarray  #: (V,) petal of each vertex
+    gap: float  #: distance no two petals come closer than (mesh units)
+    band: float  #: the barrier acts from gap + band down to gap
+    kappa: float  #: barrier stiffness
+    potential: object = field(repr=False, default=None)  #: ipctk.BarrierPotential
+    ccd: object = field(repr=False, default=None)  #: narrow phase (Additive CCD)
+    collisions: object = field(repr=False, default=None)  #: active set, built at the last X
+    _at: np.ndarray | None = field(repr=False, default=None)  #: X the active set is of
+    #: broad-phase candidates of the last move (:meth:`sweep`), and the box each vertex
+    #: swept: valid for any X whose every vertex lies in its box
+    candidates: object = field(repr=False, default=None)
+    _low: np.ndarray | None = field(repr=False, default=None)
+    _high: np.ndarray | None = field(repr=False, default=None)
+
+    @classmethod
+    def build(cls, positions, faces, petal, *, gap: float, stiffness: float) -> Contact:
+        """``stiffness``: what the barrier's curvature is at the middle of its band."""
+        ipctk = _ipctk()
+        X = np.asfortranarray(positions, dtype=np.float64)
+        F = np.asfortranarray(faces, dtype=np.int32)
+        mesh = ipctk.CollisionMesh(X, ipctk.edges(F), F)
+        petal = np.ascontiguousarray(petal, dtype=np.int32)
+        mesh.can_collide = ipctk.make_vertex_patches_filter(petal)
+        band = gap
+        kappa = stiffness / barrier_curvature(gap + 0.5 * band, gap, band)
+        contact = cls(mesh, petal, float(gap), float(band), float(kappa))
+        contact.potential = ipctk.BarrierPotential(contact.band, contact.kappa)
+        contact.ccd = ipctk.AdditiveCCD()
+        return contact
+
+    # --- the start ----------------------------------------------------------------------
+    def check_start(self, X) -> None:
+        """Refuse a bud the barrier cannot start from: petals through each other, or
+        touching; names the petal pairs. Petals closer than the gap (but apart) make the
+        gap half their distance (logged)."""
+        ipctk = _ipctk()
+        X = np.asfortranarray(X, dtype=np.float64)
+        if ipctk.has_intersections(self.mesh, X):
+            pairs = self.intersecting_pairs(X)
+            raise ContactError(
+                f"petals {_pairs(pairs)} pass through each other in the bud: contact cannot "
+                "start from an intersecting bud; fix the input mesh, or disable "
+                "effects.collisions (the push-back of the semi-implicit scheme)")
+        close = self.close_pairs(X, self.gap)
+        if close:
+            worst = min(d for _, _, d in close)
+            if worst <= 1e-6 * self.gap:  # (a distance the barrier cannot keep)
+                raise ContactError(
+                    f"petals {_pairs([(a, b) for a, b, _ in close])} touch in the bud "
+                    f"(down to {worst:.3g} apart): contact cannot start from petals that "
+                    "touch; fix the input mesh, or disable effects.collisions",
+                    key="effects.collisions.thickness")
+            # petals that start closer than the gap: the gap is what they start with, halved
+            # (the barrier then acts from there down), and the log says so
+            gap = 0.5 * worst
+            logging.getLogger("bloom").warning(
+                "petals %s start closer than effects.collisions.thickness = %g (down to %.3g "
+                "apart): contact keeps a gap of %.3g instead",
+                _pairs([(a, b) for a, b, _ in close]), self.gap, worst, gap)
+            self._regap(gap)
+
+    def _regap(self, gap: float) -> None:
+        """Keep ``gap`` (band as wide), with the barrier as stiff at its band's middle as
+        before."""
+        ipctk = _ipctk()
+        stiffness = self.kappa * barrier_curvature(self.gap + 0.5 * self.band, self.gap,
+                                                   self.band)
+        self.gap = self.band = float(gap)
+        self.kappa = float(stiffness / barrier_curvature(gap + 0.5 * gap, gap, gap))
+        self.potential = ipctk.BarrierPotential(self.band, self.kappa)
+        self.collisions, self._at, self.candidates = None, None, None
+
+    def intersecting_pairs(self, X) -> list[tuple[int, int]]:
+        """Petal pairs that intersect at X (one exact test per pair)."""
+        ipctk = _ipctk()
+        faces = self.mesh.faces
+        face_petal = self.petal[faces[:, 0]]
+        out = []
+        count = int(self.petal.max()) + 1
+        for a in range(count):
+            for b in range(a + 1, count):
+                keep = (face_petal == a) | (face_petal == b)
+                sub = np.asfortranarray(faces[keep])
+                m = ipctk.CollisionMesh(np.asfortranarray(X), ipctk.edges(sub), sub)
+                m.can_collide = ipctk.make_vertex_patches_filter(self.petal)
+                if ipctk.has_intersections(m, np.asfortranarray(X)):
+                    out.append((a, b))
+        return out
+
+    def close_pairs(self, X, distance: float) -> list[tuple[int, int, float]]:
+        """Petal pairs closer than ``distance`` at X, with their smallest distance."""
+        ipctk = _ipctk()
+        X = np.asfortranarray(X, dtype=np.float64)
+        found = ipctk.NormalCollisions()
+        found.build(self.mesh, X, distance)
+        edges, faces = self.mesh.edges, self.mesh.faces
+        best: dict[tuple[int, int], float] = {}
+        for k in range(len(found)):
+            # (found[k] refers into found: it must not outlive it, or freeing it crashes)
+            ids = sorted({int(self.petal[i]) for i in found[k].vertex_ids(edges, faces) if i >= 0})
+            d = math.sqrt(found[k].compute_distance(X, edges, faces))
+            if len(ids) == 2:
+                key = (ids[0], ids[1])
+                best[key] = min(best.get(key, math.inf), d)
+        return [(a, b, d) for (a, b), d in sorted(best.items()) if d < distance]
+
+    # --- energy, gradient, Hessian ------------------------------------------------------
+    def sweep(self, X0, X1, margin: float = 0.0) -> None:
+        """Broad phase once for a region: each vertex's box over the straight move
+        X0 -> X1, widened by ``margin``; the candidates are every pair of primitives
+        that can come within the barrier's reach while each vertex stays in its box.
+        So the active sets (:meth:`_active`) and the CCD (:meth:`max_step`) of any
+        position or move inside the boxes are those a full broad phase would give, at
+        a narrow phase's cost: one sweep serves a growth increment's iterations as
+        long as they stay in it."""
+        ipctk = _ipctk()
+        low = np.asfortranarray(np.minimum(X0, X1) - margin, dtype=np.float64)
+        high = np.asfortranarray(np.maximum(X0, X1) + margin, dtype=np.float64)
+        self.candidates = ipctk.Candidates()
+        with _threads():  # (in any order: see _canonical)
+            self.candidates.build(self.mesh, low, high, self.gap + self.band)
+        self._low, self._high = low, high
+
+    def _swept(self, X) -> bool:
+        return (self.candidates is not None and bool(np.all(self._low <= X))
+                and bool(np.all(X <= self._high)))
+
+    def _active(self, X):
+        if self._at is None or not np.array_equal(self._at, X):
+            ipctk = _ipctk()
+            self.collisions = ipctk.NormalCollisions()
+            if self._swept(X):
+                self.collisions.build(self.candidates, self.mesh, X, self.band, self.gap)
+            else:
+                with _threads():
+                    self.collisions.build(self.mesh, X, self.band, self.gap)
+            _canonical(self.collisions)
+            self._at = X.copy()
+        return self.collisions
+
+    def forces(self, X, F) -> float:
+        """The barrier's energy at X; subtracts its gradient from the forces ``F``
+        (V, 3). Infinite where a pair is at or below the gap."""
+        X = np.asfortranarray(X, dtype=np.float64)
+        active = self._active(X)
+        if len(active) == 0:
+            return 0.0
+        energy = float(self.potential(active, self.mesh, X))
+        if math.isfinite(energy):
+            F -= self.potential.gradient(active, self.mesh, X).reshape(-1, 3)
+        return energy
+
+    def hessian(self, X, project: bool = False) -> sp.csc_matrix | None:
+        """The barrier's Hessian at X (3V x 3V), each contact's projected to positive
+        semi-definite (``project``, as the solver takes it) or exact; None when no pair
+        is within the band."""
+        ipctk = _ipctk()
+        X = np.asfortranarray(X, dtype=np.float64)
+        active = self._active(X)
+        if len(active) == 0:
+            return None
+        how = ipctk.PSDProjectionMethod.CLAMP if project else ipctk.PSDProjectionMethod.NONE
+        return self.potential.hessian(active, self.mesh, X, how)
+
+    def linked(self, X) -> np.ndarray:
+        """(k, 2) vertex pairs that the contacts within the barrier's band join at X (the
+        Hessian couples their unknowns): each contact's vertices, chained to its first."""
+        active = self._active(np.asfortranarray(X, dtype=np.float64))
+        edges, faces = self.mesh.edges, self.mesh.faces
+        pairs = []
+        for k in range(len(active)):
+            ids = [int(i) for i in active[k].vertex_ids(edges, faces) if i >= 0]
+            pairs.extend((ids[0], i) for i in ids[1:])
+        return np.array(pairs, dtype=np.int64).reshape(-1, 2)
+
+    def active_count(self, X) -> int:
+        return len(self._active(np.asfortranarray(X, dtype=np.float64)))
+
+    # --- steps ----------------------------------------------------------------------------
+    def cover(self, X0, X1) -> None:
+        """Sweep the straight move X0 -> X1 (:meth:`sweep`, with a margin of the
+        barrier's band) unless the last sweep holds it."""
+        if not (self._swept(X0) and self._swept(X1)):
+            self.sweep(X0, X1, self.gap + self.band)
+
+    def max_step(self, X0, X1) -> float:
+        """The largest fraction of the straight move X0 -> X1 along which no two petals
+        come closer than the gap (continuous collision detection, with ipctk's
+        conservative rescaling): 1.0 is the whole move. Sweeps the move first
+        (:meth:`sweep`, with a margin of the barrier's band) unless the last sweep holds
+        it: its candidates serve the CCD and the active sets along it."""
+        self.cover(X0, X1)
+        # (the narrow phase in threads: its result is a minimum over the candidates, the
+        # same in any order; everything that sums stays on one thread)
+        with _threads():
+            return float(self.candidates.compute_collision_free_stepsize(
+                self.mesh, np.asfortranarray(X0, dtype=np.float64),
+                np.asfortranarray(X1, dtype=np.float64), self.gap, self.ccd))
+
+    def min_distance(self, X, reach: float) -> float:
+        """Smallest distance between two petals at X, if below ``reach`` (else inf)."""
+        ipctk = _ipctk()
+        X = np.asfortranarray(X, dtype=np.float64)
+        found = ipctk.NormalCollisions()
+        found.build(self.mesh, X, reach)
+        return math.sqrt(found.compute_minimum_distance(self.mesh, X)) if len(found) else math.inf
+
+
+def _pairs(pairs) -> str:
+    return ", ".join(f"{a}-{b}" for a, b in pairs) or "(none found pairwise)"
+
+
+def frame_intersections(frames, faces) -> list[bool]:
+    """For each frame ``(V, 3)`` of ``frames``, whether any two triangles of the mesh
+    intersect (an exact edge-through-triangle test by ipctk; petals against each other
+    and each against itself)."""
+    ipctk = _ipctk()
+    F = np.asfortranarray(faces, dtype=np.int32)
+    E = ipctk.edges(F)
+    out = []
+    mesh = None
+    for X in frames:
+        X = np.asfortranarray(X, dtype=np.float64)
+        if mesh is None:
+            mesh = ipctk.CollisionMesh(X, E, F)
+        out.append(bool(ipctk.has_intersections(mesh, X)))
+    return out
