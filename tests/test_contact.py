@@ -183,9 +183,9 @@ def test_newton_with_contact_never_crosses_and_keeps_the_gap(monkeypatch):
     state = State.at_rest(model, v, control)
     qs = QuasiStatic(stages=5)
     qs.advance(model, state, control, 10, 1.0, _collisions(v, faces, petal))
-    assert qs.ccd_cuts > 0 and len(seen) > 20
+    assert qs.counts.ccd_cuts > 0 and len(seen) > 20
     assert not any(frame_intersections(seen, faces))
-    c = qs._contact
+    c = qs.newton.contact
     assert min(c.min_distance(X, 2 * GAP) for X in seen) >= GAP
     final = c.min_distance(state.positions, 1.0)
     assert GAP <= final <= 2 * GAP
@@ -222,7 +222,7 @@ def test_connection_springs_break_in_newton_and_the_increment_is_redone():
     rec, state, qs, conn = bloom(True)
     assert not conn.alive.any()
     assert np.all((conn.broken_step > 0) & (conn.broken_step < 100))
-    assert qs.breaks >= 1 and rec.diagnostics["redone_increments"][-1] == qs.breaks
+    assert qs.counts.breaks >= 1 and rec.diagnostics["redone_increments"][-1] == qs.counts.breaks
     intact = rec.diagnostics["connections_intact"]
     assert intact[0] == len(pairs) and intact[-1] == 0
     # the last frame before the first break: every spring within its breaking length

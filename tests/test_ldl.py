@@ -118,8 +118,24 @@ def test_zero_pivot_is_refused():
     data[first, 0, 0] = 0.0
     data[:bsr.indptr[1], 0, :] = 0.0  # (vertex 0's first row: zero)
     f = BlockLDL(bsr.indptr, bsr.indices, np.arange(10))
-    with pytest.raises(ValueError, match="zero pivot"):
+    with pytest.raises(ValueError, match="singular"):
         f.factor(data)
+
+
+def test_a_pivot_zero_to_rounding_is_refused_as_singular():
+    """A matrix of rank 5 in 6 unknowns (B B^T, B random 6 x 5): its last pivot is not an
+    exact zero but rounding (under 1e-13 of the largest diagonal entry): refused; the
+    same matrix made regular by a shift of 1e-6 of its scale is factored."""
+    rng = np.random.default_rng(4)
+    B = rng.standard_normal((6, 5))
+    A = B @ B.T
+    bsr = sp.bsr_matrix(A, blocksize=(3, 3))
+    bsr.sort_indices()
+    f = BlockLDL(bsr.indptr, bsr.indices, np.arange(2))
+    with pytest.raises(ValueError, match="singular"):
+        f.factor(bsr.data)
+    assert f.factor(bsr.data, shift=np.full(6, 1e-6 * np.abs(A).max()))
+    assert f.inertia() == (6, 0)
 
 
 def test_fill_is_that_of_a_minimum_degree_ordering():

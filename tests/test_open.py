@@ -63,7 +63,7 @@ def test_backward_then_forward_returns_to_the_model_and_the_bud_is_an_equilibriu
     v, f, petal, axes, growth = open_petal()
     model = reverse.open_model(build_model(v, growth, axes), 1.0)
     bud, solver = reverse.find_bud(model, v, Effects(), stages=20, tolerance=1e-6)
-    assert solver.increments >= 20
+    assert solver.counts.increments >= 20
     assert residual(model, bud, 0.0) < 1e-9
     moved = reverse.distance_to_model(bud, v, petal, axes.base)
     assert moved > 0.05  # it closed by a twentieth of its length or more

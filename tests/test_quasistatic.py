@@ -6,7 +6,8 @@ import pytest
 
 from pipeline.sim import effects as fx
 from pipeline.sim.model import Control, Model, State
-from pipeline.sim.solver.quasistatic import QuasiStatic, _System
+from pipeline.sim.solver.quasistatic import QuasiStatic
+from pipeline.sim.solver.system import System
 from pipeline.sim.terms.elastic import hessian, internal_forces, rounding_scale
 from pipeline.studies import accuracy
 
@@ -50,7 +51,7 @@ def test_hessian_matches_finite_differences_of_the_gradient(petal):
     m = petal.model
     free = Model.build(petal.vertices, m.edge_indices, m.edge_growth, m.edge_stiffness,
                        m.hinge_indices, m.hinge_stiffness, np.zeros(m.vertex_count, bool))
-    system = _System.build(free, fx.Effects())
+    system = System.build(free, fx.Effects())
     rng = np.random.default_rng(3)
     X = petal.vertices + rng.normal(scale=0.1, size=petal.vertices.shape)
     A = 0.5
@@ -80,8 +81,8 @@ def test_newton_converges_quadratically_near_a_solution(petal):
         nudge = rng.normal(scale=scale, size=state.positions.shape)
         nudge[petal.model.pinned] = 0.0
         state.positions += nudge
-        qs.tolerance = 1e-10
-        assert qs._newton(petal.model, state, fx.Effects(), 0.4) is None
+        qs.newton.tolerance = 1e-10
+        assert qs.newton.solve(petal.model, state, fx.Effects(), 0.4) is None
         r = qs.residuals
         assert r[-1] < 1e-12 and len(r) <= 5, r
         assert 1e-2 < r[1] / r[0] ** 2 < 1e2, r  # r1 = C r0^2
@@ -137,7 +138,7 @@ def test_quasi_static_keeps_the_center_plane_and_curls():
         assert len(effects.center_plane.vertices) > 20
         assert effects.center_plane.drift(state.positions) < 1e-9, names
         blooms[names] = state.positions.copy()
-    assert qs.descents > 0  # the negative-curvature search did run
+    assert qs.counts.descents > 0  # the negative-curvature search did run
     # curl with beta = 1 flattens the cross-sections: a different bloom
     diff = accuracy.shape_error(scene, blooms[("curl", "center_plane")], blooms[("center_plane",)])
     assert diff[0] > 1e-3
@@ -181,7 +182,7 @@ def test_bench_json_reports_step_cost_per_edge():
 def _rounding_bound(model, X, A=0.0):
     """The solver's rounding level of the forces at X: ROUNDING_FACTOR eps times the
     largest free vertex's force scale (rounding_scale)."""
-    from pipeline.sim.solver.quasistatic import EPS, ROUNDING_FACTOR
+    from pipeline.sim.solver.newton import EPS, ROUNDING_FACTOR
 
     scale = np.empty(len(X))
     rounding_scale(X, model.edge_indices, model.edge_rest_length, model.edge_growth,
@@ -260,7 +261,7 @@ def test_a_petal_held_on_a_line_converges_where_its_hessian_is_singular():
     assert _residual(model, X, 1.0) <= _rounding_bound(model, X, 1.0)
     # the turn about the base line (the x axis) costs nothing: H r = 0 to rounding on
     # the free vertices (E(R X) = E(X) gives H r = w x g, and g = 0 where free)
-    system = _System.build(model, fx.Effects())
+    system = System.build(model, fx.Effects())
     _assemble(system.blocks, model, X, 1.0)
     H = system.blocks.matrix()
     turn = np.cross([1.0, 0.0, 0.0], X).ravel()
@@ -277,7 +278,7 @@ def test_failures_name_their_cause():
     its rounding level and the force scale; the message has no doubled 'found'."""
     from test_axis_base import cupped_petal
 
-    from pipeline.sim.solver.quasistatic import _Failure
+    from pipeline.sim.solver.newton import Failure
 
     v, f = cupped_petal()
     edges = np.array(sorted({tuple(sorted(e)) for t in f for e in ((t[0], t[1]), (t[1], t[2]),
@@ -287,7 +288,7 @@ def test_failures_name_their_cause():
         pinned = np.zeros(len(v), dtype=bool)
         pinned[row] = True
         model = Model.build(v, edges, 0.0, 0.1, np.zeros((0, 4), dtype=np.int64), 0.0, pinned)
-        exc = qs._not_converged(model, v, 7, 0.5, _Failure(3e-9, 0.25, "stalled", "indefinite"))
+        exc = qs._not_converged(model, v, 7, 0.5, Failure(3e-9, 0.25, "stalled", "indefinite"))
         assert exc.cause == cause, str(exc)
         text = str(exc)
         assert text.startswith("no equilibrium at step 7 (growth A = 0.5): residual force 3e-09")
@@ -303,7 +304,7 @@ def test_simulate_names_the_cause_in_one_line(tmp_path, monkeypatch):
     from click.testing import CliRunner
 
     from pipeline.flower import axis
-    from pipeline.sim.solver.quasistatic import QuasiStatic, _Failure
+    from pipeline.sim.solver.newton import Failure, Newton
     from stages.cli import cli
 
     runner = CliRunner()
@@ -315,9 +316,9 @@ def test_simulate_names_the_cause_in_one_line(tmp_path, monkeypatch):
         assert r.exit_code == 0, r.output
 
     def stall(self, model, state, effects, A):
-        return _Failure(3e-9, 0.25, "stalled", "indefinite")
+        return Failure(3e-9, 0.25, "stalled", "indefinite")
 
-    monkeypatch.setattr(QuasiStatic, "_newton", stall)
+    monkeypatch.setattr(Newton, "solve", stall)
     lines = {}
     for case in ("rest", "weak"):
         if case == "weak":  # every base now counts as a line
@@ -380,17 +381,17 @@ def test_threads_give_the_same_arrays_as_one(monkeypatch, effects):
     import threading
     from concurrent.futures import ThreadPoolExecutor
 
-    from pipeline.sim.solver import quasistatic as qs_module
+    from pipeline.sim.solver import pieces as qs_module
 
     scene = accuracy.Scene.bud(6, 300)
     threads = set()
-    factor = _System.factor
+    factor = System.factor
 
     def watched(self, *args, **kwargs):
         threads.add(threading.get_ident())
         return factor(self, *args, **kwargs)
 
-    monkeypatch.setattr(_System, "factor", watched)
+    monkeypatch.setattr(System, "factor", watched)
     runs = []
     for workers in (1, 3):
         pool = ThreadPoolExecutor(workers)

@@ -27,7 +27,7 @@ from pipeline.sim.integrators import make_integrator
 from pipeline.sim.model import Control, State
 from pipeline.sim.reverse import distance_to_model, open_start
 from pipeline.sim.run import run as integrate
-from pipeline.sim.solver.quasistatic import NotConverged
+from pipeline.sim.solver.newton import NotConverged
 
 log = logging.getLogger("bloom")
 

@@ -29,7 +29,8 @@ from pipeline.errors import BloomError
 from pipeline.mesh.hinge import edge_lengths, hinge_cos_sin
 from pipeline.sim.effects import flower_axis_or_guess
 from pipeline.sim.model import Model, State
-from pipeline.sim.solver.quasistatic import NotConverged, QuasiStatic
+from pipeline.sim.solver.newton import NotConverged
+from pipeline.sim.solver.quasistatic import QuasiStatic
 from pipeline.sim.terms.contact import ContactError
 
 log = logging.getLogger("bloom")

@@ -134,13 +134,14 @@ def _fill(data, source, diagonal, shift, xrow, xcol, xval, where, ap, ai, ax):
 
 
 @njit(cache=True, nogil=True)
-def _numeric(columns, ap, ai, ax, lp, li, rp, rk, rq, lx, ldg, d, w):
+def _numeric(columns, ap, ai, ax, lp, li, rp, rk, rq, lx, ldg, d, w, tiny):
     """Factor the lower blocks ``ax`` (by column: ``ap``, ``ai``), the block columns
     ``columns`` (each after its descendants in the elimination tree): ``lx`` the blocks
     of L below the diagonal, ``ldg`` the diagonal blocks' (l10, l20, l21), ``d`` the
     pivots. A column reads only its descendants' columns, so subtrees apart can be
     factored at once (each with its own work array ``w``), the same to the bit.
-    Returns the first zero pivot's index, or -1."""
+    Returns the index of the first pivot whose size is not above ``tiny`` (zero,
+    rounding-sized, or not a number), or -1."""
     for j in columns:
         for q in range(ap[j], ap[j + 1]):
             i = ai[q]
@@ -172,16 +173,16 @@ def _numeric(columns, ap, ai, ax, lp, li, rp, rk, rq, lx, ldg, d, w):
                     w[i, a, 1] -= l0 * t10 + l1 * t11 + l2 * t12
                     w[i, a, 2] -= l0 * t20 + l1 * t21 + l2 * t22
         p0 = w[j, 0, 0]  # (the diagonal block: a scalar LDL^T of its lower triangle)
-        if p0 == 0.0:
+        if not abs(p0) > tiny:
             return 3 * j
         l10 = w[j, 1, 0] / p0
         l20 = w[j, 2, 0] / p0
         p1 = w[j, 1, 1] - l10 * l10 * p0
-        if p1 == 0.0:
+        if not abs(p1) > tiny:
             return 3 * j + 1
         l21 = (w[j, 2, 1] - l20 * l10 * p0) / p1
         p2 = w[j, 2, 2] - l20 * l20 * p0 - l21 * l21 * p1
-        if p2 == 0.0:
+        if not abs(p2) > tiny:
             return 3 * j + 2
         d[3 * j] = p0
         d[3 * j + 1] = p1
@@ -205,6 +206,18 @@ def _numeric(columns, ap, ai, ax, lp, li, rp, rk, rq, lx, ldg, d, w):
                 w[i, a, 1] = 0.0
                 w[i, a, 2] = 0.0
     return -1
+
+
+@njit(cache=True, nogil=True)
+def _diagonal_size(ap, ai, ax):
+    """The largest absolute diagonal entry of the lower blocks ``ax`` (by column)."""
+    size = 0.0
+    for j in range(ap.shape[0] - 1):
+        for q in range(ap[j], ap[j + 1]):
+            if ai[q] == j:
+                for a in range(3):
+                    size = max(size, abs(ax[q, a, a]))
+    return size
 
 
 @njit(cache=True, nogil=True)
@@ -425,6 +438,12 @@ def _pool():
     return _POOL
 
 
+#: a pivot no larger than this fraction of the matrix's largest diagonal entry is zero
+#: to rounding: the matrix is taken as singular (an exact zero, or a cancellation that
+#: leaves only rounding, would give a step of any size)
+PIVOT = 1e-13
+
+
 class BlockLDL:
     """``P A P^T = L D L^T`` of the principal submatrix on ``vertices`` of a symmetric
     block-sparse matrix (3x3 blocks in scipy's BSR layout, ``indptr``, ``indices``:
@@ -474,9 +493,11 @@ class BlockLDL:
         if not _fill(data, self._source, self._diagonal, shift, xr, xc, xv, self._where,
                      self._ap, self._ai, self._ax):
             return False
+        tiny = PIVOT * _diagonal_size(self._ap, self._ai, self._ax)
+
         def run(columns, w):
             return _numeric(columns, self._ap, self._ai, self._ax, self._lp, self._li,
-                            self._rp, self._rk, self._rq, self._lx, self._ldg, self.d, w)
+                            self._rp, self._rk, self._rq, self._lx, self._ldg, self.d, w, tiny)
 
         if self._sets is not None and threading.current_thread() is threading.main_thread():
             first, second, rest = self._sets
@@ -487,8 +508,29 @@ class BlockLDL:
         else:
             zero = run(self._all, self._w)
         if zero >= 0:
-            raise ValueError(f"zero pivot at {zero}: the matrix is singular")
+            raise ValueError(f"pivot {zero} is zero to rounding (under {PIVOT:g} of the largest "
+                             "diagonal entry): the matrix is singular")
         return True
+
+    def inertia(self) -> tuple[int, int]:
+        """The numbers of positive and negative eigenvalues of the matrix last factored
+        (the signs of its pivots, Sylvester's law of inertia; a singular one is refused
+        by :meth:`factor`, so there are no zeros)."""
+        positive = int(np.count_nonzero(self.d > 0.0))
+        return positive, len(self.d) - positive
+
+    def numeric(self) -> dict[str, np.ndarray]:
+        """The factorization's numbers (the pattern comes from the constructor's
+        arguments): what a checkpoint saves to restore it (:meth:`restore`) to the bit."""
+        return {"ax": self._ax, "lx": self._lx, "ldg": self._ldg, "d": self.d}
+
+    def restore(self, numbers: dict[str, np.ndarray]) -> None:
+        """Put back a factorization's numbers (:meth:`numeric`) on the same pattern."""
+        for name, target in (("ax", self._ax), ("lx", self._lx), ("ldg", self._ldg),
+                             ("d", self.d)):
+            if numbers[name].shape != target.shape:
+                raise ValueError(f"{name}: shape {numbers[name].shape}, not {target.shape}")
+            target[...] = numbers[name]
 
     def solve(self, rhs: np.ndarray) -> np.ndarray:
         y = np.ascontiguousarray(rhs.reshape(-1, 3)[self.perm])

@@ -1,0 +1,104 @@
+"""Petals that do not interact, each a problem of its own, and the threads the solver's
+independent work runs in.
+
+Without collisions or connection springs, petals share no term: each follows its own
+path of equilibria (:func:`split`), so a petal that snaps costs iterations of its own
+factorization only, and the line search of one does not hold back another. They, the
+factorizations of the groups of one coupled Newton step and the pieces' Hessians run in
+a thread pool (:func:`_map`): the numba kernels release the GIL, and each call's
+arithmetic is its own, so the results are the same bits with any number of threads."""
+
+from __future__ import annotations
+
+import os
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.sparse as sp
+from scipy.sparse.csgraph import connected_components
+
+from pipeline.sim.effects import Effects
+from pipeline.sim.model import Model, State
+from pipeline.sim.terms.center_plane import CenterPlane
+from pipeline.sim.terms.growth import Curl
+
+_POOL = None  #: the thread pool, made at its first use
+
+
+def _map(fn, items: list) -> list:
+    """``[fn(x) for x in items]``, the calls overlapping in threads. For work apart
+    whose heavy parts, the numba kernels (the factorization's too), release the GIL:
+    the solves of petals that do not interact, the factorizations and shift searches of
+    the groups of one coupled Newton step, the pieces' Hessians. Each call's arithmetic is its own, so the
+    results are the same to the bit with any number of threads, and they come back in
+    order (an exception: the first item's that raised). A call made from a pool thread
+    has one item (a petal's solver has one group), so it runs inline."""
+    global _POOL
+    if len(items) < 2:
+        return [fn(x) for x in items]
+    if _POOL is None:
+        _POOL = ThreadPoolExecutor(max_workers=max(1, min(4, os.cpu_count() or 1)))
+    return list(_POOL.map(fn, items))
+
+
+@dataclass
+class Piece:
+    """One connected piece (a petal): its vertices in the whole, and its own problem."""
+
+    vertices: np.ndarray
+    model: Model
+    effects: Effects
+    state: State
+    solver: object = None  #: its own path follower (a QuasiStatic)
+
+
+def split(model: Model, effects: Effects) -> list[Piece]:
+    """The mesh's connected pieces, each as a problem of its own; [] if it is one piece
+    or if the pieces interact (collisions, connection springs: then they are one problem).
+    Without those, petals do not interact: each is solved on its own, so a petal that
+    snaps costs iterations of its own factorization only, and the line search of one does
+    not hold back another. Pieces without springs are left where they are."""
+    n = model.vertex_count
+    e = model.edge_indices
+    graph = sp.coo_matrix((np.ones(len(e)), (e[:, 0], e[:, 1])), shape=(n, n))
+    count, label = connected_components(graph, directed=False)
+    pinned_pieces = np.unique(label[model.pinned])
+    for c in range(count):
+        if c not in pinned_pieces and np.any(label[e[:, 0]] == c):
+            raise ValueError(f"a piece of the mesh ({int(np.sum(label == c))} vertices) has no "
+                             "fixed base vertex: with nothing holding it, it has no "
+                             "equilibrium; check axis.base")
+    if count <= 1 or effects.collisions is not None or effects.connections is not None:
+        return []
+    parts = []
+    for c in range(count):
+        idx = np.flatnonzero(label == c)
+        local = np.full(n, -1, dtype=np.int64)
+        local[idx] = np.arange(len(idx))
+        emask = label[e[:, 0]] == c
+        if not emask.any():
+            continue
+        hmask = label[model.hinge_indices[:, 0]] == c
+        sub = Model(
+            vertex_count=len(idx), vertex_mass=model.vertex_mass[idx],
+            vertex_inv_mass=model.vertex_inv_mass[idx], edge_indices=local[e[emask]],
+            edge_rest_length=model.edge_rest_length[emask], edge_growth=model.edge_growth[emask],
+            edge_stiffness=model.edge_stiffness[emask],
+            hinge_indices=local[model.hinge_indices[hmask]],
+            hinge_rest_cos=model.hinge_rest_cos[hmask], hinge_rest_sin=model.hinge_rest_sin[hmask],
+            hinge_stiffness=model.hinge_stiffness[hmask])
+        fx = Effects(names=effects.names)
+        if effects.curl is not None:
+            k = effects.curl
+            fx.curl = Curl(k.theta0[hmask].copy(), k.beta, k.cos_t[hmask].copy(),
+                           k.sin_t[hmask].copy())
+        if effects.center_plane is not None:
+            cp = effects.center_plane
+            mine = label[cp.vertices] == c
+            fx.center_plane = CenterPlane(local[cp.vertices[mine]], cp.normals[mine],
+                                          cp.height[mine])
+        zeros = np.zeros((len(idx), 3))
+        state = State(zeros.copy(), zeros.copy(), zeros.copy(), 0, 0.0, zeros.copy())
+        parts.append(Piece(idx, sub, fx, state))
+    return parts
