@@ -19,7 +19,9 @@ from .common import log
 @click.option("--overwrite", is_flag=True, help="Replace --out even if `bloom report` did not write it.")
 def command(sim_h5: str, out: str, overwrite: bool) -> None:
     """Measure SIM_H5: opening per petal, cross-section curvature, boundary wrinkles,
-    crossings between petals, connection breaks, Gaussian curvature sign."""
+    crossings between petals, connection breaks, Gaussian curvature sign; and whether the
+    bloom is sound: frames with an intersection, the last frame's distance to the model
+    (an open start), petals that did not open (under 5 deg: a warning naming each)."""
     from pipeline import artifact, report
 
     out_path = Path(out)
@@ -49,6 +51,10 @@ def command(sim_h5: str, out: str, overwrite: bool) -> None:
     log.info("opening %.1f deg; wrinkles %d; crossings %d at the end; %d of %d frames with "
              "an intersection", data["opening_angle_final_mean"], data["boundary_wrinkles"][-1],
              data["crossings"][-1], data["intersecting_frames"], len(data["intersecting"]))
+    for petal in data["not_opened"]:
+        log.warning("warning: %s did not open: %+.1f deg at the end (under %g deg)", petal["name"],
+                    petal["opening"], report.NOT_OPEN)
+    log.info("%s", data["summary"])
     log.info("wrote %s and %s", out_path, png)
 
 
