@@ -23,8 +23,12 @@ MARKER = "render.json"
 def command(artifact_h5: str, config_path, overrides, out, overwrite) -> None:
     """Render ARTIFACT_H5 off-screen into the folder --out.
 
-    sim.h5 gives OUT/frames/NNNN.png, OUT/bloom.mp4 and OUT/contact_sheet.png; remesh.h5,
-    axis.h5 and growth.h5 give OUT/<stage>.png, a still for debugging that stage.
+    sim.h5 gives OUT/frames/NNNN.png, OUT/bloom.mp4, OUT/contact_sheet.png and
+    OUT/turntable.mp4: with export.mesh = "input" (the default) the user's own parts, the
+    petals deformed through their binding as `bloom export` gives them and the other
+    parts in place; with "sheet", the simulated sheet. The flower stands upright along its
+    own axis, seen from three-quarters above, framed on its petals. remesh.h5, axis.h5 and
+    growth.h5 give OUT/<stage>.png, a still for debugging that stage.
     """
     from pipeline import artifact, render
 
@@ -35,7 +39,6 @@ def command(artifact_h5: str, config_path, overrides, out, overwrite) -> None:
                            else "simulate", reader="render") as src:
         stage = src.stage
         with writing_folder(out, overwrite, MARKER, "render") as tmp:
-            up = up_direction(src)
             if stage == "simulate":
                 pos = src["frames/positions"]
                 times = src["frames/time"]
@@ -43,33 +46,89 @@ def command(artifact_h5: str, config_path, overrides, out, overwrite) -> None:
                 if "diagnostics/opening_angle" in src:
                     angle = src["diagnostics/opening_angle"]
                     labels = [f"{lab}   opening {a:+.1f} deg" for lab, a in zip(labels, angle, strict=True)]
-                palette = rc["palette"]
-                growth = None
-                if palette == "growth":
-                    from pipeline.expr import evaluate_curve
-
-                    curve = json.loads(src.attrs["config"])["growth"]["curve"]
-                    growth = evaluate_curve(curve, src["axis/x"])
+                layers, up = _bloom_layers(src, cfg, rc, pos)
                 total = len(pos) + rc["turntable_frames"]
                 with progress_bar(total, "render") as bar:
                     render.render_frames(
-                        pos, src["mesh/faces"], tmp, width=rc["width"], height=rc["height"],
-                        fps=rc["fps"], color=rc["color"], contact_frames=rc["contact_frames"],
-                        up=up, labels=labels,
-                        petal=src["mesh/petal"] if palette == "petals" else None,
-                        growth=growth, turntable_frames=rc["turntable_frames"],
-                        progress=bar.update)
+                        layers, tmp, width=rc["width"], height=rc["height"], fps=rc["fps"],
+                        contact_frames=rc["contact_frames"], up=up, labels=labels,
+                        turntable_frames=rc["turntable_frames"], progress=bar.update)
                 written = {"frames": len(pos), "mp4": "bloom.mp4",
                            "contact_sheet": "contact_sheet.png"}
                 if rc["turntable_frames"]:
                     written["turntable"] = "turntable.mp4"
             else:
                 name = f"{stage}.png"
-                _debug_view(src, stage, tmp / name, rc, up)
+                _debug_view(src, stage, tmp / name, rc, up_direction(src))
                 written = {"still": name}
             (tmp / MARKER).write_text(json.dumps({"source": str(artifact_h5), "stage": stage,
                                                   "render": rc, **written}, indent=2))
     log.info("wrote %s", out)
+
+
+def _bloom_layers(src, cfg, rc: dict, pos):
+    """The layers of a bloom (:class:`pipeline.render.Layer`) and the picture's up: the
+    user's parts through their binding where sim.h5 holds them and export.mesh is
+    "input", else the simulated sheet."""
+    from pipeline import binding, export, render, userasset
+
+    faces, petal = src["mesh/faces"], src["mesh/petal"]
+    palette = rc["palette"]
+    growth = None
+    if palette == "growth":
+        from pipeline.expr import evaluate_curve
+
+        curve = json.loads(src.attrs["config"])["growth"]["curve"]
+        growth = evaluate_curve(curve, src["axis/x"])
+    asset = userasset.read(src) if cfg["export.mesh"] == "input" else None
+    bindings = binding.read_bindings(src) if asset is not None else {}
+    up = render.flower_up(src.attrs.get("flower_axis"), _declared_up(src, asset, cfg),
+                          _rise(src, pos[0]))
+    if asset is None or not bindings:
+        return [render.sheet_layer(pos, faces, petal, color=rc["color"], palette=palette,
+                                   growth=growth)], up
+    scale = float(src.attrs["scale"])
+    frames = export.asset_frames(pos, faces, asset, bindings, scale, cfg["export.keep_thickness"])
+    layers = render.asset_layers(frames, asset, bindings, faces, petal, color=rc["color"],
+                                 palette=palette, growth=growth,
+                                 kinds=_kinds(asset, bindings))
+    return layers, up
+
+
+def _declared_up(src, asset, cfg):
+    """The up the scene or the file says, as a unit vector, or None: sim.h5's ``up``
+    attribute, scene.up, the input asset's (glTF: +y)."""
+    from pipeline.axis import DIRECTIONS
+
+    for said in (src.attrs.get("up"), cfg["scene.up"], asset.up if asset is not None else None):
+        said = str(said or "").strip().lower()
+        if said in DIRECTIONS:
+            return np.array(DIRECTIONS[said])
+    return None
+
+
+def _rise(src, first):
+    """The petals' mean base-to-tip chord in the first frame, or None."""
+    if "axis/tip" not in src or "axis/base" not in src:
+        return None
+    return first[src["axis/tip"]].mean(axis=0) - first[src["axis/base"]].mean(axis=0)
+
+
+def _kinds(asset, bindings) -> list[str]:
+    """What each part that is not bound to the sheet is (stem, stamen, ...), by remesh's
+    classifier, for its colour; "other" where it cannot tell."""
+    from types import SimpleNamespace
+
+    from pipeline.mesh.classify import classify
+
+    parts = [SimpleNamespace(name=p.name, vertices=np.asarray(p.points), faces=p.triangles())
+             for p in asset.parts]
+    if all(i in bindings for i in range(len(parts))):
+        return ["petal"] * len(parts)
+    try:
+        return [v.kind for v in classify(parts)]
+    except (ValueError, IndexError, np.linalg.LinAlgError):
+        return ["other"] * len(parts)
 
 
 def _stage(path: str) -> str | None:
