@@ -62,25 +62,18 @@ def test_killed_simulate_keeps_the_previous_artifact(tmp_path, sig):
         assert f["frames/positions"].shape[0] == 3 and np.all(np.isfinite(f["frames/positions"][()]))
 
 
-def test_killed_simulate_resumes_to_the_same_arrays(tmp_path):
-    """SIGKILL mid-run (no cleanup at all), then `simulate --resume`: the frames are bit
-    for bit those of an uninterrupted run, with collisions and connection springs on (their
-    state, sides, near pairs and broken springs, is in the checkpoint)."""
+def _kill_and_resume(tmp_path, mesh_args, sets):
+    """Simulate once whole, then again killed (SIGKILL: no cleanup at all) just after its
+    first checkpoint and resumed with --resume: returns the two artifacts' paths."""
     def run(*args):
         return subprocess.run([*BLOOM, *map(str, args)], cwd=ROOT, capture_output=True, text=True)
 
     mesh = tmp_path / "bud.obj"
-    assert run("asset", "bud", "--petals", 3, "--vertices", 300, "--out", mesh).returncode == 0
+    assert run("asset", *mesh_args, "--out", mesh).returncode == 0
     assert run("remesh", mesh, "--out", tmp_path / "r.h5").returncode == 0
     assert run("axis", tmp_path / "r.h5", "--out", tmp_path / "a.h5").returncode == 0
     assert run("growth", tmp_path / "a.h5", "--out", tmp_path / "g.h5").returncode == 0
-    sets = []
-    for kv in ("simulate.integrator=semi-implicit",  # (the quasi-static solver has no checkpoints)
-               "simulate.steps=60000", "simulate.frames=61", "simulate.checkpoint_seconds=0.2",
-               "effects.collisions.enabled=true", "effects.connections.enabled=true",
-               "effects.connections.stiffness=0.0001", "effects.connections.critical_stretch=1.05",
-               "effects.connections.max_distance=3"):
-        sets += ["--set", kv]
+    sets = [a for kv in sets for a in ("--set", kv)]
     whole = tmp_path / "whole.h5"
     r = run("simulate", tmp_path / "g.h5", "--out", whole, *sets)
     assert r.returncode == 0, r.stderr
@@ -99,12 +92,43 @@ def test_killed_simulate_resumes_to_the_same_arrays(tmp_path):
     assert r.returncode == 0, r.stderr
     assert "resuming from step" in r.stderr
     assert not ckpt.exists()
+    return whole, out
+
+
+def _same_run(whole, out):
     with h5py.File(whole) as a, h5py.File(out) as b:
         assert b.attrs["resumed_from_step"] > 0
         assert np.array_equal(a["frames/positions"][()], b["frames/positions"][()])
         assert np.array_equal(a["frames/time"][()], b["frames/time"][()])
         for name in a["diagnostics"]:
             assert np.array_equal(a[f"diagnostics/{name}"][()], b[f"diagnostics/{name}"][()]), name
+
+
+def test_killed_simulate_resumes_to_the_same_arrays(tmp_path):
+    """SIGKILL mid-run, then `simulate --resume`: the frames are bit for bit those of an
+    uninterrupted run, with collisions and connection springs on (their state, sides, near
+    pairs and broken springs, is in the checkpoint)."""
+    whole, out = _kill_and_resume(tmp_path, ("bud", "--petals", 3, "--vertices", 300), (
+        "simulate.integrator=semi-implicit",
+        "simulate.steps=60000", "simulate.frames=61", "simulate.checkpoint_seconds=0.2",
+        "effects.collisions.enabled=true", "effects.connections.enabled=true",
+        "effects.connections.stiffness=0.0001", "effects.connections.critical_stretch=1.05",
+        "effects.connections.max_distance=3"))
+    _same_run(whole, out)
+    with h5py.File(whole) as a, h5py.File(out) as b:
         broken = a["effects/connections/broken_step"][()]
         assert np.array_equal(broken, b["effects/connections/broken_step"][()])
     assert (broken >= 0).any()  # springs did break: their state crossed the checkpoint
+
+
+@pytest.mark.parametrize("effects", [("effects.collisions.enabled=true",), ()],
+                         ids=["contact", "independent-petals"])
+def test_killed_quasi_static_simulate_resumes_to_the_same_arrays(tmp_path, effects):
+    """The quasi-static solver, killed mid-run and resumed: the same frames and the same
+    Newton counts, to the bit. Its state crosses the checkpoint (the secant's equilibrium
+    behind, the contact's gap and sweep, each group's pattern and last factorization;
+    without contact, each petal's own solver's)."""
+    whole, out = _kill_and_resume(tmp_path, ("bud", "--petals", 5, "--vertices", 1500), (
+        "simulate.integrator=quasi-static", "simulate.stages=60", "simulate.frames=61",
+        "simulate.checkpoint_seconds=0.2", *effects))
+    _same_run(whole, out)

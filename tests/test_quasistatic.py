@@ -403,3 +403,59 @@ def test_threads_give_the_same_arrays_as_one(monkeypatch, effects):
         assert used >= 2 if workers > 1 else used == 1
     assert runs[0].iterations == runs[1].iterations > 0
     assert np.array_equal(runs[0].positions, runs[1].positions)
+
+
+@pytest.mark.parametrize("names, inertia", [((), False), (("collisions",), False),
+                                             (("connections",), True)],
+                         ids=["independent-petals", "contact", "springs-inertia"])
+def test_the_solver_state_restored_mid_path_goes_on_to_the_same_bits(names, inertia):
+    """The quasi-static solver's state (:meth:`QuasiStatic.state`) taken after 6 frames
+    and restored into a fresh solver (as ``simulate --resume`` does from a checkpoint)
+    gives the frames after it to the bit, and the same Newton counts."""
+    import copy
+
+    from pipeline.config import load_config
+    from pipeline.mesh import procedural
+    from pipeline.sim.build import Prepared
+    from pipeline.sim.run import frame_steps
+
+    v, f, p = procedural.bud(3, 600, 0)
+    prep = Prepared.from_mesh(v, f, p)
+    model = prep.model(0.1, 0.0005)
+    params = load_config().nested()["effects"]
+    params["connections"]["max_distance"] = 3.0
+    steps, frames = 20000, 13
+    control = Control("smootherstep", 0.6 * steps)
+    targets = frame_steps(steps, frames)
+
+    def fresh():
+        return (QuasiStatic(stages=20, inertia=inertia), State.at_rest(model, prep.vertices, control),
+                prep.effects(names, params))
+
+    def go(qs, state, fx, upto):
+        out = []
+        for t in targets[1:upto]:
+            qs.advance(model, state, control, int(t - state.step), 1.0, fx)
+            out.append((state.positions.copy(), qs.counts.iterations))
+        return out
+
+    whole = go(*fresh(), len(targets))
+    qs, state, fx = fresh()
+    go(qs, state, fx, 7)
+    saved = copy.deepcopy(qs.state())
+    arrays = {k: a.copy() for k, a in fx.bundle()._asdict().items() if isinstance(a, np.ndarray)}
+    qs2, state2, fx2 = fresh()
+    state2.positions[:], state2.velocities[:], state2.step = (state.positions, state.velocities,
+                                                             state.step)
+    for k, a in fx2.bundle()._asdict().items():
+        if isinstance(a, np.ndarray):
+            a[...] = arrays[k]
+    qs2.restore(model, state2, fx2, saved)
+    rest = []
+    for t in targets[7:]:
+        qs2.advance(model, state2, control, int(t - state2.step), 1.0, fx2)
+        rest.append((state2.positions.copy(), qs2.counts.iterations))
+    assert len(rest) == len(whole) - 6
+    for (a, ia), (b, ib) in zip(whole[6:], rest, strict=True):
+        assert np.array_equal(a, b) and ia == ib
+    assert not np.array_equal(whole[6][0], whole[-1][0])  # (it did move after the restore)

@@ -48,6 +48,15 @@ STAGES = (
 SIMULATION = tuple(s for s in STAGES if s.name in ("remesh", "axis", "growth", "simulate"))
 
 
+#: root attributes every stage after remesh carries forward from its input artifact
+CARRIED_ATTRS = ("scale", "parts", "file_up", "meters_per_unit", "flower_axis", "up")
+
+
+def carried_attrs(src) -> dict:
+    """The root attributes of ``src`` (an input artifact) a stage carries forward."""
+    return {k: src.attrs[k] for k in CARRIED_ATTRS if k in src.attrs}
+
+
 def stage(name: str) -> Stage:
     """The stage called ``name``."""
     for s in STAGES:

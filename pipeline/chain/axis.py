@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from pipeline import artifact
+from pipeline.chain import carried_attrs
 from pipeline.config import Config
 from pipeline.directions import DIRECTIONS
 from pipeline.errors import BloomError
@@ -41,8 +42,12 @@ def run(remesh_h5: str | Path, out: str | Path, cfg: Config, *, overwrite: bool 
                              flower_axis=cfg["axis.flower_axis"], up=np.array(DIRECTIONS[up]))
             check_axes(axes, petal)  # no NaN, x in [-1, 1], s in [0, 1], a base and a tip
         except BadPetal as exc:
+            part = _part_name(src, petal, exc.petal)
             fix = f" (the key to change: {exc.key})" if exc.key else ""
-            raise BloomError(f"{exc}{fix}", where=remesh_h5) from None
+            if exc.key == "scene.exclude" and part:
+                fix = f" (the key to change: scene.exclude, e.g. scene.exclude = [\"{part}\"])"
+            label = f"petal {exc.petal} ({part})" if part else f"petal {exc.petal}"
+            raise BloomError(f"{label}: {exc.reason}{fix}", where=remesh_h5) from None
         except WeakBase as exc:  # held on a line, the petal has no equilibrium to find
             raise BloomError(f"axis.base_fraction: {exc}; remedy: an axis.base_fraction above "
                              f"{BASE_REACH:g} (the widening's reach; now "
@@ -56,7 +61,7 @@ def run(remesh_h5: str | Path, out: str | Path, cfg: Config, *, overwrite: bool 
             log.info("petal %d: %d base vertices, %d on the axis, tip %d, x in [%.3f, %.3f]",
                      p, int(axes.base[mine].sum()), int(axes.on_axis[mine].sum()),
                      int(axes.tip[p]), axes.x[mine].min(), axes.x[mine].max())
-        attrs = {"scale": src.attrs["scale"], "flower_axis": axes.flower_axis, "up": up}
+        attrs = {**carried_attrs(src), "flower_axis": axes.flower_axis, "up": up}
         with artifact.writing(out, stage="axis", config_json=cfg.to_json(),
                               inputs=artifact.input_hashes(cfg, remesh_h5), attrs=attrs, previous=src) as h5:
             src.copy_to(h5, CARRIED)
@@ -67,3 +72,15 @@ def run(remesh_h5: str | Path, out: str | Path, cfg: Config, *, overwrite: bool 
             artifact.put(h5, "axis/x", axes.x, "(V,) cross-section coordinate in [-1, 1]")
             artifact.put(h5, "axis/s", axes.s, "(V,) distance from the base, 0 at base, 1 at tip")
     log.info("wrote %s", out)
+
+
+def _part_name(src, petal, p: int) -> str:
+    """The input part petal ``p`` came from (``mesh/part_names``, ``mesh/part``), or ""."""
+    if "mesh/part_names" not in src or "mesh/part" not in src:
+        return ""
+    names, part = src["mesh/part_names"], src["mesh/part"]
+    mine = np.flatnonzero(np.asarray(petal) == p)
+    if not len(mine):
+        return ""
+    name = names[int(part[mine[0]])]
+    return name.decode() if isinstance(name, bytes) else str(name)

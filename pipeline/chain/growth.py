@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from pipeline import artifact
+from pipeline.chain import carried_attrs
 from pipeline.config import Config
 from pipeline.errors import BloomError
 from pipeline.flower.growth import assign_growth
@@ -63,8 +64,7 @@ def run(axis_h5: str | Path, out: str | Path, cfg: Config, *, overwrite: bool = 
         log.info("%d edges (%d on the boundary), %d hinges; alpha in [%.4g, %.4g]",
                  len(g.edges), int(g.boundary_edge.sum()), len(g.hinges),
                  g.alpha.min(), g.alpha.max())
-        attrs = {"scale": src.attrs["scale"], "flower_axis": src.attrs["flower_axis"],
-                 "up": src.attrs.get("up", "+z")}
+        attrs = {"up": "+z", **carried_attrs(src)}
         with artifact.writing(out, stage="growth", config_json=cfg.to_json(),
                               inputs=artifact.input_hashes(cfg, axis_h5), attrs=attrs, previous=src) as h5:
             src.copy_to(h5, CARRIED)

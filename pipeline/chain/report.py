@@ -16,7 +16,9 @@ log = logging.getLogger("bloom")
 
 def run(sim_h5: str | Path, out: str | Path, cfg=None, *, overwrite: bool = False) -> None:
     """Measure ``sim_h5``: opening per petal, cross-section curvature, boundary wrinkles,
-    crossings between petals, connection breaks, Gaussian curvature sign -> ``out``
+    crossings between petals, connection breaks, Gaussian curvature sign; and whether the
+    bloom is sound: frames with an intersection, the last frame's distance to the model
+    (an open start), petals that did not open (under 5 deg: a warning naming each) -> ``out``
     (report.json; the plot beside it, report.png). It takes no config (``cfg`` unused)."""
     out_path = Path(out)
     if out_path.suffix.lower() != ".json":
@@ -45,6 +47,10 @@ def run(sim_h5: str | Path, out: str | Path, cfg=None, *, overwrite: bool = Fals
     log.info("opening %.1f deg; wrinkles %d; crossings %d at the end; %d of %d frames with "
              "an intersection", data["opening_angle_final_mean"], data["boundary_wrinkles"][-1],
              data["crossings"][-1], data["intersecting_frames"], len(data["intersecting"]))
+    for petal in data["not_opened"]:
+        log.warning("warning: %s did not open: %+.1f deg at the end (under %g deg)", petal["name"],
+                    petal["opening"], report.NOT_OPEN)
+    log.info("%s", data["summary"])
     log.info("wrote %s and %s", out_path, png)
 
 

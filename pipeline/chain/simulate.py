@@ -17,6 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from pipeline import artifact
+from pipeline.chain import carried_attrs
 from pipeline.config import Config
 from pipeline.errors import BloomError
 from pipeline.progress import Progress
@@ -32,8 +33,9 @@ from pipeline.sim.solver.newton import NotConverged
 log = logging.getLogger("bloom")
 
 #: what the later stages need of growth.h5, carried forward
-CARRIED = ("mesh/faces", "mesh/petal", "axis/base", "axis/on_axis", "axis/x", "axis/s", "axis/tip",
-           "axis/plane", "growth/hinges", "input/asset", "bind")
+CARRIED = ("mesh/faces", "mesh/petal", "mesh/part_names", "mesh/part", "axis/base",
+           "axis/on_axis", "axis/x", "axis/s", "axis/tip", "axis/plane", "growth/hinges",
+           "input/asset", "bind")
 
 
 def run(growth_h5: str | Path, out: str | Path, cfg: Config, *, overwrite: bool = False,
@@ -82,12 +84,12 @@ def run(growth_h5: str | Path, out: str | Path, cfg: Config, *, overwrite: bool 
         inputs = artifact.input_hashes(cfg, growth_h5)
         ckpt = checkpoint.path_for(out)
         key = checkpoint.fingerprint(cfg.to_json(), inputs)
-        dynamic = sim["integrator"] != "quasi-static"  # its solver state is not checkpointed
-        resumed = checkpoint.load(ckpt, key, state, effects) if resume and dynamic else None
+        resumed = (checkpoint.load(ckpt, key, state, effects, integrator, model) if resume
+                   else None)
         resumed_step = state.step
         if resumed is not None:
             log.info("resuming from step %d (%s)", state.step, ckpt)
-        saver = _Saver(ckpt, key, effects, sim["checkpoint_seconds"] if dynamic else 0.0)
+        saver = _Saver(ckpt, key, effects, integrator, sim["checkpoint_seconds"])
         log.info("%d vertices (%d fixed), %d springs, %d hinges; %d steps of h = %g, %d frames; "
                  "effects: %s", model.vertex_count, int(model.pinned.sum()), model.edge_count,
                  model.hinge_count, steps, h, frames, ", ".join(effects.names) or "none")
@@ -114,8 +116,7 @@ def run(growth_h5: str | Path, out: str | Path, cfg: Config, *, overwrite: bool 
                  "final kinetic energy %.3g, max speed %.3g", wall, 1e3 * wall / stepped,
                  opening[-1], opening[-1] - opening[-1 - tail], diag["kinetic_energy"][-1],
                  diag["max_speed"][-1])
-        attrs = {"scale": src.attrs["scale"], "flower_axis": src.attrs["flower_axis"],
-                 "steps": steps, "h": h,
+        attrs = {**carried_attrs(src), "steps": steps, "h": h,
                  "wall_seconds": wall, "ms_per_step": 1e3 * wall / stepped,
                  "effects": ",".join(effects.names),
                  "integrator": sim["integrator"], "fps": cfg["render.fps"]}
@@ -188,14 +189,17 @@ def _refusal(exc: Exception, sim: dict, steps: int, petal, where: str) -> BloomE
 
 
 class _Saver:
-    """Writes a checkpoint after a frame when ``every`` wall seconds have passed."""
+    """Writes a checkpoint after a frame when ``every`` wall seconds have passed: the
+    state, the effects' arrays, the frames so far and the integrator's own state (the
+    quasi-static solver's path and factorizations)."""
 
-    def __init__(self, path, key, effects, every: float):
+    def __init__(self, path, key, effects, integrator, every: float):
         self.path, self.key, self.effects, self.every = path, key, effects, every
+        self.integrator = integrator
         self.clock = time.monotonic
         self.last = self.clock()
 
     def __call__(self, rec, state) -> None:
         if self.every > 0 and self.clock() - self.last >= self.every:
-            checkpoint.save(self.path, self.key, state, self.effects, rec)
+            checkpoint.save(self.path, self.key, state, self.effects, rec, self.integrator)
             self.last = self.clock()

@@ -22,6 +22,14 @@ Per petal (a connected component):
 - x: cross-section coordinate: distance along the mesh from the axis vertices, signed
   by the side of the center plane and divided by the boundary's distance at the same s
   on the same side (0 on the axis, +-1 on the two boundary curves).
+
+Every petal's axis is checked sane, or the petal is refused (:class:`BadPetal`, naming
+the key ``scene.exclude``): x reaches both -1 and +1, the on-axis vertices form a line
+(none more than :data:`LINE_DEPTH` edges from a vertex off the axis, :func:`axis_depth`;
+at most :data:`LINE_COUNT` of them per mean edge of the axis's length), and the axis
+runs the petal's length (at least :data:`AXIS_REACH` of its extent). A recorded center
+plane that cannot be one (the plane a flat sheet lies in:
+:func:`symmetry.center_plane_fault`) is found again from the petal first.
 """
 
 from __future__ import annotations
@@ -38,7 +46,7 @@ from pipeline.mesh import symmetry, topology
 @dataclass
 class PetalAxes:
     base: np.ndarray  #: (V,) bool, fixed base vertices
-    on_axis: np.ndarray  #: (V,) bool, vertices on or of an edge crossing the center plane
+    on_axis: np.ndarray  #: (V,) bool, on the center plane, or the nearer end of an edge crossing it
     tip: np.ndarray  #: (P,) int, tip vertex of each petal
     plane: np.ndarray  #: (P, 4) unit normal and offset of each center plane
     x: np.ndarray  #: (V,) cross-section coordinate in [-1, 1]
@@ -54,6 +62,20 @@ class PetalAxes:
 MIN_BASE_WIDTH = 0.005
 #: how far along the petal (fraction of its length) a base may be widened
 BASE_REACH = 0.25
+#: the on-axis vertices of a sane axis are a line: none more than this many edges (along
+#: the mesh) from a vertex off the axis (:func:`axis_depth` over hops: on the ten external
+#: models' 50 petals every one is next to one; dimontel's sheet lying in its own plane
+#: gave 3), ...
+LINE_DEPTH = 2
+#: ... and there are at most this many of them per mean edge of the axis's length (1.0-1.24
+#: on those 50 petals, up to 2.1 where the plane zigzags through a regular grid;
+#: dimontel's region, 5.3)
+LINE_COUNT = 3.0
+#: the axis runs the petal's length: from the base to the tip along the mesh, at least this
+#: fraction of the petal's extent along its longest principal axis (0.92-1.18 on the ten
+#: external models' 50 petals; hallgeirl's tubes when they were cut crosswise, 0.22-0.24
+#: for four, 0.52 for the fifth: a guard against the gross case, not a proof)
+AXIS_REACH = 0.5
 
 
 class WeakBase(ValueError):
@@ -110,6 +132,38 @@ def _widen_base(base: np.ndarray, boundary: np.ndarray, proj: np.ndarray, pts: n
                 return True
 
 
+def axis_depth(graph, on_axis: np.ndarray) -> float:
+    """How deep a set of axis vertices is: the largest distance along the mesh from one of
+    them to the nearest vertex off the axis.
+
+    Parameters
+    ----------
+    graph : (V, V) sparse, a petal's edge graph weighted by edge length
+        (:func:`topology.edge_graph`).
+    on_axis : (V,) bool, the on-axis vertices.
+
+    Returns
+    -------
+    The distance, in the units of the graph's weights; 0 for no on-axis vertex, inf when
+    every vertex is on the axis.
+
+    Notes
+    -----
+    Every vertex of a line (the cut of a symmetrized petal, or the nearer ends of the
+    edges crossing an unsymmetrized petal's center plane) has a neighbour off the axis:
+    the depth is one edge. A region (a sheet lying in its
+    center plane) is as deep as half its width. It does not depend on the plane that
+    chose the vertices.
+    """
+    on_axis = np.asarray(on_axis, dtype=bool)
+    if not on_axis.any():
+        return 0.0
+    if on_axis.all():
+        return float("inf")
+    reach = dijkstra(graph, indices=np.flatnonzero(~on_axis), min_only=True)
+    return float(reach[on_axis].max())
+
+
 def flower_axis(planes: np.ndarray) -> np.ndarray | None:
     """The line where the petals' center planes (nearly) meet, as ``(point, direction)``.
 
@@ -133,7 +187,7 @@ class BadPetal(ValueError):
     would help, the key)."""
 
     def __init__(self, petal: int, reason: str, key: str | None = None):
-        self.petal, self.key = petal, key
+        self.petal, self.key, self.reason = petal, key, reason
         super().__init__(f"petal {petal}: {reason}")
 
 
@@ -163,6 +217,11 @@ def check_axes(axes: PetalAxes, petal: np.ndarray) -> None:
         tip = int(axes.tip[p])
         if not (0 <= tip < len(petal)) or petal[tip] != p or axes.base[tip]:
             raise BadPetal(p, "no tip beyond its base", "axis.base_fraction")
+
+
+def _plane_fault(points: np.ndarray, plane: np.ndarray) -> str | None:
+    """:func:`symmetry.center_plane_fault` of a (unit-normal) plane for the petal ``points``."""
+    return symmetry.center_plane_fault(points, _unit_plane(plane))
 
 
 def _sound_plane(plane: np.ndarray) -> bool:
@@ -265,8 +324,9 @@ def find_axes(vertices: np.ndarray, faces: np.ndarray, petal: np.ndarray, *,
     if planes is None:
         planes = np.array([symmetry.mirror_plane(v[petal == p])[0] for p in range(count)])
     planes = np.array(planes, dtype=np.float64)
-    for p in range(count):  # a plane of no normal (or not finite): found again from the petal
-        if not _sound_plane(planes[p]):
+    for p in range(count):  # a plane of no normal (or not finite), or one that cannot be a
+        # center plane (the plane a flat sheet lies in): found again from the petal
+        if not _sound_plane(planes[p]) or _plane_fault(v[petal == p], planes[p]) is not None:
             planes[p] = symmetry.mirror_plane(v[petal == p])[0]
             if not _sound_plane(planes[p]):
                 raise BadPetal(p, "no center plane: its vertices do not span a sheet")
@@ -334,13 +394,15 @@ def find_axes(vertices: np.ndarray, faces: np.ndarray, petal: np.ndarray, *,
 
         dist_base = dijkstra(sub, indices=np.flatnonzero(mine_base), min_only=True)
 
-        # the axis: vertices on the center plane and the ends of edges crossing it
+        # the axis: vertices on the center plane and, of each edge crossing it, the end
+        # nearer the plane (both ends would make a band two vertices wide)
         side = pts @ planes[p][:3] - planes[p][3]
         mine_axis = np.abs(side) <= 1e-6 * span
         side[mine_axis] = 0.0  # on the plane up to rounding: not a crossing
         local_edges = np.searchsorted(idx, edges[np.isin(edges[:, 0], idx)])
-        crossing = side[local_edges[:, 0]] * side[local_edges[:, 1]] < 0
-        mine_axis[local_edges[crossing].ravel()] = True
+        cross = local_edges[side[local_edges[:, 0]] * side[local_edges[:, 1]] < 0]
+        far_first = np.abs(side[cross[:, 0]]) > np.abs(side[cross[:, 1]])  # ties: the first
+        mine_axis[np.where(far_first, cross[:, 1], cross[:, 0])] = True
         if not mine_axis.any():
             mine_axis[np.argmin(np.abs(side))] = True
         # the tip: the axis's far end (the petal's far end where the axis stays in the base)
@@ -377,6 +439,7 @@ def find_axes(vertices: np.ndarray, faces: np.ndarray, petal: np.ndarray, *,
             xs[here] = sg * np.clip(g[here] / np.maximum(width, 1e-12), 0.0, 1.0)
             xs[ring] = sg
         x[idx] = xs
+        _check_line(p, pts, sub, local_edges, mine_axis, dist_base, tip_local, xs)
 
     if axis_line is None:
         line = np.full(6, np.nan)
@@ -389,6 +452,35 @@ def find_axes(vertices: np.ndarray, faces: np.ndarray, petal: np.ndarray, *,
     axes = PetalAxes(base, on_axis, tips, planes, x, s, line, tuple(widened))
     check_axes(axes, petal)
     return axes
+
+
+def _check_line(p: int, pts: np.ndarray, sub, local_edges: np.ndarray, mine_axis: np.ndarray,
+                dist_base: np.ndarray, tip_local: int, xs: np.ndarray) -> None:
+    """Raise :class:`BadPetal` (key ``scene.exclude``) unless petal ``p``'s axis is sane
+    (see the module notes): its on-axis vertices a line, x reaching both sides, the
+    axis running its length."""
+    mean_edge = float(np.linalg.norm(pts[local_edges[:, 0]] - pts[local_edges[:, 1]],
+                                     axis=1).mean())
+    length = float(dist_base[tip_local]) / mean_edge  # the axis, in mean edges
+    count = int(mine_axis.sum())
+    hops = sub.copy()
+    hops.data[:] = 1.0
+    depth = axis_depth(hops, mine_axis)
+    if depth > LINE_DEPTH or count > LINE_COUNT * max(length, 1.0):
+        raise BadPetal(p, f"its axis is a region, not a line: {count} of its {len(pts)} "
+                       f"vertices lie on its center plane, {depth:.0f} edges deep (at most "
+                       f"{LINE_DEPTH:g}), {count / max(length, 1.0):.1f} per mean edge of its "
+                       f"length (at most {LINE_COUNT:g}); the plane lies along the sheet, not "
+                       "across it", "scene.exclude")
+    if xs.min() > -1.0 or xs.max() < 1.0:
+        raise BadPetal(p, f"x in [{xs.min():.3g}, {xs.max():.3g}], not [-1, 1]: its rim lies "
+                       "on one side of its center plane only", "scene.exclude")
+    centred = pts - pts.mean(axis=0)
+    extent = float(np.ptp(centred @ np.linalg.svd(centred, full_matrices=False)[2][0]))
+    if dist_base[tip_local] < AXIS_REACH * extent:
+        raise BadPetal(p, f"its axis is {dist_base[tip_local] / extent:.0%} as long as the petal "
+                       f"(at least {AXIS_REACH:.0%}): its center plane cuts across it, not along "
+                       "its midrib", "scene.exclude")
 
 
 def _oriented(direction: np.ndarray, v: np.ndarray, base: np.ndarray, tips: np.ndarray,

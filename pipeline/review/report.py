@@ -4,6 +4,10 @@ Opening angle per petal, mean cross-section curvature, boundary wrinkles, petal
 crossings, intersections (an exact triangle-triangle test, every frame), connection
 breaks and the sign of each petal's Gaussian curvature, over time; written as JSON and
 drawn as a small plot.
+
+Whether the bloom is sound (:func:`soundness`, :func:`summary`): the frames with an
+intersection, the last frame's distance to the model (an open start), and the petals
+that did not open (under :data:`NOT_OPEN` degrees), in one line a batch log shows.
 """
 
 from __future__ import annotations
@@ -11,11 +15,117 @@ from __future__ import annotations
 import numpy as np
 
 from pipeline.flower import measure
+from pipeline.io import binding, userasset
 from pipeline.mesh import topology
 from pipeline.mesh.remesh import boundary_loops
+from pipeline.sim.terms.contact import frame_intersections
 
 #: what the report reads from sim.h5 beyond what every sim.h5 holds
 NEEDS = ("mesh/petal", "growth/hinges", "axis/s", "axis/x", "diagnostics/opening_angle_per_petal")
+#: a petal whose opening at the last frame is under this (degrees) did not open
+NOT_OPEN = 5.0
+
+
+def soundness(positions: np.ndarray, faces: np.ndarray, opening_per_petal: np.ndarray, *,
+              distance_to_model: float | None = None, petal_names: list[str] | None = None,
+              intersecting: list[bool] | None = None) -> dict:
+    """Whether a bloom is sound, from its arrays.
+
+    Parameters
+    ----------
+    positions : (T, V, 3) the frames.
+    faces : (F, 3) int, the sheet's triangles.
+    opening_per_petal : (T, P) each petal's opening angle in degrees (0 at frame 0).
+    distance_to_model : the last frame's RMS distance to the open model over the mean
+        petal length (sim.h5's ``distance_to_model``), or None (not an open start).
+    petal_names : (P,) a name per petal (:func:`petal_names`), or None: "petal p".
+    intersecting : (T,) whether each frame has an intersection, if already checked; else
+        checked here, exactly (:func:`pipeline.sim.contact.frame_intersections`).
+
+    Returns
+    -------
+    dict with ``frames`` (T), ``intersecting`` (T bools), ``intersecting_frames``,
+    ``distance_to_model`` (float or None), ``opening_final_per_petal`` (P degrees),
+    ``did_not_open`` (P bools: under :data:`NOT_OPEN` degrees at the last frame) and
+    ``not_opened`` (one ``{"petal", "name", "opening"}`` per petal that did not open).
+    """
+    opening = np.asarray(opening_per_petal, dtype=np.float64).reshape(len(positions), -1)
+    if intersecting is None:
+        intersecting = frame_intersections(positions, faces)
+    final = opening[-1]
+    names = list(petal_names) if petal_names is not None else [f"petal {p}" for p in
+                                                                 range(len(final))]
+    closed = final < NOT_OPEN
+    distance = None if distance_to_model is None else float(distance_to_model)
+    return {
+        "frames": int(len(positions)),
+        "intersecting": [bool(b) for b in intersecting],
+        "intersecting_frames": int(sum(bool(b) for b in intersecting)),
+        "distance_to_model": distance,
+        "opening_final_per_petal": final.tolist(),
+        "did_not_open": closed.tolist(),
+        "not_opened": [{"petal": int(p), "name": names[p], "opening": float(final[p])}
+                       for p in np.flatnonzero(closed)],
+    }
+
+
+def summary_line(sound: dict) -> str:
+    """The one-line verdict of :func:`soundness`, e.g. "sound: 0 of 121 frames with an
+    intersection (checked exactly); last frame 1.6e-13 petal lengths from the model; every
+    petal opened (least 21.3 deg)"; "unsound:" when a frame has an intersection or a petal
+    did not open."""
+    parts = [f"{sound['intersecting_frames']} of {sound['frames']} frames with an intersection "
+             "(checked exactly)"]
+    if sound["distance_to_model"] is not None:
+        parts.append(f"last frame {sound['distance_to_model']:.2g} petal lengths (RMS) from "
+                     "the model")
+    final = sound["opening_final_per_petal"]
+    if sound["not_opened"]:
+        shown = ", ".join(f"{d['name']} {d['opening']:+.1f} deg" for d in sound["not_opened"][:6])
+        more = len(sound["not_opened"]) - 6
+        parts.append(f"{len(sound['not_opened'])} of {len(final)} petal(s) did not open (under "
+                     f"{NOT_OPEN:g} deg): {shown}" + (f" and {more} more" if more > 0 else ""))
+    elif final:
+        parts.append(f"every petal opened (least {min(final):.1f} deg)")
+    sound_ = sound["intersecting_frames"] == 0 and not sound["not_opened"]
+    return ("sound: " if sound_ else "unsound: ") + "; ".join(parts)
+
+
+def summary(positions: np.ndarray, faces: np.ndarray, opening_per_petal: np.ndarray, *,
+            distance_to_model: float | None = None,
+            petal_names: list[str] | None = None) -> str:
+    """:func:`summary_line` of :func:`soundness` (the arguments are its): the line
+    `bloom simulate` prints at its end."""
+    return summary_line(soundness(positions, faces, opening_per_petal,
+                                  distance_to_model=distance_to_model, petal_names=petal_names))
+
+
+def petal_names(petal: np.ndarray, part_names=None, part: np.ndarray | None = None,
+                bindings: dict | None = None, faces: np.ndarray | None = None,
+                asset_names: list[str] | None = None) -> list[str]:
+    """A name per petal: "petal p (<part>)", the part from ``mesh/part_names`` and
+    ``mesh/part`` (per vertex) where given, else from the binding (``bindings``: part ->
+    :class:`pipeline.io.binding.Binding`, onto ``faces``; the part most of whose bound points
+    lie on the petal, named by ``asset_names``), else "petal p"."""
+    petal = np.asarray(petal)
+    count = int(petal.max()) + 1 if len(petal) else 0
+    owner: list = [None] * count
+    if part_names is not None and part is not None:
+        names = [n.decode() if isinstance(n, bytes) else str(n) for n in part_names]
+        part = np.asarray(part)
+        for p in range(count):
+            mine = np.flatnonzero(petal == p)
+            if len(mine):
+                owner[p] = names[int(part[mine[0]])]
+    elif bindings and faces is not None and asset_names is not None:
+        face_petal = petal[np.asarray(faces)[:, 0]]
+        votes = np.zeros((count, len(asset_names)), dtype=np.int64)
+        for i, b in sorted(bindings.items()):
+            votes[:, i] = np.bincount(face_petal[b.face], minlength=count)[:count]
+        for p in range(count):
+            if votes[p].max() > 0:
+                owner[p] = asset_names[int(np.argmax(votes[p]))]
+    return [f"petal {p} ({name})" if name else f"petal {p}" for p, name in enumerate(owner)]
 
 
 def compute(sim) -> dict:
@@ -37,10 +147,12 @@ def compute(sim) -> dict:
         wrinkles.append(measure.wrinkle_count(frame, loops, topology.vertex_normals(frame, faces)))
         crossing.append(measure.crossings(frame, faces, petal) if petals > 1 else 0)
     curvature = np.asarray(curvature)
-    from pipeline.sim.terms.contact import frame_intersections
-
     intersecting = frame_intersections(X, faces)  # ipctk's exact test, self-contact included
     diag = {k: sim[f"diagnostics/{k}"] for k in ("opening_angle_per_petal", "kinetic_energy")}
+    distance = sim.attrs.get("distance_to_model")
+    sound = soundness(X, faces, diag["opening_angle_per_petal"],
+                      distance_to_model=None if distance is None else float(distance),
+                      petal_names=_names(sim, petal, faces), intersecting=intersecting)
     report = {
         "scene": sim.config().get("scene", {}).get("name", "") or sim.path.parent.name,
         "effects": [e for e in str(sim.attrs.get("effects", "")).split(",") if e],
@@ -58,6 +170,11 @@ def compute(sim) -> dict:
             "start": measure.gaussian_curvature_sign(X[0], faces, petal, ~boundary).tolist(),
             "end": measure.gaussian_curvature_sign(X[-1], faces, petal, ~boundary).tolist()},
         "kinetic_energy_final": float(diag["kinetic_energy"][-1]),
+        "distance_to_model": sound["distance_to_model"],
+        "opening_final_per_petal": sound["opening_final_per_petal"],
+        "did_not_open": sound["did_not_open"],
+        "not_opened": sound["not_opened"],
+        "summary": summary_line(sound),
     }
     if "effects/connections/broken_step" in sim:
         broken = sim["effects/connections/broken_step"]
@@ -71,6 +188,18 @@ def compute(sim) -> dict:
     if "diagnostics/contacts" in sim:
         report["contacts"] = sim["diagnostics/contacts"].tolist()
     return report
+
+
+def _names(sim, petal, faces) -> list[str]:
+    """:func:`petal_names` from what sim.h5 holds: ``mesh/part_names`` and ``mesh/part``
+    where carried, else the binding and the input asset's part names."""
+    if "mesh/part_names" in sim and "mesh/part" in sim:
+        return petal_names(petal, sim["mesh/part_names"], sim["mesh/part"])
+    asset = userasset.read(sim)
+    bindings = binding.read_bindings(sim)
+    if asset is None or not bindings:
+        return petal_names(petal)
+    return petal_names(petal, bindings=bindings, faces=faces, asset_names=asset.names)
 
 
 def plot(report: dict, path) -> None:

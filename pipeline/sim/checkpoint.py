@@ -69,7 +69,46 @@ def _alive(pid: str) -> bool:
     return True
 
 
-def save(path: Path, key: str, state: State, effects: Effects, rec: Recording) -> None:
+def _write_tree(group, name: str, value) -> None:
+    """Write a tree of dicts, lists, arrays, numbers, strings and None under ``group``."""
+    if isinstance(value, dict):
+        node = group.create_group(name)
+        node.attrs["kind"] = "dict"
+        for k, v in value.items():
+            _write_tree(node, str(k), v)
+    elif isinstance(value, (list, tuple)):
+        node = group.create_group(name)
+        node.attrs["kind"] = "list"
+        node.attrs["length"] = len(value)
+        for k, v in enumerate(value):
+            _write_tree(node, str(k), v)
+    elif value is None:
+        group.create_group(name).attrs["kind"] = "none"
+    else:
+        group[name] = value
+        if isinstance(value, (bool, np.bool_)):
+            group[name].attrs["kind"] = "bool"
+
+
+def _read_tree(node):
+    """What :func:`_write_tree` wrote."""
+    if isinstance(node, h5py.Group):
+        kind = node.attrs.get("kind")
+        if kind == "none":
+            return None
+        if kind == "list":
+            return [_read_tree(node[str(k)]) for k in range(int(node.attrs["length"]))]
+        return {k: _read_tree(node[k]) for k in node}
+    value = node[()]
+    if node.attrs.get("kind") == "bool":
+        return bool(value)
+    if isinstance(value, bytes):
+        return value.decode()
+    return value
+
+
+def save(path: Path, key: str, state: State, effects: Effects, rec: Recording,
+         integrator=None) -> None:
     """Write the checkpoint (atomically: a kill while writing leaves the previous one;
     the half-written file of such a kill is removed by the next save)."""
     for stale in path.parent.glob(f".{path.stem}.tmp-*{path.suffix}"):
@@ -88,12 +127,16 @@ def save(path: Path, key: str, state: State, effects: Effects, rec: Recording) -
         f["frames/positions"] = np.asarray(rec.positions)
         for name, values in rec.diagnostics.items():
             f[f"diagnostics/{name}"] = np.asarray(values)
+        if hasattr(integrator, "state"):  # (the quasi-static solver's: its path, its groups)
+            _write_tree(f, "integrator", integrator.state())
 
 
-def load(path: Path, key: str, state: State, effects: Effects) -> Recording | None:
-    """Restore ``state`` and ``effects`` in place from the checkpoint and return the frames
-    recorded so far; None if there is no checkpoint, or it is for other inputs or config
-    (or unreadable: a checkpoint is only ever a shortcut)."""
+def load(path: Path, key: str, state: State, effects: Effects, integrator=None,
+         model=None) -> Recording | None:
+    """Restore ``state``, ``effects`` and ``integrator`` (of ``model``; one with a
+    ``restore``) in place from the checkpoint and return the frames recorded so far;
+    None if there is no checkpoint, or it is for other inputs or config (or unreadable:
+    a checkpoint is only ever a shortcut)."""
     import logging
 
     log = logging.getLogger("bloom")
@@ -112,17 +155,23 @@ def load(path: Path, key: str, state: State, effects: Effects) -> Recording | No
             rec.positions = list(f["frames/positions"][()])
             for name in f["diagnostics"]:
                 rec.diagnostics[name] = list(f[f"diagnostics/{name}"][()])
+            solver = _read_tree(f["integrator"]) if "integrator" in f else None
         arrays = _bundle_arrays(effects)
         if (sorted(saved_fx) != [name for name, _ in arrays]
                 or any(saved_fx[name].shape != a.shape for name, a in arrays)
                 or any(saved_state[n].shape != getattr(state, n).shape for n in saved_state)):
             log.info("%s: not resumed: its arrays do not fit this run", path)
             return None
+        if hasattr(integrator, "restore") and solver is None:
+            log.info("%s: not resumed: it holds no state of the integrator", path)
+            return None
         for name, value in saved_state.items():
             getattr(state, name)[...] = value
         for name, a in arrays:
             a[...] = saved_fx[name]
         state.step, state.potential_energy = step, energy
+        if hasattr(integrator, "restore"):
+            integrator.restore(model, state, effects, solver)
         return rec
     except (OSError, KeyError, ValueError) as exc:
         log.info("%s: not resumed: unreadable (%s)", path, exc)

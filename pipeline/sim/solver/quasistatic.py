@@ -133,10 +133,7 @@ class QuasiStatic:
             self._perturbed = True
             self._perturb(model, state, effects)
         if self._parts is None:
-            self._parts = split(model, effects)
-            for part in self._parts:
-                part.solver = QuasiStatic(self.stages, self.tolerance, self.max_iterations,
-                                          perturbation=0.0, inertia=self.inertia)
+            self._split(model, effects)
         if not self._parts:
             self._advance(model, state, control, n_steps, h, effects)
         for part in self._parts:  # independent petals: each follows its own path
@@ -166,17 +163,69 @@ class QuasiStatic:
         if self.newton.contact is not None:  # the frame's contacts: pairs within the barrier's band
             effects.counters[0] = self.newton.contact.active_count(state.positions)
 
-    def _couple(self, model: Model, state: State, effects: Effects) -> None:
+    def _couple(self, model: Model, state: State, effects: Effects, check: bool = True) -> None:
         """Build the terms that couple the petals, if the scene has them; refuse a bud
-        that contact cannot start from (:meth:`~pipeline.sim.terms.contact.Contact.check_start`)."""
+        that contact cannot start from
+        (:meth:`~pipeline.sim.terms.contact.Contact.check_start`; not ``check``: a run
+        resumed from a checkpoint, whose contact is restored)."""
         if effects.collisions is not None:
             c = effects.collisions
             self.newton.contact = Contact.build(state.positions, c.faces, c.vertex_petal,
-                                          gap=c.thickness,
-                                          stiffness=float(model.edge_stiffness.max()))
-            self.newton.contact.check_start(state.positions)
+                                                gap=c.thickness,
+                                                stiffness=float(model.edge_stiffness.max()))
+            if check:
+                self.newton.contact.check_start(state.positions)
         if effects.connections is not None:
             self.newton.springs = Springs(effects.connections)
+
+    def _split(self, model: Model, effects: Effects) -> None:
+        """The independent petals, each with a solver of its own (or none: one problem)."""
+        self._parts = split(model, effects)
+        for part in self._parts:
+            part.solver = QuasiStatic(self.stages, self.tolerance, self.max_iterations,
+                                      perturbation=0.0, inertia=self.inertia)
+
+    # --- what a checkpoint saves ---------------------------------------------------------------
+    def state(self) -> dict:
+        """Everything this solver carries from one frame to the next, as plain numbers
+        and arrays (a tree of dicts and lists): its counters, where the path is (the
+        equilibrium behind, for the secant predictor), its contact's gap and sweep, its
+        groups' patterns and last factorizations, and the same of each independent
+        petal's solver. A checkpoint saves it; :meth:`restore` puts it back, so a resumed
+        run goes on to the bit as an uninterrupted one."""
+        newton = self.newton
+        behind = self._behind
+        return {
+            "counts": dict(vars(self.counts)),
+            "started": self._started, "perturbed": self._perturbed,
+            "behind_growth": None if behind is None else float(behind[0]),
+            "behind_positions": None if behind is None else behind[1],
+            "energy_rounding": newton.energy_rounding,
+            "contact": None if newton.contact is None else newton.contact.snapshot(),
+            "system": None if newton.system is None else newton.system.snapshot(),
+            "parts": None if self._parts is None else [p.solver.state() for p in self._parts],
+        }
+
+    def restore(self, model: Model, state: State, effects: Effects, saved: dict) -> None:
+        """Put back a :meth:`state` taken from a run of the same model and effects (the
+        effects' own arrays are restored by the checkpoint, beside this)."""
+        for key, value in saved["counts"].items():
+            setattr(self.counts, key, int(value))
+        self._started, self._perturbed = bool(saved["started"]), bool(saved["perturbed"])
+        self._behind = None if saved["behind_growth"] is None else (
+            float(saved["behind_growth"]), np.array(saved["behind_positions"], dtype=np.float64))
+        self.newton.energy_rounding = float(saved["energy_rounding"])
+        if saved["parts"] is not None:  # (the solver of the whole, past its first advance)
+            self._couple(model, state, effects, check=False)
+            if saved["contact"] is not None:
+                self.newton.contact.restore(saved["contact"])
+            self._split(model, effects)
+            for part, part_state in zip(self._parts, saved["parts"], strict=True):
+                part.state.step = state.step  # (each petal's path is at the whole's step)
+                part.solver.restore(part.model, part.state, part.effects, part_state)
+        if saved["system"] is not None:
+            self.newton.system = System.build(model, effects)
+            self.newton.system.restore(saved["system"])
 
     def _advance(self, model, state, control, n_steps: int, h: float, effects) -> None:
         """:meth:`advance` for one connected mesh."""

@@ -225,3 +225,31 @@ class System:
             elif g.solver is not None:
                 out[g.dofs] = g.solver.solve(rhs[g.dofs])
         return out
+
+    # --- what a checkpoint saves -----------------------------------------------------------
+    def snapshot(self) -> dict:
+        """What the groups carry from one Newton solve to the next (their patterns, the
+        last factorizations and how they were made), for a checkpoint: :meth:`restore`
+        puts it back to the bit."""
+        known = []
+        for key, g in sorted(self._known.items()):
+            known.append({"key": np.asarray(key, dtype=np.int64), "pairs": g.pairs,
+                          "positive": g.positive, "shift": g.shift, "moved": g.moved,
+                          "need": g.need,
+                          "factors": None if g.solver is None else g.solver.numeric()})
+        return {"known": known, "current": [np.asarray(g.key, dtype=np.int64) for g in self.groups],
+                "joined": self._joined}
+
+    def restore(self, saved: dict) -> None:
+        """Put back a :meth:`snapshot` (on a system built from the same model)."""
+        for item in saved["known"]:
+            g = self._group(tuple(int(k) for k in item["key"]))
+            g.pairs = np.asarray(item["pairs"], dtype=np.int64).reshape(-1, 2)
+            g.positive, g.shift = bool(item["positive"]), float(item["shift"])
+            g.moved, g.need = float(item["moved"]), float(item["need"])
+            g.solver = None
+            if item["factors"] is not None:
+                g.solver = BlockLDL(self.blocks.indptr, self.blocks.indices, g.vertices, g.pairs)
+                g.solver.restore(item["factors"])
+        self.groups = [self._group(tuple(int(k) for k in key)) for key in saved["current"]]
+        self._joined = None if saved["joined"] is None else np.asarray(saved["joined"])

@@ -210,6 +210,26 @@ class Contact(Term):
                 best[key] = min(best.get(key, math.inf), d)
         return [(a, b, d) for (a, b), d in sorted(best.items()) if d < distance]
 
+    def snapshot(self) -> dict:
+        """What the barrier carries from one step to the next: its gap (the bud may have
+        narrowed it, :meth:`check_start`) and the boxes of its last sweep."""
+        return {"gap": self.gap, "band": self.band, "kappa": self.kappa,
+                "low": self._low, "high": self._high}
+
+    def restore(self, saved: dict) -> None:
+        """Put back a :meth:`snapshot`: the same gap, and the same sweep's candidates."""
+        ipctk = _ipctk()
+        self.gap, self.band, self.kappa = (float(saved[k]) for k in ("gap", "band", "kappa"))
+        self.potential = ipctk.BarrierPotential(self.band, self.kappa)
+        self.collisions, self._at, self.candidates = None, None, None
+        self._low = self._high = None
+        if saved["low"] is not None:
+            self._low = np.asfortranarray(saved["low"], dtype=np.float64)
+            self._high = np.asfortranarray(saved["high"], dtype=np.float64)
+            self.candidates = ipctk.Candidates()
+            with _threads():
+                self.candidates.build(self.mesh, self._low, self._high, self.gap + self.band)
+
     # --- energy, gradient, Hessian ------------------------------------------------------
     def sweep(self, X0, X1, margin: float = 0.0) -> None:
         """Broad phase once for a region: each vertex's box over the straight move

@@ -1,0 +1,110 @@
+"""Whether a bloom is sound, in report.json and in one line: frames with an intersection
+(checked exactly), the last frame's distance to the model (an open start), and the petals
+that did not open (under 5 deg), each named with its part and warned about."""
+
+from __future__ import annotations
+
+import json
+import shutil
+
+import h5py
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from pipeline.io.binding import Binding
+from pipeline.review import report
+from stages.cli import cli
+
+
+def two_triangles(crossing: bool) -> np.ndarray:
+    """Two triangles, the second passing through the first when ``crossing``."""
+    first = [[0.0, 0.0, 0.0], [2.0, 0.0, 0.0], [0.0, 2.0, 0.0]]
+    z = -0.5 if crossing else 0.5
+    second = [[0.5, 0.5, z], [0.5, 0.5, z + 1.0], [1.5, 0.2, z + 1.0]]
+    return np.array(first + second)
+
+
+FACES = np.array([[0, 1, 2], [3, 4, 5]])
+
+
+def test_soundness_counts_intersecting_frames_and_flags_petals_that_did_not_open():
+    X = np.stack([two_triangles(False), two_triangles(True), two_triangles(False)])
+    opening = np.array([[0.0, 0.0], [3.0, 10.0], [4.9, 12.0]])
+    sound = report.soundness(X, FACES, opening, petal_names=["petal 0 (a)", "petal 1 (b)"])
+    assert sound["intersecting"] == [False, True, False] and sound["intersecting_frames"] == 1
+    assert sound["did_not_open"] == [True, False]
+    assert sound["not_opened"] == [{"petal": 0, "name": "petal 0 (a)", "opening": 4.9}]
+    assert sound["distance_to_model"] is None
+    line = report.summary_line(sound)
+    assert line == ("unsound: 1 of 3 frames with an intersection (checked exactly); 1 of 2 "
+                    "petal(s) did not open (under 5 deg): petal 0 (a) +4.9 deg")
+    assert "\n" not in line
+
+
+def test_summary_of_a_sound_open_bloom_gives_its_distance_to_the_model():
+    X = np.stack([two_triangles(False)] * 2)
+    line = report.summary(X, FACES, np.array([[0.0, 0.0], [5.0, 21.25]]),
+                          distance_to_model=1.6e-13)
+    assert line == ("sound: 0 of 2 frames with an intersection (checked exactly); last frame "
+                    "1.6e-13 petal lengths (RMS) from the model; every petal opened (least "
+                    "5.0 deg)")
+
+
+def test_petal_names_come_from_the_parts_or_else_from_the_binding():
+    petal = np.array([0, 0, 0, 1, 1, 1])
+    assert report.petal_names(petal, np.array([b"Circle.003", b"stem"]),
+                              np.array([0, 0, 0, 0, 0, 0])) == ["petal 0 (Circle.003)",
+                                                                 "petal 1 (Circle.003)"]
+    bind = {0: Binding(np.array([1, 1, 0]), np.zeros((3, 3)), np.zeros((3, 3))),
+            2: Binding(np.array([0, 0]), np.zeros((2, 3)), np.zeros((2, 3)))}
+    assert report.petal_names(petal, bindings=bind, faces=FACES,
+                              asset_names=["upper", "stem", "lower"]) == [
+        "petal 0 (lower)", "petal 1 (upper)"]
+    assert report.petal_names(petal) == ["petal 0", "petal 1"]
+
+
+@pytest.fixture(scope="module")
+def still(tmp_path_factory):
+    """A three-petal bud that does not grow (growth.curve 0): no petal opens."""
+    d = tmp_path_factory.mktemp("still")
+    scene = d / "scene.toml"
+    scene.write_text('[scene]\nmesh = "bud.obj"\n[growth]\ncurve = "0*x"\n')
+    run = CliRunner().invoke
+    assert run(cli, ["asset", "bud", "--petals", "3", "--vertices", "360", "--seed", "4",
+                     "--out", str(d / "bud.obj")]).exit_code == 0
+    src = None
+    for stage in ("remesh", "axis", "growth", "simulate"):
+        args = [stage] + ([str(src)] if src else []) + ["--config", str(scene),
+                                                        "--out", str(d / f"{stage}.h5")]
+        if stage == "simulate":
+            args += ["--set", "simulate.steps=600", "--set", "simulate.frames=4"]
+        r = run(cli, args)
+        assert r.exit_code == 0, r.output
+        src = d / f"{stage}.h5"
+    return src
+
+
+def test_report_flags_and_warns_about_every_petal_that_did_not_open(still, tmp_path):
+    r = CliRunner().invoke(cli, ["report", str(still), "--out", str(tmp_path / "r.json")])
+    assert r.exit_code == 0, r.output
+    data = json.loads((tmp_path / "r.json").read_text())
+    assert data["did_not_open"] == [True, True, True]
+    assert [d["name"] for d in data["not_opened"]] == [f"petal {p} (petal_{p})" for p in range(3)]
+    assert data["distance_to_model"] is None
+    for p in range(3):
+        assert f"warning: petal {p} (petal_{p}) did not open" in r.output
+    assert data["summary"].startswith("unsound: 0 of 4 frames with an intersection")
+    assert data["summary"] in r.output
+
+
+def test_report_gives_the_distance_to_the_model_of_an_open_start(still, tmp_path):
+    sim = tmp_path / "sim.h5"
+    shutil.copy(still, sim)
+    with h5py.File(sim, "a") as h:
+        h.attrs["distance_to_model"] = 2.5e-12
+    r = CliRunner().invoke(cli, ["report", str(sim), "--out", str(tmp_path / "r.json")])
+    assert r.exit_code == 0, r.output
+    data = json.loads((tmp_path / "r.json").read_text())
+    assert data["distance_to_model"] == 2.5e-12
+    assert "last frame 2.5e-12 petal lengths (RMS) from the model" in data["summary"]
