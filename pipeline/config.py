@@ -35,6 +35,7 @@ class Key:
     high_open: bool = False
     check: Callable[[Any], None] | None = None  # raises ValueError with a reason
     items: type = str  #: a list's items: str, or list (pairs of numbers)
+    auto: bool = False  #: the string "auto" is also a value (decided from the model)
 
 
 def _check_color(value: str) -> None:
@@ -123,10 +124,13 @@ SCHEMA: dict[str, Any] = {
                     "[24, 0], [72, 1]] holds the bud 24 frames, opens over 48 and holds. "
                     "Replaces growth.schedule and growth.ramp when given", check=_check_keys,
                     items=list),
-        "start": Key(str, "bud", "what the input mesh is: bud (the paper: it blooms from the "
-                     "mesh) or open (the mesh is the open flower: Bloom finds the bud it grew "
-                     "from by running growth backward, and the bloom ends on the mesh)",
-                     choices=("bud", "open")),
+        "start": Key(str, "auto", "what the input mesh is: bud (the paper: it blooms from the "
+                     "mesh), open (the mesh is the open flower: Bloom finds the bud it grew "
+                     "from by running growth backward, and the bloom ends on the mesh), or "
+                     "auto: decided from the model (a flower whose petals lean over 30 deg "
+                     "from its axis, or a lone petal that turns under 45 deg, is open), "
+                     "logged and recorded as growth_start in sim.h5",
+                     choices=("auto", "bud", "open")),
         "close": Key(float, 1.0, "growth.start = open: how far to close, a scale on the "
                      "growth ratios of the backward path (0: the bud is the model; 1: the "
                      "growth curve undone in full)", low=0.0),
@@ -179,9 +183,11 @@ SCHEMA: dict[str, Any] = {
                                       low=0.0, high=1.0, low_open=True),
         },
         "collisions": {
-            "enabled": Key(bool, False, "petals kept from passing through each other: quasi-static, "
+            "enabled": Key(bool, "auto", "petals kept from passing through each other: quasi-static, "
                            "a contact barrier with continuous collision detection (no "
-                           "crossing); dynamic integrators, the paper's push-back"),
+                           "crossing); dynamic integrators, the paper's push-back. auto: on "
+                           "where two petals can meet (their boxes, grown by half a petal "
+                           "length, overlap), off for a lone petal", auto=True),
             "thickness": Key(float, 0.01, "quasi-static: the gap the contact barrier keeps "
                              "between petals (mesh units, mean edge 1); the barrier acts from "
                              "twice this distance on", low=0.0, high=0.25, low_open=True),
@@ -257,6 +263,8 @@ def _type_name(kind: type) -> str:
 def _coerce(dotted: str, key: Key, value: Any, where: str) -> Any:
     """Check one value against its key; return it in the key's type."""
     ok = False
+    if key.auto and value == "auto":
+        return value
     if key.kind is bool:
         ok = isinstance(value, bool)
     elif key.kind is int:
@@ -356,8 +364,14 @@ class Config:
         return p
 
     def effects_enabled(self) -> list[str]:
+        """The effects the scene turns on (``true``; not those left to ``auto``)."""
         return sorted(k.split(".")[1] for k, v in self._values.items()
-                      if k.startswith("effects.") and k.endswith(".enabled") and v)
+                      if k.startswith("effects.") and k.endswith(".enabled") and v is True)
+
+    def effects_auto(self) -> list[str]:
+        """The effects the scene leaves to be decided from the model (``auto``)."""
+        return sorted(k.split(".")[1] for k, v in self._values.items()
+                      if k.startswith("effects.") and k.endswith(".enabled") and v == "auto")
 
     def nested(self) -> dict[str, Any]:
         out: dict[str, Any] = {}

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from pipeline.flower.axis import find_axes
@@ -39,3 +40,16 @@ def small_petal():
 @pytest.fixture
 def control_linear():
     return Control("linear", 1000.0)
+
+
+def min_distance(contact, X, reach: float) -> float:
+    """Smallest distance between two petals of ``contact`` (a
+    :class:`pipeline.sim.terms.contact.Contact`) at X, if below ``reach`` (else inf)."""
+    import math
+
+    import ipctk
+
+    X = np.asfortranarray(X, dtype=np.float64)
+    found = ipctk.NormalCollisions()
+    found.build(contact.mesh, X, reach)
+    return math.sqrt(found.compute_minimum_distance(contact.mesh, X)) if len(found) else math.inf

@@ -13,6 +13,7 @@ from pipeline.sim.run import run
 from pipeline.sim.solver.quasistatic import QuasiStatic
 from pipeline.sim.terms import contact as contact_module
 from pipeline.sim.terms.contact import Contact, _ipctk, barrier_curvature, frame_intersections
+from tests.conftest import min_distance
 
 GAP = 0.01
 
@@ -186,8 +187,8 @@ def test_newton_with_contact_never_crosses_and_keeps_the_gap(monkeypatch):
     assert qs.counts.ccd_cuts > 0 and len(seen) > 20
     assert not any(frame_intersections(seen, faces))
     c = qs.newton.contact
-    assert min(c.min_distance(X, 2 * GAP) for X in seen) >= GAP
-    final = c.min_distance(state.positions, 1.0)
+    assert min(min_distance(c, X, 2 * GAP) for X in seen) >= GAP
+    final = min_distance(c, state.positions, 1.0)
     assert GAP <= final <= 2 * GAP
     assert np.abs(state.positions[petal == 1, 2]).min() < 0.1  # it did come down onto sheet 0
 

@@ -27,7 +27,7 @@ def simulate(mesh, names=(), steps=6000, frames=13, curve=None, beta=0.5, alpha_
         growth = assign_growth(v, f, axes.x, curve or "0.2*x**2", alpha_add=alpha_add,
                                boundary_stiffness=boundary_stiffness)
     model = build_model(v, growth, axes, pinned=pinned)
-    p = {**PARAMS, "curl": {"beta": beta}, **(params or {})}
+    p = PARAMS.but(curl={"beta": beta}, **(params or {}))
     effects = fx.build(names, vertices=v, faces=f, petal=petal, pinned=model.pinned,
                        on_axis=axes.on_axis, plane=axes.plane, s=axes.s,
                        rest_angle=growth.rest_angle, flower_axis=axes.flower_axis,
@@ -151,7 +151,7 @@ def test_collisions_keep_vertices_out_of_other_petals(bud):
 def test_connection_springs_break_for_good(bud):
     # soft springs (of the order of the bending forces) that the opening stretches past
     # their limit: measured 127 intact at the start, 12 after 6000 steps
-    soft = {"connections": {**PARAMS["connections"], "stiffness": 1e-5}}
+    soft = {"connections": {"stiffness": 1e-5}}
     rec, effects, _, _ = simulate(bud, ("connections",), steps=6000, frames=13,
                                   curve="0.3*x**2", params=soft)
     c = effects.connections

@@ -42,7 +42,9 @@ def test_killed_simulate_keeps_the_previous_artifact(tmp_path, sig):
                             # SIGINT ignored, and Python then installs no KeyboardInterrupt
                             # for it (the signal module's docs): give the child Ctrl-C's default
                             preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
-    started = proc.stderr.readline()  # logged once the model is built, just before stepping
+    started = ""  # "... steps of h ..." is logged once the model is built, just before stepping
+    while "steps of h" not in started and proc.poll() is None:
+        started = proc.stderr.readline()
     assert "steps of h" in started, started
     time.sleep(0.5)  # well inside the run
     proc.send_signal(sig)

@@ -130,7 +130,7 @@ def test_quasi_static_keeps_the_center_plane_and_curls():
         effects = fx.build(names, vertices=v, faces=f, petal=p, pinned=m.pinned,
                            on_axis=axes.on_axis, plane=axes.plane, s=axes.s,
                            rest_angle=g.rest_angle, flower_axis=axes.flower_axis, max_edge=1.5,
-                           params={"curl": {"beta": 1.0}})
+                           params=fx.Params.defaults().but(curl={"beta": 1.0}))
         control = Control("linear", 100.0)
         state = State.at_rest(m, v, control)
         qs = QuasiStatic(stages=10)
@@ -414,16 +414,15 @@ def test_the_solver_state_restored_mid_path_goes_on_to_the_same_bits(names, iner
     gives the frames after it to the bit, and the same Newton counts."""
     import copy
 
-    from pipeline.config import load_config
     from pipeline.mesh import procedural
     from pipeline.sim.build import Prepared
+    from pipeline.sim.effects import Params
     from pipeline.sim.run import frame_steps
 
     v, f, p = procedural.bud(3, 600, 0)
     prep = Prepared.from_mesh(v, f, p)
     model = prep.model(0.1, 0.0005)
-    params = load_config().nested()["effects"]
-    params["connections"]["max_distance"] = 3.0
+    params = Params.defaults().but(connections={"max_distance": 3.0})
     steps, frames = 20000, 13
     control = Control("smootherstep", 0.6 * steps)
     targets = frame_steps(steps, frames)

@@ -8,11 +8,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from pipeline.config import load_config
 from pipeline.flower.axis import find_axes
 from pipeline.flower.growth import assign_growth
 from pipeline.mesh import clean, procedural
 from pipeline.sim import effects as fx
+from pipeline.sim.effects import Params
 from pipeline.sim.explicit.semi_implicit import Diverged, SemiImplicit
 from pipeline.sim.explicit.stable_step import StableStep, amplification, scheme_limit
 from pipeline.sim.model import Control, State
@@ -20,7 +20,7 @@ from pipeline.sim.run import run
 from pipeline.sim.terms.connections import connection_blocks
 from tests.conftest import build_model, prepared
 
-PARAMS = load_config().nested()["effects"]
+PARAMS = Params.defaults()
 
 
 @pytest.fixture(scope="module")
@@ -73,8 +73,7 @@ def test_estimate_bounds_the_top_eigenvalue_from_above_within_2_percent(vertices
 def test_estimate_counts_intact_connection_springs(bud):
     v, f, petal, axes, growth = bud
     model = build_model(v, growth, axes)
-    p = {**PARAMS, "connections": {**PARAMS["connections"], "stiffness": 1.0,
-                                   "max_distance": 3.0}}
+    p = PARAMS.but(connections={"stiffness": 1.0, "max_distance": 3.0})
     effects = fx.build(("connections",), vertices=v, faces=f, petal=petal, pinned=model.pinned,
                        on_axis=axes.on_axis, plane=axes.plane, s=axes.s,
                        rest_angle=growth.rest_angle, flower_axis=axes.flower_axis,
@@ -175,8 +174,8 @@ def test_substeps_are_capped():
 def bud_effects(names, stiffness=1e-5):
     def make(model, mesh):
         v, f, petal, axes, growth = mesh
-        p = {**PARAMS, "connections": {**PARAMS["connections"], "max_distance": 3.0,
-                                       "stiffness": stiffness, "critical_stretch": 1.05}}
+        p = PARAMS.but(connections={"max_distance": 3.0, "stiffness": stiffness,
+                                    "critical_stretch": 1.05})
         return fx.build(names, vertices=v, faces=f, petal=petal, pinned=model.pinned,
                         on_axis=axes.on_axis, plane=axes.plane, s=axes.s,
                         rest_angle=growth.rest_angle, flower_axis=axes.flower_axis,

@@ -20,13 +20,16 @@ from pipeline import artifact
 from pipeline.chain import carried_attrs
 from pipeline.config import Config
 from pipeline.errors import BloomError
+from pipeline.flower.measure import Start, bloom_start, petals_within_reach
 from pipeline.progress import Progress
+from pipeline.review import report
 from pipeline.sim import checkpoint
 from pipeline.sim.build import Prepared
+from pipeline.sim.effects import Params
 from pipeline.sim.explicit.semi_implicit import Diverged
 from pipeline.sim.integrators import make_integrator
 from pipeline.sim.model import Control, State
-from pipeline.sim.reverse import distance_to_model, open_start
+from pipeline.sim.reverse import distance_to_model, open_start, petal_lengths
 from pipeline.sim.run import run as integrate
 from pipeline.sim.solver.newton import NotConverged
 
@@ -56,16 +59,18 @@ def run(growth_h5: str | Path, out: str | Path, cfg: Config, *, overwrite: bool 
             model = prep.model(sim["stretch_stiffness"], sim["bending_stiffness"], sim["mass"])
         except ValueError as exc:
             raise BloomError(f"cannot build the model: {exc}", where=growth_h5) from None
-        params = cfg.nested().get("effects", {})
+        params = Params.of(cfg)
         rest_angle = prep.rest_angle
         max_edge = prep.max_grown_edge()  # once: the bud search changes the model's rest lengths
+        start = decide_start(cfg, prep)
+        names = decide_effects(cfg, prep)
 
         def build_effects(positions):
-            return prep.effects(cfg.effects_enabled(), params, positions=positions,
-                                rest_angle=rest_angle, max_edge=max_edge)
+            return prep.effects(names, params, positions=positions, rest_angle=rest_angle,
+                                max_edge=max_edge)
 
         model_positions, bud_info = None, {}
-        if cfg["growth.start"] == "open":
+        if start.start == "open":
             model_positions = np.asarray(v)
             v, model, rest_angle, params, bud_info = open_start(
                 cfg, model, model_positions, rest_angle, params, build_effects, petal, base,
@@ -122,13 +127,25 @@ def run(growth_h5: str | Path, out: str | Path, cfg: Config, *, overwrite: bool 
                  "integrator": sim["integrator"], "fps": cfg["render.fps"]}
         if resumed is not None:  # then wall_seconds covers this run's steps only
             attrs["resumed_from_step"] = resumed_step
+        attrs["growth_start"], attrs["growth_start_rule"] = start.start, start.reason
         if model_positions is not None:
-            attrs["growth_start"] = "open"
             attrs["distance_to_model"] = distance_to_model(positions[-1], model_positions,
                                                            petal, base)
             attrs.update(bud_info)
             log.info("last frame %.3g petal lengths (RMS) from the model",
                      attrs["distance_to_model"])
+        names = report.petal_names(petal, src["mesh/part_names"], src["mesh/part"]) \
+            if "mesh/part_names" in src and "mesh/part" in src else None
+        sound = report.soundness(positions, prep.faces,
+                                 diag.get("opening_angle_per_petal", np.zeros((len(positions), 0))),
+                                 distance_to_model=attrs.get("distance_to_model"),
+                                 petal_names=names)
+        diag["intersecting"] = np.asarray(sound["intersecting"], dtype=bool)
+        attrs["summary"] = report.summary_line(sound)
+        for p in sound["not_opened"]:
+            log.warning("%s did not open: %+.1f deg at the end (under %g deg)", p["name"],
+                        p["opening"], report.NOT_OPEN)
+        (log.info if attrs["summary"].startswith("sound") else log.warning)("%s", attrs["summary"])
         with artifact.writing(out, stage="simulate", config_json=cfg.to_json(),
                               inputs=inputs, attrs=attrs, previous=src) as h5:
             src.copy_to(h5, CARRIED)
@@ -150,6 +167,43 @@ def run(growth_h5: str | Path, out: str | Path, cfg: Config, *, overwrite: bool 
                              "(C,) step at which each spring broke, -1 if intact")
     ckpt.unlink(missing_ok=True)
     log.info("wrote %s", out)
+
+
+def decide_start(cfg: Config, prep: Prepared) -> Start:
+    """``growth.start``: as the scene says, or (``auto``) decided from the model
+    (:func:`pipeline.flower.measure.bloom_start`), logged in one line. A scene with
+    connection springs is a bud (its lock holds a bud)."""
+    said = cfg["growth.start"]
+    if said != "auto":
+        return Start(said, float("nan"), "set by growth.start")
+    if cfg["effects.connections.enabled"] is True:
+        start = Start("bud", float("nan"), "connection springs hold a bud")
+    else:
+        start = bloom_start(prep.vertices, prep.faces, prep.petal, prep.base, prep.tip, prep.s,
+                            prep.x, prep.on_axis, prep.flower_axis)
+    what = ("Bloom finds the bud it grew from and blooms back to the model"
+            if start.start == "open" else "it blooms forward from the model")
+    log.info("growth.start = auto: %s (%s): %s", start.start, start.reason, what)
+    return start
+
+
+def decide_effects(cfg: Config, prep: Prepared) -> list[str]:
+    """The effects that run: those the scene turns on, and those it leaves to ``auto``
+    decided from the model (collisions: on where two petals can meet,
+    :func:`pipeline.flower.measure.petals_within_reach`), logged."""
+    names = list(cfg.effects_enabled())
+    if "collisions" in cfg.effects_auto():
+        pairs = petals_within_reach(prep.vertices, prep.petal,
+                                    petal_lengths(prep.vertices, prep.petal, prep.base))
+        count = int(prep.petal.max()) + 1
+        if pairs:
+            names.append("collisions")
+            log.info("effects.collisions.enabled = auto: on (%d pair(s) of %d petals can meet)",
+                     len(pairs), count)
+        else:
+            log.info("effects.collisions.enabled = auto: off (%s)",
+                     "a lone petal" if count == 1 else f"none of the {count} petals can meet")
+    return sorted(names)
 
 
 def _refusal(exc: Exception, sim: dict, steps: int, petal, where: str) -> BloomError:

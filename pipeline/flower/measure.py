@@ -179,3 +179,95 @@ def rim_bending(X, hinges, rim) -> float:
 
     theta = np.abs(dihedral_angles(np.asarray(X, dtype=np.float64), hinges))
     return float(theta[rim].mean()) if rim.any() else 0.0
+
+
+#: growth.start = auto: a flower whose petals' base-to-tip chords lean (median) this far
+#: from its axis is already open (the project's buds: 9 deg; the open models: 49-95 deg)
+OPEN_CHORD = 30.0
+#: ... and a lone petal whose surface turns (median over its rims and midrib) less than
+#: this from base to tip and across is already open (a cupped bud petal: 89 deg; the
+#: external single petals: 0-53 deg)
+OPEN_CUP = 45.0
+
+
+@dataclass(frozen=True)
+class Start:
+    """How the bloom starts, decided from the model (``growth.start = "auto"``)."""
+
+    start: str  #: "bud": bloom forward from the mesh; "open": the mesh is the open flower
+    figure: float  #: the measure it was decided on, degrees
+    reason: str  #: one line: the measure, its value and the threshold
+
+
+def bloom_start(vertices, faces, petal, base, tip, s, x, on_axis, flower_axis) -> Start:
+    """Whether the model is a closed bud or an open flower.
+
+    A flower (two petals or more, its axis known): the median angle between each
+    petal's base-to-tip chord and the flower's axis (toward the tips); a bud's petals
+    rise along the axis (under :data:`OPEN_CHORD`), an open flower's spread. A lone
+    petal: how far its surface turns, the median over the petal of the angle between
+    the normals at its base and tip along the midrib and between its two rims across;
+    a bud petal is a deep cup (over :data:`OPEN_CUP`), an open one nearly flat."""
+    v = np.asarray(vertices, dtype=np.float64)
+    petal = np.asarray(petal)
+    count = int(petal.max()) + 1
+    fa = np.asarray(flower_axis, dtype=np.float64)
+    if count >= 2 and fa.shape == (6,) and np.all(np.isfinite(fa)):
+        d = fa[3:] / np.linalg.norm(fa[3:])
+        angles = []
+        for p in range(count):
+            mine = petal == p
+            held = mine & np.asarray(base, bool)
+            chord = v[tip[p]] - v[held if held.any() else mine].mean(axis=0)
+            angles.append(np.degrees(np.arccos(np.clip(chord @ d / np.linalg.norm(chord), -1, 1))))
+        lean = float(np.median(angles))
+        start = "open" if lean > OPEN_CHORD else "bud"
+        return Start(start, lean, f"the petals' base-to-tip chords lean {lean:.1f} deg (median) "
+                     f"from the flower's axis; a bud's lean under {OPEN_CHORD:g}")
+    normals = topology.vertex_normals(v, faces)
+    turns = []
+    for p in range(count):
+        mine = petal == p
+        band = mine & (s > 0.4) & (s < 0.7)
+        pairs = ((mine & (s < 0.15) & on_axis, mine & (s > 0.85) & on_axis),
+                 (band & (x < -0.8), band & (x > 0.8)))
+        for a, b in pairs:
+            if a.any() and b.any():
+                na, nb = normals[a].mean(axis=0), normals[b].mean(axis=0)
+                cos = na @ nb / max(np.linalg.norm(na) * np.linalg.norm(nb), 1e-300)
+                turns.append(np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))))
+    cup = float(np.median(turns)) if turns else 90.0
+    start = "open" if cup < OPEN_CUP else "bud"
+    return Start(start, cup, f"the petal's surface turns {cup:.1f} deg (median, base to tip and "
+                 f"rim to rim); a bud petal's turns over {OPEN_CUP:g}")
+
+
+#: effects.collisions.enabled = auto: petals whose boxes, grown by this fraction of the
+#: median petal length, overlap can come within reach of each other as they bloom
+REACH = 0.5
+
+
+def petals_within_reach(vertices, petal, lengths) -> list[tuple[int, int]]:
+    """Pairs of petals that can meet: their bounding boxes, each grown by
+    :data:`REACH` of the median petal length (``lengths``), overlap. Over petals, not
+    vertices (a file of hundreds of petals: boxes, one pass each)."""
+    v = np.asarray(vertices, dtype=np.float64)
+    petal = np.asarray(petal)
+    count = int(petal.max()) + 1
+    if count < 2:
+        return []
+    grow = REACH * float(np.median(lengths))
+    low = np.full((count, 3), np.inf)
+    high = np.full((count, 3), -np.inf)
+    np.minimum.at(low, petal, v)
+    np.maximum.at(high, petal, v)
+    low, high = low - grow, high + grow
+    order = np.argsort(low[:, 0], kind="stable")
+    pairs = []
+    for k, a in enumerate(order):  # sweep along x: only boxes that overlap in x are compared
+        for b in order[k + 1:]:
+            if low[b, 0] > high[a, 0]:
+                break
+            if np.all(low[a] <= high[b]) and np.all(low[b] <= high[a]):
+                pairs.append((int(min(a, b)), int(max(a, b))))
+    return sorted(pairs)

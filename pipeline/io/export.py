@@ -324,10 +324,7 @@ def joined_asset(frames: list[np.ndarray], asset) -> tuple[np.ndarray, np.ndarra
     """Every part as one triangle mesh through the frames: ``(positions (T, N, 3),
     triangles (F, 3))`` (polygons as fans), for the PLY and XDMF caches."""
     count = max((p.shape[0] for p in frames if p.ndim == 3), default=1)
-    tris, offset = [], 0
-    for part in asset.parts:
-        tris.append(part.triangles() + offset)
-        offset += len(part.points)
+    _, tris, _ = topology.stack([(part.points, part.triangles()) for part in asset.parts])
     positions = np.concatenate([p if p.ndim == 3 else np.broadcast_to(p, (count, *p.shape))
                                 for p in frames], axis=1)
-    return positions, np.vstack(tris)
+    return positions, tris

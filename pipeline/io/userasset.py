@@ -51,10 +51,6 @@ class AssetPart:
         """``(F, 3)`` the polygons as fans from their first corner, in order."""
         return fan_triangles(self.face_counts, self.face_indices)
 
-    def corner_points(self) -> np.ndarray:
-        """``(sum(face_counts),)`` the point index of each face corner (= face_indices)."""
-        return self.face_indices
-
 
 @dataclass
 class Asset:
@@ -78,12 +74,6 @@ def fan_triangles(counts: np.ndarray, indices: np.ndarray) -> np.ndarray:
     k = np.arange(int(fans.sum())) - np.repeat(np.cumsum(fans) - fans, fans)
     first = start[face]
     return np.stack([indices[first], indices[first + k + 1], indices[first + k + 2]], axis=1)
-
-
-def fan_faces(counts: np.ndarray) -> np.ndarray:
-    """``(sum(counts - 2),)`` the polygon each fan triangle of :func:`fan_triangles` is in."""
-    counts = np.asarray(counts, dtype=np.int64)
-    return np.repeat(np.arange(len(counts)), counts - 2)
 
 
 def read_asset(path: str | Path) -> Asset:

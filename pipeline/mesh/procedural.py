@@ -17,6 +17,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import Delaunay, cKDTree
 
+from pipeline.mesh import topology
+
 
 @dataclass(frozen=True)
 class Outline:
@@ -198,20 +200,15 @@ def bend_bud(flat, petals: int, seed: int = 0, shape: BudShape = BudShape(), *,
     layers = petal_layers(petals)
     if untangled:
         shape, layers = _untangled(petals, shape)
-    verts, faces, labels = [], [], []
-    offset = 0
+    meshes = []
     for p in range(petals):
         pts, tri = flat(p, rng)
         azimuth = 2.0 * np.pi * p / petals + rng.uniform(-0.04, 0.04)
         length = 1.0 + rng.uniform(-0.04, 0.04)
         if untangled:  # (the draws stay, so each petal's own jitter is as before)
             azimuth, length = 2.0 * np.pi * p / petals, 1.0
-        v = bend_into_bud(pts, azimuth, layers[p], shape, length)
-        verts.append(v)
-        faces.append(tri + offset)
-        labels.append(np.full(len(v), p))
-        offset += len(v)
-    out = np.concatenate(verts), np.concatenate(faces), np.concatenate(labels)
+        meshes.append((bend_into_bud(pts, azimuth, layers[p], shape, length), tri))
+    out = topology.stack(meshes)
     if crossing or untangled or petals == 1 or not _crossed(*out):
         return out
     return bend_bud(flat, petals, seed, shape, untangled=True)
@@ -325,8 +322,7 @@ def open_flower(tepals: int = 6, vertices: int = 1800, seed: int = 0,
     rng = np.random.default_rng(seed)
     outline = Outline(max_half_width=0.22)
     spacing = _spacing_for(outline, vertices // tepals, seed)
-    verts, faces, labels = [], [], []
-    offset = 0
+    meshes = []
     for p in range(tepals):
         inner = tepals > 3 and p % 2 == 1
         width = outline.max_half_width * (shape.inner_width if inner else 1.0)
@@ -337,13 +333,9 @@ def open_flower(tepals: int = 6, vertices: int = 1800, seed: int = 0,
         lean, recurve = ((shape.inner_lean, shape.inner_recurve) if inner
                          else (shape.lean, shape.recurve))
         length = 1.0 + rng.uniform(-0.03, 0.03)
-        v = bend_open(flat, azimuth, lean, recurve, shape.trough,
-                      shape.receptacle_radius * (0.6 if inner else 1.0), length)
-        verts.append(v)
-        faces.append(tri + offset)
-        labels.append(np.full(len(v), p))
-        offset += len(v)
-    return np.concatenate(verts), np.concatenate(faces), np.concatenate(labels)
+        meshes.append((bend_open(flat, azimuth, lean, recurve, shape.trough,
+                                 shape.receptacle_radius * (0.6 if inner else 1.0), length), tri))
+    return topology.stack(meshes)
 
 
 def write_obj(path, vertices: np.ndarray, faces: np.ndarray, petal_ids: np.ndarray, header: str) -> None:

@@ -121,3 +121,17 @@ def vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
         np.add.at(vn, faces[:, c], fn)
     norm = np.linalg.norm(vn, axis=1, keepdims=True)
     return vn / np.where(norm > 0, norm, 1.0)
+
+
+def stack(meshes) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Meshes ``[(vertices (V_k, 3), faces (F_k, 3)), ...]`` as one: ``(vertices,
+    faces, which)``, each mesh's faces shifted by the vertices before it, and ``which
+    (V,)`` the index of the mesh each vertex came from."""
+    meshes = [(np.asarray(v, dtype=np.float64), np.asarray(f, dtype=np.int64)) for v, f in meshes]
+    if not meshes:
+        return np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int64), np.zeros(0, dtype=np.int64)
+    counts = np.array([len(v) for v, _ in meshes], dtype=np.int64)
+    offsets = np.r_[0, np.cumsum(counts)[:-1]]
+    faces = np.vstack([f.reshape(-1, 3) + o for (_, f), o in zip(meshes, offsets, strict=True)])
+    return (np.vstack([v.reshape(-1, 3) for v, _ in meshes]), faces,
+            np.repeat(np.arange(len(meshes), dtype=np.int64), counts))

@@ -79,10 +79,10 @@ class Prepared:
         return Model.build(self.vertices, self.edges, self.alpha, stretch * np.asarray(self.stiffness),
                            self.hinges, bending, self.base if pinned is None else pinned, mass=mass)
 
-    def effects(self, names, params: dict, *, positions=None, rest_angle=None,
+    def effects(self, names, params: fx.Params, *, positions=None, rest_angle=None,
                 max_edge: float | None = None) -> fx.Effects:
         """The effects ``names`` (those the scene enabled), built at ``positions`` (default
-        the rest state) from the ``effects`` config section ``params``. ``max_edge``: the
+        the rest state) with the parameters ``params``. ``max_edge``: the
         longest edge the collision grid must hold (default: the longest fully grown edge)."""
         positions = self.vertices if positions is None else positions
         if max_edge is None:

@@ -19,16 +19,63 @@ arrays) and its loop never runs.
 from __future__ import annotations
 
 from collections import namedtuple
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields, replace
 
 import numpy as np
 
+from pipeline.config import Config, load_config
 from pipeline.sim.explicit.pushback import Collisions
 from pipeline.sim.terms.center_plane import CenterPlane, project_out_normals
 from pipeline.sim.terms.connections import Connections
 from pipeline.sim.terms.growth import Curl
 
 ORDER = ("curl", "wrinkles", "collisions", "connections", "center_plane")
+
+
+@dataclass(frozen=True)
+class CurlParams:
+    beta: float  #: curl growth beta of Eq. 11, in [0, 1]
+
+
+@dataclass(frozen=True)
+class CollisionsParams:
+    thickness: float  #: the gap the contact barrier keeps between petals (mesh units)
+    offset: float  #: the push-back's offset (mesh units)
+
+
+@dataclass(frozen=True)
+class ConnectionsParams:
+    stiffness: float  #: spring constant of a connection
+    critical_stretch: float  #: breaks past this times its rest length
+    max_distance: float  #: a rim vertex is tied to an inner petal within this (mesh units)
+    min_s: float  #: only rim vertices past this s are tied
+
+
+@dataclass(frozen=True)
+class Params:
+    """The parameters of the effects, typed: the ``effects`` section of a scene's config
+    (:meth:`of`; every default from the config's schema, :meth:`defaults`)."""
+
+    curl: CurlParams
+    collisions: CollisionsParams
+    connections: ConnectionsParams
+
+    @classmethod
+    def of(cls, cfg: Config) -> Params:
+        def section(kind, name):
+            return kind(**{f.name: cfg[f"effects.{name}.{f.name}"] for f in fields(kind)})
+
+        return cls(section(CurlParams, "curl"), section(CollisionsParams, "collisions"),
+                   section(ConnectionsParams, "connections"))
+
+    @classmethod
+    def defaults(cls) -> Params:
+        return cls.of(load_config())
+
+    def but(self, **sections) -> Params:
+        """A copy with some sections' values changed: ``but(curl={"beta": 1.0})``."""
+        return replace(self, **{name: replace(getattr(self, name), **values)
+                                for name, values in sections.items()})
 
 
 def petal_layers(vertices, petal, axis_point, axis_dir) -> np.ndarray:
@@ -154,26 +201,24 @@ class Effects:
 
 
 def build(names, *, vertices, faces, petal, pinned, on_axis, plane, s, rest_angle,
-          flower_axis, max_edge: float, params: dict) -> Effects:
-    """Build the enabled effects (``names``) from the mesh and the ``effects`` config
-    section (``params[name][key]``)."""
+          flower_axis, max_edge: float, params: Params) -> Effects:
+    """Build the enabled effects (``names``) from the mesh and their parameters."""
     names = tuple(n for n in ORDER if n in set(names))
     petal = np.asarray(petal, dtype=np.int64)
     point, direction = flower_axis_or_guess(vertices, flower_axis)
     layer = petal_layers(vertices, petal, point, direction)
     fx = Effects(names=names)
     if "curl" in names:
-        fx.curl = Curl.build(rest_angle, params["curl"]["beta"])
+        fx.curl = Curl.build(rest_angle, params.curl.beta)
     if "collisions" in names:
-        c = params["collisions"]
-        fx.collisions = Collisions.build(vertices, faces, petal, offset=c["offset"],
-                                         max_edge=max_edge, thickness=c.get("thickness", 0.01))
+        c = params.collisions
+        fx.collisions = Collisions.build(vertices, faces, petal, offset=c.offset,
+                                         max_edge=max_edge, thickness=c.thickness)
     if "connections" in names:
-        c = params["connections"]
+        c = params.connections
         fx.connections = Connections.build(
-            vertices, faces, petal, pinned, s, layer, stiffness=c["stiffness"],
-            critical_stretch=c["critical_stretch"], max_distance=c["max_distance"],
-            min_s=c["min_s"])
+            vertices, faces, petal, pinned, s, layer, stiffness=c.stiffness,
+            critical_stretch=c.critical_stretch, max_distance=c.max_distance, min_s=c.min_s)
     if "center_plane" in names:
         fx.center_plane = CenterPlane.build(vertices, on_axis, pinned, petal, plane)
     return fx

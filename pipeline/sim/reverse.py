@@ -18,7 +18,6 @@ and recorded (:func:`distance_to_model`).
 
 from __future__ import annotations
 
-import copy
 import dataclasses
 import logging
 import time
@@ -27,7 +26,7 @@ import numpy as np
 
 from pipeline.errors import BloomError
 from pipeline.mesh.hinge import edge_lengths, hinge_cos_sin
-from pipeline.sim.effects import flower_axis_or_guess
+from pipeline.sim.effects import Params, flower_axis_or_guess
 from pipeline.sim.model import Model, State
 from pipeline.sim.solver.newton import NotConverged
 from pipeline.sim.solver.quasistatic import QuasiStatic
@@ -142,7 +141,7 @@ def distance_to_model(positions, model_positions, petal, base) -> float:
     return float(np.sqrt(np.mean(d ** 2)) / petal_lengths(model_positions, petal, base).mean())
 
 
-def open_start(cfg, model: Model, positions, rest_angle, params: dict, build_effects, petal,
+def open_start(cfg, model: Model, positions, rest_angle, params: Params, build_effects, petal,
                base, s, x, flower_axis, where: str):
     """``growth.start = "open"``: the model at A = 1, the bud at A = 0. Returns the bud's
     positions, the model, rest angles and effect parameters that grow from it back to
@@ -152,10 +151,9 @@ def open_start(cfg, model: Model, positions, rest_angle, params: dict, build_eff
     close = cfg["growth.close"]
     try:
         model = open_model(model, close)
-        if "curl" in cfg.effects_enabled():
-            params = copy.deepcopy(params)
-            params["curl"]["beta"] = close * params["curl"]["beta"]
-            rest_angle = open_rest_angle(rest_angle, params["curl"]["beta"])
+        if cfg["effects.curl.enabled"] is True:
+            params = params.but(curl={"beta": close * params.curl.beta})
+            rest_angle = open_rest_angle(rest_angle, params.curl.beta)
     except ValueError as exc:
         raise BloomError(str(exc), where=where) from None
     clock = time.perf_counter()

@@ -26,16 +26,16 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from pipeline.config import load_config
 from pipeline.flower.measure import PetalFrames
-from pipeline.mesh import procedural
+from pipeline.mesh import procedural, topology
 from pipeline.mesh.symmetry import mirror_pairs, reflect
 from pipeline.sim.build import Prepared
+from pipeline.sim.effects import Params
 from pipeline.sim.integrators import make_integrator
 from pipeline.sim.model import Control, Model, State
 
 #: the ``effects`` section of a scene at its defaults
-DEFAULT_EFFECTS = load_config().nested()["effects"]
+DEFAULT_EFFECTS = Params.defaults()
 
 
 @dataclass
@@ -69,20 +69,15 @@ class Scene:
 
         v0, f0, petal0 = source
         count = int(petal0.max()) + 1
-        parts, faces, ids, offset = [], [], [], 0
+        meshes = []
         for p in range(count):
             idx = np.flatnonzero(petal0 == p)
             local = np.full(len(v0), -1)
             local[idx] = np.arange(len(idx))
             fp = local[f0[petal0[f0[:, 0]] == p]]
             h = target_for_vertices(v0[idx], fp, vertices // count)
-            v, f, _ = isotropic(v0[idx], fp, h)
-            parts.append(v)
-            faces.append(f + offset)
-            ids.append(np.full(len(v), p))
-            offset += len(v)
-        return cls.from_mesh(np.concatenate(parts), np.concatenate(faces), np.concatenate(ids),
-                             curve, bending, stretch)
+            meshes.append(isotropic(v0[idx], fp, h)[:2])
+        return cls.from_mesh(*topology.stack(meshes), curve, bending, stretch)
 
     @classmethod
     def from_mesh(cls, v, f, petal, curve: str = "0.2*x**2", bending: float = 0.0005,

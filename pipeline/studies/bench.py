@@ -11,17 +11,16 @@ import h5py
 import numpy as np
 
 from pipeline.chain import run_scene
-from pipeline.config import load_config
 from pipeline.errors import BloomError
 from pipeline.mesh import procedural, topology
 from pipeline.sim.build import Prepared
+from pipeline.sim.effects import Params
 from pipeline.sim.explicit.semi_implicit import SemiImplicit
 from pipeline.sim.model import Control, State
 from pipeline.sim.terms.contact import frame_intersections
 
 #: the ``effects`` section of a scene at its defaults, connecting rims up to 3 edges away
-PARAMS = load_config().nested()["effects"]
-PARAMS["connections"]["max_distance"] = 3.0
+PARAMS = Params.defaults().but(connections={"max_distance": 3.0})
 VARIANTS = ((), ("curl",), ("wrinkles",), ("collisions",), ("connections",), ("center_plane",),
             ("curl", "wrinkles", "collisions", "connections", "center_plane"))
 

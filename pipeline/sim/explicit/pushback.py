@@ -336,11 +336,11 @@ class Collisions:
     near: np.ndarray  #: (V, P) int8: vertex was over or under that petal at the last step
     #: gap the quasi-static solver's contact barrier keeps between petals (mesh units);
     #: the push-back above does not use it
-    thickness: float = 0.01
+    thickness: float
 
     @classmethod
     def build(cls, vertices, faces, petal, *, offset: float, max_edge: float,
-              margin: float = 0.2, slack: float = 0.1, thickness: float = 0.01) -> Collisions:
+              thickness: float, margin: float = 0.2, slack: float = 0.1) -> Collisions:
         """Which side of another petal a vertex belongs on is the side it is on when it
         comes near that petal (within the margin, over or under one of its faces): the
         kernel records it then. For vertices near another petal in the bud that is the

@@ -476,11 +476,6 @@ class BlockLDL:
         self._w = np.zeros((nv, 3, 3))
         self.d = np.zeros(3 * nv)
 
-    @property
-    def nnz(self) -> int:
-        """Entries of L below its diagonal."""
-        return 9 * len(self._li) + 3 * self.nv
-
     def factor(self, data: np.ndarray, shift: np.ndarray | None = None, coupling=None) -> bool:
         """Factor the matrix: the blocks ``data`` (the BSR matrix's), plus ``shift`` (3
         per vertex, local order) on the diagonal, plus ``coupling``: scalar entries

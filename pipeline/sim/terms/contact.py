@@ -323,14 +323,6 @@ class Contact(Term):
                 self.mesh, np.asfortranarray(X0, dtype=np.float64),
                 np.asfortranarray(X1, dtype=np.float64), self.gap, self.ccd))
 
-    def min_distance(self, X, reach: float) -> float:
-        """Smallest distance between two petals at X, if below ``reach`` (else inf)."""
-        ipctk = _ipctk()
-        X = np.asfortranarray(X, dtype=np.float64)
-        found = ipctk.NormalCollisions()
-        found.build(self.mesh, X, reach)
-        return math.sqrt(found.compute_minimum_distance(self.mesh, X)) if len(found) else math.inf
-
 
 def _pairs(pairs) -> str:
     return ", ".join(f"{a}-{b}" for a, b in pairs) or "(none found pairwise)"

@@ -1,0 +1,90 @@
+"""Defaults decided from the model: which way to bloom (growth.start = auto) and whether
+petals can meet (effects.collisions.enabled = auto)."""
+
+from __future__ import annotations
+
+import h5py
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from pipeline.config import load_config
+from pipeline.errors import BloomError
+from pipeline.flower.measure import OPEN_CHORD, OPEN_CUP, bloom_start, petals_within_reach
+from pipeline.mesh import procedural
+from pipeline.sim.build import Prepared
+from pipeline.sim.reverse import petal_lengths
+from stages.cli import cli
+
+
+def _start(v, f, p):
+    prep = Prepared.from_mesh(v, f, p)
+    return bloom_start(prep.vertices, prep.faces, prep.petal, prep.base, prep.tip, prep.s,
+                       prep.x, prep.on_axis, prep.flower_axis)
+
+
+def test_a_closed_bud_blooms_forward_and_an_open_flower_back_onto_itself():
+    bud = _start(*procedural.bud(5, 1000, 1))
+    assert bud.start == "bud" and bud.figure < OPEN_CHORD / 2
+    lily = _start(*procedural.open_flower(6, 1800, 0))
+    assert lily.start == "open" and lily.figure > 1.5 * OPEN_CHORD
+    assert "from the flower's axis" in lily.reason and f"{lily.figure:.1f}" in lily.reason
+
+
+def test_a_cupped_petal_is_a_bud_and_a_flat_one_is_open():
+    v, f, p = procedural.bud(1, 320, 0)
+    cupped = _start(v, f, p)
+    assert cupped.start == "bud" and cupped.figure > 1.5 * OPEN_CUP
+    flat, faces = procedural.flat_petal(procedural.Outline(), 0.05, np.random.default_rng(0))
+    flat = np.c_[flat, np.zeros(len(flat))]
+    lone = _start(flat, faces, np.zeros(len(flat), dtype=np.int64))
+    assert lone.start == "open" and lone.figure < OPEN_CUP / 4
+
+
+def test_petals_of_a_flower_can_meet_and_a_lone_petal_or_far_flowers_cannot():
+    v, f, p = procedural.bud(3, 600, 0)
+    lengths = petal_lengths(v, p, np.zeros(len(v), bool))
+    assert petals_within_reach(v, p, lengths) == [(0, 1), (0, 2), (1, 2)]
+    assert petals_within_reach(v, np.zeros(len(v), dtype=np.int64), lengths[:1]) == []
+    # the same three petals pulled far apart along x, as flowers of a bush: none meets
+    far = v + np.outer(p, [10.0 * lengths.max(), 0.0, 0.0])
+    assert petals_within_reach(far, p, lengths) == []
+
+
+def test_auto_is_a_value_of_the_keys_that_take_it_and_nothing_else():
+    cfg = load_config()
+    assert cfg["growth.start"] == "auto" and cfg["effects.collisions.enabled"] == "auto"
+    assert "collisions" not in cfg.effects_enabled() and cfg.effects_auto() == ["collisions"]
+    on = load_config(None, ["effects.collisions.enabled=true"])
+    assert on.effects_enabled() == ["collisions"] and on.effects_auto() == []
+    with pytest.raises(BloomError, match="effects.curl.enabled"):
+        load_config(None, ["effects.curl.enabled=auto"])
+    with pytest.raises(BloomError, match="effects.collisions.enabled"):
+        load_config(None, ["effects.collisions.enabled=maybe"])
+    with pytest.raises(BloomError, match="growth.start"):
+        load_config(None, ["growth.start=closed"])
+
+
+@pytest.mark.parametrize("kind, petals, start, collisions",
+                         [("petal", 1, "bud", False), ("bud", 3, "bud", True)])
+def test_simulate_records_what_it_decided(tmp_path, kind, petals, start, collisions):
+    """With the defaults: sim.h5 records growth_start and its rule, and collisions in
+    ``effects`` where petals can meet; the log says each in one line."""
+    runner = CliRunner()
+    mesh = tmp_path / "m.obj"
+    assert runner.invoke(cli, ["asset", kind, "--petals", str(petals), "--vertices",
+                               str(200 * petals), "--out", str(mesh)]).exit_code == 0
+    paths = [mesh] + [tmp_path / f"{k}.h5" for k in ("r", "a", "g", "s")]
+    steps = ["--set", "simulate.steps=2000", "--set", "simulate.frames=5"]
+    for stage, src, out in zip(("remesh", "axis", "growth", "simulate"), paths[:-1], paths[1:],
+                               strict=True):
+        r = runner.invoke(cli, [stage, str(src), "--out", str(out)]
+                          + (steps if stage == "simulate" else []))
+        assert r.exit_code == 0, r.output
+    assert f"growth.start = auto: {start}" in r.output
+    assert f"effects.collisions.enabled = auto: {'on' if collisions else 'off'}" in r.output
+    with h5py.File(paths[-1]) as h5:
+        assert h5.attrs["growth_start"] == start and "deg" in h5.attrs["growth_start_rule"]
+        assert ("collisions" in h5.attrs["effects"].split(",")) == collisions
+        assert h5.attrs["summary"].startswith(("sound", "unsound"))
+        assert h5["diagnostics/intersecting"].shape == (5,)
