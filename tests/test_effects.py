@@ -1,4 +1,4 @@
-"""Each effect on only when asked, and doing what the paper says it does (METHOD.md,
+"""Each effect on only when asked, and doing what the paper says it does (docs/method.md,
 "Constraints and effects"), measured on small procedural petals and buds."""
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""The effects a scene may call for (METHOD.md, "Constraints and effects").
+"""The effects a scene may call for (docs/method.md, "Constraints and effects").
 
 Each effect is a small unit built from the scene only when the scene enables it; its
 per-step work is a compiled kernel in :mod:`kernels` that :func:`kernels.advance`

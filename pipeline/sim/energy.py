@@ -10,7 +10,7 @@ and the growth it was last set to (:meth:`Term.at`):
   when the term has nothing there); ``project=True`` gives the positive semi-definite
   form the Newton solver factors where the term defines one (contact), else the exact.
 
-The terms (METHOD.md, "Constraints and effects"), each built only when the scene has it
+The terms (docs/method.md, "Constraints and effects"), each built only when the scene has it
 (:func:`build`):
 
 - :class:`Stretch` (Eq. 2) and :class:`Bending` (Eq. 3, with the curl of Eq. 11 moving
