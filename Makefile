@@ -17,7 +17,7 @@ PYTEST_ARGS ?=
 # A stage's artifacts depend on the library and on the stage's own module.
 LIB := $(wildcard pipeline/*.py pipeline/*/*.py pipeline/*/*/*.py) stages/cli.py stages/common.py
 
-.PHONY: all test lint bench accuracy stability venv clean clean-venv help
+.PHONY: all test lint bench accuracy stability docs venv clean clean-venv help
 all: $(SCENES:%=$(OUT)/%/render/bloom.mp4) $(SCENES:%=$(OUT)/%/report.json) $(SCENES:%=$(OUT)/%/bloom.usdc)  ## build every scene: artifacts, frames, MP4, report, USD
 
 help:  ## list the targets
@@ -43,6 +43,9 @@ accuracy: $(INSTALLED)  ## what accuracy costs in time, with and without contact
 stability: $(INSTALLED)  ## the hard cases, slow ones included; prints the README's table (~30 s)
 	$(BLOOM) study stability
 
+docs: $(INSTALLED)  ## the key table of docs/guide.md, made anew from the config schema
+	$(BLOOM) config --keys --markdown --into docs/guide.md
+
 lint: $(INSTALLED)  ## ruff over the code
 	$(VENV)/bin/ruff check pipeline stages tests
 
@@ -51,7 +54,7 @@ $(OUT)/%/mesh.d: configs/%.toml | $(INSTALLED)
 	@mkdir -p $(@D)
 	@echo "$(OUT)/$*/remesh.h5: $$($(BLOOM) config $< --mesh-path)" > $@
 
-ifeq ($(filter test lint bench accuracy stability venv clean clean-venv help,$(MAKECMDGOALS)),)
+ifeq ($(filter test lint bench accuracy stability docs venv clean clean-venv help,$(MAKECMDGOALS)),)
 -include $(SCENES:%=$(OUT)/%/mesh.d)
 endif
 

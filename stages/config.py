@@ -15,13 +15,28 @@ from .common import config_options
 @click.option("--get", "get", metavar="SECTION.KEY", help="Print one value only.")
 @click.option("--mesh-path", is_flag=True, help="Print scene.mesh resolved to a path.")
 @click.option("--keys", is_flag=True, help="List every key with its type, default and meaning.")
-def command(scene, config_path, overrides, get, mesh_path, keys) -> None:
+@click.option("--markdown", is_flag=True, help="With --keys: as the Markdown table of docs/guide.md.")
+@click.option("--into", type=click.Path(dir_okay=False, exists=True),
+              help="With --keys --markdown: write the table into this Markdown file, between "
+                   "its keys markers (make docs does docs/guide.md).")
+def command(scene, config_path, overrides, get, mesh_path, keys, markdown, into) -> None:
     """Check SCENE (a TOML file) and print its values, defaults filled in, as JSON."""
-    from pipeline.config import KEYS, describe_keys, load_config
+    from pathlib import Path
+
+    from pipeline.artifact import atomic_path
+    from pipeline.config import KEYS, describe_keys, keys_markdown, load_config, with_keys_table
     from pipeline.errors import BloomError
 
+    if keys and into:
+        try:
+            text = with_keys_table(Path(into).read_text())
+        except ValueError as exc:
+            raise BloomError(f"--into: {exc}", where=into) from None
+        with atomic_path(into) as tmp:
+            tmp.write_text(text)
+        return
     if keys:
-        click.echo(describe_keys())
+        click.echo(keys_markdown() if markdown else describe_keys())
         return
     cfg = load_config(scene or config_path, overrides)
     if mesh_path:

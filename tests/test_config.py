@@ -22,8 +22,11 @@ def test_defaults_load_and_cover_the_contract_keys():
                 "simulate.integrator", "simulate.stretch_stiffness",
                 "simulate.bending_stiffness", "effects.curl.beta", "effects.wrinkles.alpha_add"):
         assert key in KEYS
-    for effect in ("curl", "wrinkles", "collisions", "connections", "center_plane"):
+    for effect in ("curl", "wrinkles", "connections", "center_plane"):
         assert cfg[f"effects.{effect}.enabled"] is False
+    # contact is decided from the model (on where two petals can meet), as is the start
+    assert cfg["effects.collisions.enabled"] == "auto"
+    assert cfg["growth.start"] == "auto"
     assert cfg["simulate.stretch_stiffness"] == 0.1 and cfg["simulate.bending_stiffness"] == 0.0005
 
 

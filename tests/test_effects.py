@@ -10,6 +10,7 @@ from pipeline.flower import measure
 from pipeline.flower.growth import assign_growth
 from pipeline.mesh import topology
 from pipeline.mesh.remesh import boundary_loops
+from pipeline.review.report import crossings
 from pipeline.sim import effects as fx
 from pipeline.sim.explicit.semi_implicit import SemiImplicit
 from pipeline.sim.model import Control, State
@@ -126,8 +127,8 @@ def test_collisions_keep_vertices_out_of_other_petals(bud):
     v, f, p = bud[0], bud[1], bud[2]
     _, _, off, _ = simulate(bud, (), steps=6000, frames=3, curve="0.3*x**2")
     on_rec, effects, on, _ = simulate(bud, ("collisions",), steps=6000, frames=3, curve="0.3*x**2")
-    start = measure.crossings(v, f, p)
-    off_n, on_n = measure.crossings(off.positions, f, p), measure.crossings(on.positions, f, p)
+    start = crossings(v, f, p)
+    off_n, on_n = crossings(off.positions, f, p), crossings(on.positions, f, p)
     # edges through another petal's faces: 0 in the bud, 144 grown without collisions,
     # 18 with them (rims sliding past each other: edge-edge crossings, which the paper's
     # vertex-triangle test does not see)

@@ -1,4 +1,4 @@
-"""The block LDL^T of the quasi-static solver (pipeline/sim/ldl.py) against dense
+"""The block LDL^T of the quasi-static solver (pipeline/sim/solver/ldl.py) against dense
 linear algebra: solves, inertia, directions of negative curvature, coupling entries,
 principal submatrices, pattern reuse."""
 

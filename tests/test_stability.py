@@ -1,4 +1,4 @@
-"""The stability suite (pipeline/stability.py): hard cases through the real stages either
+"""The stability suite (pipeline/studies/stability.py): hard cases through the real stages either
 finish with finite, bounded results or stop early with one clean line. The slow cases
 run under `make stability` (which runs them all and prints the README's table)."""
 

@@ -1,4 +1,4 @@
-"""The dynamic integrator chooses its own substep (pipeline/sim/stable_step.py and
+"""The dynamic integrator chooses its own substep (pipeline/sim/explicit/stable_step.py and
 SemiImplicit's substeps): the scheme's limit, the estimate of omega_max against the true
 eigenvalue, a user's h past the limit now finishing, rollback by halving, the user's units
 kept (steps, break steps), and bit-identical reruns."""

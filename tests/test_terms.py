@@ -1,4 +1,4 @@
-"""Every physical term is a unit with one interface (``pipeline/sim/terms.py``): its
+"""Every physical term is a unit with one interface (``pipeline/sim/terms/``): its
 gradient and Hessian against finite differences, the fused elastic unit against its two
 parts, and the same physics checks run against every integrator."""
 

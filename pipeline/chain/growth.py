@@ -58,8 +58,9 @@ def run(axis_h5: str | Path, out: str | Path, cfg: Config, *, overwrite: bool = 
             worst = int(bad[np.argmax(stiff[bad])])
             raise BloomError(
                 f"remesh: petal {worst} is not a sound rest state ({len(bad)} petal(s) in all): a "
-                f"1e-9 nudge brings back a force {stiff[worst]:.3g} times K_s + K_b (a sound "
-                f"mesh: under 10), so its triangles are degenerate; rerun bloom remesh (and "
+                f"1e-9 nudge brings back a force {stiff[worst]:.3g} times K_s + K_b per unit of "
+                f"nudge (a sound mesh: 5-10; refused above {REST_STIFFNESS:g}), so its triangles "
+                f"are degenerate; rerun bloom remesh (and "
                 f"check remesh.petal_vertices) rather than simulate this", where=axis_h5)
         log.info("%d edges (%d on the boundary), %d hinges; alpha in [%.4g, %.4g]",
                  len(g.edges), int(g.boundary_edge.sum()), len(g.hinges),

@@ -18,7 +18,7 @@ class GrowthMap:
     stiffness: np.ndarray  #: (E,) factor on simulate.stretch_stiffness
     boundary_edge: np.ndarray  #: (E,) bool
     edge_x: np.ndarray  #: (E,) cross-section coordinate at the edge's midpoint
-    hinges: np.ndarray  #: (H, 4) int, see kernels
+    hinges: np.ndarray  #: (H, 4) int, see :mod:`pipeline.mesh.hinge`
     hinge_edge: np.ndarray  #: (H,) index of each hinge's edge
     rest_angle: np.ndarray  #: (H,) signed dihedral angle of the initial mesh
 

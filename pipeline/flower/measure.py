@@ -7,6 +7,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from pipeline.mesh import topology
+from pipeline.mesh.hinge import dihedral_angles
 
 
 @dataclass
@@ -94,25 +95,6 @@ def _away(where, chord, length: float, flower_axis) -> np.ndarray | None:
     return d if np.linalg.norm(d) > 0.25 else None
 
 
-def crossings(X, faces, petal) -> int:
-    """Edges of one petal that pass through a face of another: 0 when no petal has gone
-    through another. Needs no history, so any frame can be checked alone."""
-    from pipeline.sim.explicit.pushback import build_face_grid, edges_through_faces
-
-    X = np.ascontiguousarray(X, dtype=np.float64)
-    faces = np.ascontiguousarray(faces, dtype=np.int64)
-    petal = np.asarray(petal, dtype=np.int64)
-    edges, _, _ = topology.unique_edges(faces)
-    length = np.linalg.norm(X[edges[:, 0]] - X[edges[:, 1]], axis=1)
-    cell = float(max(length.max(), 1e-9))
-    size = 4 * len(faces) + 1
-    start, count = np.zeros(size + 1, dtype=np.int64), np.zeros(size, dtype=np.int64)
-    items = np.zeros(27 * len(faces), dtype=np.int64)
-    build_face_grid(X, faces, 0.0, cell, start, count, items)
-    return int(edges_through_faces(X, edges, petal[edges[:, 0]], faces, petal[faces[:, 0]],
-                                           cell, start, count, items))
-
-
 def section_weights(hinges, hinge_edge_ends_s, hinge_edge_ends_x) -> np.ndarray:
     """Weight of each hinge in the cross-section curvature: how much its edge runs along
     the petal (along s rather than across x), so that its fold bends the cross-section."""
@@ -124,8 +106,6 @@ def section_weights(hinges, hinge_edge_ends_s, hinge_edge_ends_x) -> np.ndarray:
 def cross_section_curvature(X, hinges, weights, petal_of_hinge, petals: int) -> np.ndarray:
     """``(P,)`` mean |dihedral angle| (radians per mean edge) over each petal's hinges
     that run along the petal, weighted by :func:`section_weights`."""
-    from pipeline.mesh.hinge import dihedral_angles
-
     theta = np.abs(dihedral_angles(np.asarray(X, dtype=np.float64), hinges))
     out = np.zeros(petals)
     for p in range(petals):
@@ -175,8 +155,6 @@ def gaussian_curvature_sign(X, faces, petal, interior) -> np.ndarray:
 def rim_bending(X, hinges, rim) -> float:
     """Mean |dihedral angle| (radians) over the hinges that touch the boundary (``rim``,
     a per-hinge mask): how sharply the rim is folded. A buckled rim scores high."""
-    from pipeline.mesh.hinge import dihedral_angles
-
     theta = np.abs(dihedral_angles(np.asarray(X, dtype=np.float64), hinges))
     return float(theta[rim].mean()) if rim.any() else 0.0
 

@@ -15,6 +15,10 @@ The remesh stage's work, as a library function the tests call directly:
 parts: it classifies them, cleans each petal part on its own (dust dropped, a thick
 petal replaced by its mid-surface), reports every part that cannot be simulated in one
 error, and then runs steps 3 to 5 on the petal sheets.
+
+The module is long because a user's file is judged part by part before any sheet is
+remeshed: the judging (closed, thick, lobed, a ring of petals) and the remeshing share
+the per-part records that make one error message name every bad part.
 """
 
 from __future__ import annotations

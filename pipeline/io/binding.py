@@ -24,8 +24,11 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+import scipy.sparse as sp
 from numba import njit
+from scipy.spatial import cKDTree
 
+from pipeline.artifact import put
 from pipeline.mesh.topology import components, vertex_normals
 
 #: points are bound in chunks of this many (bounds the memory of the candidate pairs)
@@ -110,8 +113,6 @@ def closest_points(points: np.ndarray, vertices: np.ndarray, faces: np.ndarray,
     Exact: the closest vertex is at distance d0, so the closest point lies in a
     triangle with a vertex within ``d0 + longest edge`` of the point; all of those are
     measured."""
-    import scipy.sparse as sp
-    from scipy.spatial import cKDTree
 
     P = np.asarray(points, dtype=np.float64)
     X = np.asarray(vertices, dtype=np.float64)
@@ -261,7 +262,6 @@ def _keep_to_own_petal(b: Binding, points, triangles, vertices, faces, allowed,
 
 def write_bindings(h5, bindings: dict[int, Binding]) -> None:
     """Store bindings under ``bind/<part>/`` (see :func:`read_bindings`)."""
-    from pipeline.artifact import put
 
     group = h5.require_group(BIND_GROUP)
     group.attrs["doc"] = ("per input part that is a petal: its points (input/asset/<i>/points) "
@@ -314,7 +314,6 @@ def sides(points: np.ndarray, triangles: np.ndarray, b: Binding, sheet: np.ndarr
     not (its offsets are small and its nearest other faces lie beside it, not across),
     nor a hem's or a fold's. Each point's candidates for its nearest point in a frame
     are the other side's triangles within two rings of its nearest one at rest."""
-    import scipy.sparse as sp
 
     P = np.asarray(points, dtype=np.float64)
     T = np.asarray(triangles, dtype=np.int64)
@@ -383,7 +382,6 @@ def keep_thickness(points: np.ndarray, triangles: np.ndarray, s: Sides,
     steps, a direct solve (qdldl's LDL^T of the damped normal equations, positive
     definite)."""
     import qdldl
-    import scipy.sparse as sp
 
     Q0 = np.asarray(points, dtype=np.float64)
     if len(s.point) == 0:

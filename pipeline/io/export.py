@@ -17,8 +17,12 @@ PLY sequences, from a sim.h5, at the user's original scale.
 
 from __future__ import annotations
 
+import os
+
 import numpy as np
 
+from pipeline.io.binding import deform, sides
+from pipeline.io.binding import keep_thickness as keep
 from pipeline.mesh import topology
 
 
@@ -114,7 +118,6 @@ def write_sequence(folder, positions: np.ndarray, faces: np.ndarray, fmt: str) -
 def write_xdmf(folder, positions: np.ndarray, faces: np.ndarray, petal: np.ndarray,
                fps: float) -> None:
     """An XDMF time series in ``folder``: times in seconds at ``fps``."""
-    import os
 
     import meshio
 
@@ -144,8 +147,6 @@ def asset_frames(positions: np.ndarray, faces: np.ndarray, asset, bindings: dict
     ``keep_thickness`` is off: the binding alone, as Surface Deform does); ``(n, 3)``,
     its own points, for a part that stays where it is. ``sides``: the bound parts'
     :func:`part_sides`, if already found."""
-    from pipeline.io.binding import deform
-    from pipeline.io.binding import keep_thickness as keep
 
     if keep_thickness and sides is None:
         sides = part_sides(asset, bindings, positions[0], faces, scale)
@@ -169,7 +170,6 @@ def part_sides(asset, bindings: dict, rest: np.ndarray, faces: np.ndarray, scale
     """Each bound part's two sides facing each other across the sheet
     (:func:`pipeline.io.binding.sides`; none for a one-sided part), by part; ``rest``: the
     sheet's rest vertices (mesh units)."""
-    from pipeline.io.binding import sides
 
     return {i: sides(asset.parts[i].points, asset.parts[i].triangles(), b, rest / scale,
                      faces, scale) for i, b in bindings.items()}

@@ -14,6 +14,8 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+import trimesh
+from trimesh.util import unique_name
 
 from pipeline.errors import BloomError
 
@@ -62,7 +64,6 @@ def _check_path(path: Path) -> str:
 
 
 def _load(path: Path, where: str, **kwargs):
-    import trimesh
 
     try:
         return trimesh.load(path, process=False, **kwargs)
@@ -247,7 +248,6 @@ def gltf_node_frames(scene, header: dict):
     ``(node, name, [(transform (4, 4), trimesh.Trimesh), ...])``, one pair per primitive
     with triangles (the node's own frame for one primitive, a child frame each for
     several). ``name`` is the node's name, else its mesh's, else ``part_N``."""
-    from trimesh.util import unique_name
 
     nodes = header.get("nodes", [])
     meshes = header.get("meshes", [])

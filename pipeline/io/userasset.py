@@ -23,9 +23,20 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import h5py
 import numpy as np
 
+from pipeline.artifact import put
 from pipeline.errors import BloomError
+from pipeline.io.meshfile import (
+    _check_path,
+    _gltf_header,
+    _load,
+    _obj_units,
+    gltf_node_frames,
+    obj_text,
+    read_parts,
+)
 
 GROUP = "input/asset"
 
@@ -79,7 +90,6 @@ def fan_triangles(counts: np.ndarray, indices: np.ndarray) -> np.ndarray:
 def read_asset(path: str | Path) -> Asset:
     """Read ``path`` as its parts with their own vertices, polygons, UVs, normals and
     materials (see the module notes). Raises :class:`BloomError` naming the file."""
-    from pipeline.io.meshfile import _check_path, read_parts
 
     path = Path(path)
     where = _check_path(path)
@@ -106,7 +116,6 @@ def _index(token: str, count: int, where: str, line_no: int) -> int:
 
 
 def _read_obj(path: Path, where: str) -> Asset:
-    from pipeline.io.meshfile import _obj_units, obj_text
 
     text = obj_text(path, where)
     v, vt, vn = [], [], []
@@ -186,7 +195,6 @@ def _read_obj(path: Path, where: str) -> Asset:
 # --- glTF --------------------------------------------------------------------------------
 
 def _read_gltf(path: Path, where: str) -> Asset:
-    from pipeline.io.meshfile import _gltf_header, _load, gltf_node_frames
 
     scene = _load(path, where, force="scene")
     header = _gltf_header(path)
@@ -231,9 +239,7 @@ def _read_gltf(path: Path, where: str) -> Asset:
 
 def write(h5, asset: Asset) -> None:
     """Store ``asset`` under ``input/asset`` of an open HDF5 file (see :func:`read`)."""
-    import h5py
 
-    from pipeline.artifact import put
 
     group = h5.require_group(GROUP)
     group.attrs["doc"] = ("the input's parts as the file gives them (input units and axes), "

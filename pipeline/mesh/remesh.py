@@ -8,6 +8,10 @@ target length here with the same rules the remesher uses inside: split edges lon
 than 4/3 h at their midpoint, collapse edges shorter than 4/5 h unless that would make
 a neighbouring boundary edge longer than 4/3 h, flip a face or break the mesh. Corner
 vertices (a sharp turn of the rim: a petal's tip, the ends of a cut) never move.
+
+The module is long because the rim pass and the improvement pass (:func:`improve`:
+moves, collapses, splits and clips towards the quality bound) are one remesher: they
+share the quality measures and the rules for what a move may do to the rim.
 """
 
 from __future__ import annotations

@@ -12,7 +12,8 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components
 
-from pipeline.mesh import topology
+from pipeline.mesh import clean, topology
+from pipeline.mesh.remesh import boundary_loops
 
 
 def corner_fans(faces: np.ndarray) -> np.ndarray:
@@ -153,8 +154,6 @@ def zip_slits(vertices: np.ndarray, faces: np.ndarray, tolerance: float | None =
     three faces, or a vertex where two fans of faces meet (a pinch), is not made.
     Returns ``(vertices, faces, vertices merged)``; vertices keep their order, merged ones
     are dropped."""
-    from pipeline.mesh import clean
-    from pipeline.mesh.remesh import boundary_loops
 
     v = np.asarray(vertices, dtype=np.float64)
     f = np.asarray(faces, dtype=np.int64).copy()

@@ -15,6 +15,7 @@ from collections.abc import Callable
 
 import numpy as np
 from scipy.spatial import cKDTree
+from trimesh.triangles import closest_point
 
 from pipeline.mesh import topology
 
@@ -231,7 +232,6 @@ def closest_points(vertices: np.ndarray, faces: np.ndarray, points: np.ndarray,
                    candidates: int = 8) -> np.ndarray:
     """For each point, the closest point on the triangles incident to its
     ``candidates`` nearest mesh vertices (exact for points near a fine mesh)."""
-    from trimesh.triangles import closest_point
 
     k = min(candidates, len(vertices))
     _, near = cKDTree(vertices).query(points, k=k)

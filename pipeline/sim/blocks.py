@@ -79,7 +79,6 @@ class Blocks:
 
     def matrix(self):
         """``data`` as a scipy BSR matrix (a view of the blocks, not a copy)."""
-        import scipy.sparse as sp
 
         n = 3 * (len(self.indptr) - 1)
         return sp.bsr_matrix((self.data, self.indices, self.indptr), shape=(n, n))

@@ -14,12 +14,14 @@ from __future__ import annotations
 
 import hashlib
 import json
+import logging
 import os
 from pathlib import Path
 
 import h5py
 import numpy as np
 
+from pipeline import __version__
 from pipeline.artifact import atomic_path
 from pipeline.sim.effects import Effects
 from pipeline.sim.model import State
@@ -40,7 +42,6 @@ def fingerprint(config_json: str, inputs: dict[str, str]) -> str:
     would splice two different runs into one artifact."""
     import numba
 
-    from pipeline import __version__
 
     config = json.loads(config_json)
     config.get("simulate", {}).pop("checkpoint_seconds", None)
@@ -137,7 +138,6 @@ def load(path: Path, key: str, state: State, effects: Effects, integrator=None,
     ``restore``) in place from the checkpoint and return the frames recorded so far;
     None if there is no checkpoint, or it is for other inputs or config (or unreadable:
     a checkpoint is only ever a shortcut)."""
-    import logging
 
     log = logging.getLogger("bloom")
     if not path.exists():

@@ -1,7 +1,7 @@
 """The effects a scene may call for (docs/method.md, "Constraints and effects").
 
 Each effect is a small unit built from the scene only when the scene enables it; its
-per-step work is a compiled kernel in :mod:`kernels` that :func:`kernels.advance`
+per-step work is a compiled kernel that :func:`pipeline.sim.explicit.step.advance`
 runs behind one branch. An effect that is off is never built (no grid, no pairs, no
 arrays) and its loop never runs.
 
@@ -96,7 +96,7 @@ def flower_axis_or_guess(vertices, flower_axis) -> tuple[np.ndarray, np.ndarray]
     return np.asarray(vertices).mean(axis=0), np.array([0.0, 0.0, 1.0])
 
 
-#: What :func:`kernels.advance` takes of the effects, by name: each effect's on-flag,
+#: What :func:`pipeline.sim.explicit.step.advance` takes of the effects, by name: each effect's on-flag,
 #: parameters and work arrays (an effect that is off gives empty arrays). A namedtuple, so
 #: that the compiled kernel reads fields by name and a checkpoint saves its arrays by name.
 Bundle = namedtuple("Bundle", [
@@ -176,7 +176,7 @@ class Effects:
         return self._bundle
 
     def constrain(self, forces: np.ndarray) -> None:
-        """Apply the constraints to forces computed outside :func:`kernels.advance`."""
+        """Apply the constraints to forces computed outside :func:`pipeline.sim.explicit.step.advance`."""
         if self.center_plane is not None:
             project_out_normals(forces, self.center_plane.vertices, self.center_plane.normals)
 

@@ -15,7 +15,7 @@ The terms (docs/method.md, "Constraints and effects"), each built only when the 
 
 - :class:`Stretch` (Eq. 2) and :class:`Bending` (Eq. 3, with the curl of Eq. 11 moving
   its rest angles when the scene curls); :class:`Elastic` is the two in one pass, the
-  form the solvers run (``kernels.advance`` fuses the same arithmetic into its step);
+  form the solvers run (``pipeline.sim.explicit.step.advance`` fuses the same arithmetic into its step);
 - :class:`Inertia`: ``1/2 |x - x_pred|_M^2 / dt^2``, the implicit Euler step in
   incremental-potential form (``simulate.inertia``);
 - :class:`~pipeline.sim.contact.Contact`: the IPC barrier between petals
@@ -30,7 +30,7 @@ directions (:class:`FixedBase`, :class:`CenterPlane`, ``project``). The Newton s
 projects its gradient and Hessian with them; the dynamic integrators zero the fixed
 vertices' inverse mass and project the plane vertices' forces.
 
-The paper's push-back (``pipeline/sim/pushback.py``) is a response after the step, not
+The paper's push-back (``pipeline/sim/explicit/pushback.py``) is a response after the step, not
 an energy, and stays inside the explicit kernel.
 """
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
+from scipy.interpolate import PchipInterpolator
 
 from pipeline.mesh.hinge import edge_lengths, hinge_cos_sin
 from pipeline.sim.terms.elastic import internal_forces
@@ -62,7 +63,7 @@ class Model:
     edge_rest_length: np.ndarray  #: (E,) rest length at t = 0 (the input mesh's lengths)
     edge_growth: np.ndarray  #: (E,) growth ratio alpha (Eq. 6)
     edge_stiffness: np.ndarray  #: (E,) K_s of each spring
-    hinge_indices: np.ndarray  #: (H, 4) int64, see kernels
+    hinge_indices: np.ndarray  #: (H, 4) int64, see :mod:`pipeline.mesh.hinge`
     hinge_rest_cos: np.ndarray  #: (H,) cos of the rest dihedral angle at t = 0
     hinge_rest_sin: np.ndarray  #: (H,) sin of the rest dihedral angle at t = 0
     hinge_stiffness: np.ndarray  #: (H,) K_b of each hinge
@@ -168,7 +169,6 @@ class Control:
         keys A follows a monotone cubic (PCHIP, Fritsch-Carlson): smooth (C1), never
         past its keys, flat where two keys hold the same value; before the first key and
         after the last it holds."""
-        from scipy.interpolate import PchipInterpolator
 
         keys = np.asarray(keys, dtype=np.float64).reshape(-1, 2)
         frame = np.arange(steps + 1) * ((frames - 1) / steps)

@@ -26,13 +26,16 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from pipeline.artifact import atomic_path
 from pipeline.flower.measure import PetalFrames
 from pipeline.mesh import procedural, topology
-from pipeline.mesh.symmetry import mirror_pairs, reflect
+from pipeline.mesh.remesh import isotropic, target_for_vertices
+from pipeline.mesh.symmetry import closest_points, mirror_pairs, reflect
 from pipeline.sim.build import Prepared
 from pipeline.sim.effects import Params
 from pipeline.sim.integrators import make_integrator
 from pipeline.sim.model import Control, Model, State
+from pipeline.sim.terms.contact import frame_intersections
 
 #: the ``effects`` section of a scene at its defaults
 DEFAULT_EFFECTS = Params.defaults()
@@ -65,7 +68,6 @@ class Scene:
                  bending: float = 0.0005, stretch: float = 0.1) -> Scene:
         """The bud ``source = (v, f, petal)`` remeshed to about ``vertices`` vertices:
         the same surface, other triangles (a mesh-resolution study)."""
-        from pipeline.mesh.remesh import isotropic, target_for_vertices
 
         v0, f0, petal0 = source
         count = int(petal0.max()) + 1
@@ -124,7 +126,6 @@ def simulate(scene: Scene, integrator: str, *, ramp: int, hold: int = 0, h: floa
              tolerance: float = 1e-6, schedule: str = "smootherstep", effects=()) -> Run:
     """One run: growth over ``ramp`` steps, then ``hold`` steps at full growth, with the
     ``effects`` named."""
-    from pipeline.sim.terms.contact import frame_intersections
 
     model = scene.model
     steps = ramp + hold
@@ -171,7 +172,6 @@ def surface_error(scene: Scene, X, ref_scene: Scene, reference) -> tuple[float, 
     vertices to the reference's surface (each petal to the same petal, or to its mirror
     image, whichever is nearer), over the reference's petal length. Meshes are scaled
     to a mean edge of 1, so the run is first scaled to the reference's petal length."""
-    from pipeline.mesh.symmetry import closest_points
 
     X = np.asarray(X) * (ref_scene.length / scene.length)
     faces = ref_scene.faces
@@ -260,7 +260,6 @@ def warm_up(scene: Scene, runs: list[dict]) -> None:
 def accuracy(out_dir, *, petals: int = 6, vertices: int = 2133, quick: bool = False,
              echo=print) -> list[dict]:
     """Run the study; write ``accuracy.csv`` and ``accuracy.png`` into ``out_dir``."""
-    from pipeline.artifact import atomic_path
 
     source = procedural.bud(petals, vertices, 0)
     scene = Scene.from_mesh(*source)
@@ -366,7 +365,6 @@ def plot(rows: list[dict], path, title: str) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from pipeline.artifact import atomic_path
 
     fig, ax = plt.subplots(figsize=(7, 5), dpi=110)
     for name in dict.fromkeys(r["integrator"] for r in rows):

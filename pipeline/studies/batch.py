@@ -14,8 +14,12 @@ Like make, a stage whose output is newer than its input and config is not run ag
 
 from __future__ import annotations
 
+import ctypes
+import json
+import signal
 import subprocess
 import sys
+import uuid
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -65,7 +69,6 @@ def up_to_date(output: str, sources: tuple[str, ...]) -> bool:
     files' dates (a config restored with an old date, a mesh edited in place). A folder
     (render) or another file (report, export) is up to date when it and every file its
     stage lists exist and are newer than the sources, as make judges."""
-    import json
 
     out = Path(output)
     if out.suffix == ".h5":
@@ -99,8 +102,6 @@ FAILED = "FAILED: "  #: a task's result that says its stage failed (not an excep
 def _die_with_parent() -> None:  # pragma: no cover - runs in the child, before exec
     """Linux: the stage's process is killed when its worker dies, so a retried task
     never runs beside an orphan of the first attempt."""
-    import ctypes
-    import signal
 
     try:
         ctypes.CDLL(None, use_errno=True).prctl(1, signal.SIGKILL)  # PR_SET_PDEATHSIG
@@ -136,7 +137,6 @@ def run(tasks: list[Task], client, force: bool = False) -> dict[str, str | None]
     """Submit the tasks to a ``distributed.Client``; wait for all. Returns each task's
     error (None when it succeeded). A task lost with its worker is run again by the
     scheduler (up to its ``distributed.scheduler.allowed-failures``)."""
-    import uuid
 
     from distributed import wait
 

@@ -11,16 +11,20 @@ then, so a rise means energy is being created), how far any vertex got from the 
 
 from __future__ import annotations
 
+import sys
+import tempfile
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import h5py
 import numpy as np
+from scipy.spatial import Delaunay, cKDTree
 
 from pipeline.chain import run_scene
 from pipeline.errors import BloomError
 from pipeline.mesh import procedural
+from pipeline.mesh.topology import unique_edges
 from pipeline.sim.terms.contact import frame_intersections
 
 #: a finished case passes when these hold
@@ -51,7 +55,6 @@ def _skinny(seed: int = 0):
     v, f, p = _petal_points(320, seed)
     v, f = list(v), [list(t) for t in f]
     rng = np.random.default_rng(seed)
-    from pipeline.mesh.topology import unique_edges
 
     edges = unique_edges(np.asarray(f))[0]
     done = set()
@@ -158,7 +161,6 @@ def scattered_petal(vertices: int = 300, seed: int = 0, outline=OUTLINE):
                       rng.uniform(0.0, 1.0, 8 * vertices)], axis=1)
     inner = inner[np.abs(inner[:, 0]) < outline.half_width(inner[:, 1]) - 0.5 * spacing]
     inner = inner[inner[:, 1] > 0.5 * spacing]
-    from scipy.spatial import cKDTree
 
     kept = [*rim, *base]
     tree = cKDTree(np.asarray(kept))
@@ -167,7 +169,6 @@ def scattered_petal(vertices: int = 300, seed: int = 0, outline=OUTLINE):
             kept.append(q)
             tree = cKDTree(np.asarray(kept)) if len(kept) % 64 == 0 else tree
     pts = np.asarray(kept)
-    from scipy.spatial import Delaunay
 
     tri = Delaunay(pts).simplices
     c = pts[tri].mean(axis=1)
@@ -395,8 +396,6 @@ def table(results: list[Result]) -> str:
 
 def main() -> int:
     """``make stability``: every case, the table, exit 1 if any case is not as expected."""
-    import sys
-    import tempfile
 
     results = []
     with tempfile.TemporaryDirectory(prefix="bloom-stability-") as tmp:

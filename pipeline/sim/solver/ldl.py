@@ -6,10 +6,10 @@ element, so the factorization is done by those blocks: ``P H P^T = L D L^T`` wit
 order), ``L`` unit lower triangular, block by block (the diagonal blocks unit lower
 triangular 3x3), ``D`` diagonal. No pivoting: the pivots are the scalar ones of the
 elimination, whose signs give the inertia (Sylvester's law), which the solver reads
-to decide its shifts (:meth:`quasistatic._System.factor`).
+to decide its shifts (:meth:`pipeline.sim.solver.system.System.factor`).
 
 - Input: the Hessian's own 3x3 blocks (scipy's BSR layout, as
-  :class:`hessian.Blocks` assembles them), a shift on the diagonal, and the coupling
+  :class:`pipeline.sim.blocks.Blocks` assembles them), a shift on the diagonal, and the coupling
   terms' scalar entries (contacts, connection springs) between vertex pairs the
   pattern was told of; the principal submatrix of a group of vertices (petals). No
   scalar matrix is built.
@@ -31,6 +31,11 @@ to decide its shifts (:meth:`quasistatic._System.factor`).
 
 The order of operations is fixed by the pattern, so a factorization is the same to the
 bit on every run.
+
+Why Bloom has its own (and not qdldl's scalar LDL^T, which it keeps for the ordering):
+see docs/decisions.md. The module is long because the symbolic analysis, the numeric
+kernels, the solves and the split into subtrees are one factorization over one data
+layout; apart they would each need the others' internals.
 """
 
 from __future__ import annotations
@@ -502,7 +507,10 @@ class BlockLDL:
             zero = max(zeros)
         else:
             zero = run(self._all, self._w)
-        if zero >= 0:
+        if zero >= 0:  # (the column left half done: its work rows cleared for the next)
+            self._w[...] = 0.0
+            if self._sets is not None:
+                self._w2[...] = 0.0
             raise ValueError(f"pivot {zero} is zero to rounding (under {PIVOT:g} of the largest "
                              "diagonal entry): the matrix is singular")
         return True

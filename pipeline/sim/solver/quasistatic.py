@@ -6,7 +6,7 @@ not follow the dynamics: for each growth increment it finds the equilibrium
 (grad U = 0) by Newton's method, starting from a prediction along the path (the secant
 of the last two equilibria, or the tangent).
 
-- Hessian: the analytic one of :mod:`hessian`. A Newton step factors it as is (a sparse
+- Hessian: the analytic one of :mod:`pipeline.sim.terms`. A Newton step factors it as is (a sparse
   LDL^T by 3x3 vertex blocks, :mod:`ldl`, whose pivot signs give its inertia); a later
   step of the same solve may reuse that factorization (a chord step) if the step it
   gives is a tenth of the last one or less (the factorization is most of an iteration's

@@ -31,13 +31,6 @@ from pipeline.sim.terms.term import Term
 # scalar loop), and a scatter pass adds the forces to F (scalar, in hinge order).
 # Rows are _BLOCK apart, a compile-time constant, so the compiler sees they do not
 # overlap. 13 rows of 256 doubles: 26 KB, in L1.
-# The hinge loop runs in blocks of _BLOCK hinges and three passes over a work array:
-# a gather pass reads the vertices (scalar, indexed loads), a pass over contiguous rows
-# does all the arithmetic (it has no indexed access, so LLVM vectorizes it: 8 hinges a
-# time, square roots and divisions included, with the same IEEE results per hinge as a
-# scalar loop), and a scatter pass adds the forces to F (scalar, in hinge order).
-# Rows are _BLOCK apart, a compile-time constant, so the compiler sees they do not
-# overlap. 13 rows of 256 doubles: 26 KB, in L1.
 _BLOCK = 256
 _W_ROWS = 13
 _W_SIZE = _W_ROWS * _BLOCK

@@ -44,7 +44,7 @@ def rounding_scale(X, edges, rest0, growth, edge_k, hinges, cos0, sin0, hinge_k,
     """The size of what the force and energy kernels add and subtract, per vertex into
     ``scale (V,)`` (force units), and for the energy (returned): ``eps`` times these
     bounds what rounding alone can leave in the gradient and the energy, so the solver
-    never asks for less (see :meth:`quasistatic.QuasiStatic._rounding`).
+    never asks for less (see :meth:`pipeline.sim.solver.newton.Newton.rounding`).
 
     Why each term: a spring's force ``K_s (l - L) d / l`` takes the difference of
     ``l`` and ``L`` (each rounded to ``eps`` of itself) and of coordinates (``eps |x|``),
@@ -112,7 +112,7 @@ def rounding_scale(X, edges, rest0, growth, edge_k, hinges, cos0, sin0, hinge_k,
 class Elastic(Term):
     """:class:`Stretch` and :class:`Bending` in one pass (each edge's spring rides with
     its hinge): the form the solvers run. Its Hessian is assembled into the solver's
-    fixed block pattern (:class:`~pipeline.sim.hessian.Blocks`, :meth:`assemble`)."""
+    fixed block pattern (:class:`~pipeline.sim.blocks.Blocks`, :meth:`assemble`)."""
 
     name = "elastic"
 
