@@ -46,11 +46,12 @@ class Separation:
 
 
 class SeparationError(ValueError):
-    """The petals ``pairs`` cannot be moved apart within the bounds."""
+    """The petal ``pairs`` cannot be moved apart within the bounds, for ``reason``."""
 
-    def __init__(self, message: str, pairs):
+    def __init__(self, pairs, reason: str):
         self.pairs = [tuple(int(x) for x in p) for p in pairs]
-        super().__init__(message)
+        self.reason = reason
+        super().__init__(f"petals {_names(self.pairs)} cannot be separated: {reason}")
 
 
 def separate(vertices: np.ndarray, faces: np.ndarray, petal: np.ndarray, gap: float, *,
@@ -145,9 +146,9 @@ def separate(vertices: np.ndarray, faces: np.ndarray, petal: np.ndarray, gap: fl
         if not len(crossing) and not close:
             break
         if it == max_iterations:
-            raise SeparationError(_failure("still " + _state(crossing, close, E, F, petal)
-                                           + f" after {max_iterations} rounds", crossing, close,
-                                           E, F, petal), _involved(crossing, close, E, F, petal))
+            raise SeparationError(_involved(crossing, close, E, F, petal),
+                                  f"still {_state(crossing, close, E, F, petal)} after "
+                                  f"{max_iterations} rounds")
         rows = _overlap_rows(X, F, E, petal, crossing, area, length, max_move, gap, sides)
         rows += [r for _, _, _, r in near]
         D = _solve(X, graph, rows, petal, spread / edge)
@@ -157,14 +158,13 @@ def separate(vertices: np.ndarray, faces: np.ndarray, petal: np.ndarray, gap: fl
             worst = int(np.argmax(reach))
             pairs = _involved(crossing, close, E, F, petal)
             mine = [p for p in pairs if petal[worst] in p] or pairs
-            raise SeparationError(
-                f"petals {_names(mine)} cannot be moved apart by under {max_move:.0%} of a petal's "
-                f"length (a vertex of petal {petal[worst]} would move {reach[worst]:.1%})", mine)
+            raise SeparationError(mine, f"a vertex of petal {petal[worst]} would move "
+                                        f"{reach[worst]:.1%} of its length (at most "
+                                        f"{max_move:.0%})")
     folded = sorted(set(_folded(X, F, petal)) - set(folded0))
     if folded:  # (the moves are smooth: this is a petal folded over itself at its base)
-        raise SeparationError(
-            f"petals {_names(crossed0 + close0)} cannot be moved apart without folding petal(s) "
-            f"{', '.join(str(p) for p in folded)} over itself", crossed0 + close0)
+        raise SeparationError(crossed0 + close0, "it would fold petal(s) "
+                              f"{', '.join(str(p) for p in folded)} over itself")
     move = np.linalg.norm(X - X0, axis=1) / length[petal]
     return Separation(X, crossed0, close0, int(np.count_nonzero(np.any(X != X0, axis=1))),
                       float(move.max()), float(np.sqrt(np.mean(move ** 2))), it,
@@ -532,11 +532,7 @@ def _names(pairs) -> str:
 def _state(crossing, close, E, F, petal) -> str:
     parts = []
     if len(crossing):
-        parts.append(f"through each other: {_names(_pair_list(crossing, E, F, petal))}")
+        parts.append(f"through each other ({_names(_pair_list(crossing, E, F, petal))})")
     if close:
-        parts.append(f"closer than the gap: {_names(sorted({(a, b) for a, b, _, _ in close}))}")
-    return "; ".join(parts)
-
-
-def _failure(message, crossing, close, E, F, petal) -> str:
-    return f"petals cannot be moved apart: {message}"
+        parts.append(f"nearer than the gap ({_names(sorted({(a, b) for a, b, _, _ in close}))})")
+    return " and ".join(parts)
