@@ -99,6 +99,11 @@ SCHEMA: dict[str, Any] = {
         "closed_parts": Key(str, "refuse", "closed surfaces in the input (a thick petal, a "
                             "receptacle, a stem): refuse the mesh, or drop them and say so",
                             choices=("refuse", "drop")),
+        "separate": Key(bool, True, "move petal sheets that pass through or touch each other "
+                        "apart before anything else (each pair to the side most of its overlap "
+                        "is on, at least effects.collisions.thickness apart, every vertex by at "
+                        "most 10% of its petal's length; the log and remesh.h5's separation "
+                        "attribute say how far); false keeps them as the input has them"),
     },
     "axis": {
         "base": Key(str, "auto", "which end of a petal is its base: auto (nearest the flower's "

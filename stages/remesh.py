@@ -26,7 +26,9 @@ def command(mesh: str | None, config_path, overrides, out, overwrite) -> None:
     (the scale is recorded; the mesh is never rotated). A petal whose triangles have an
     angle under 20 deg (pipeline.mesh.remesh.MIN_ANGLE; sharp rim corners excepted) is remeshed
     at its own mean edge; a petal that cannot be mirrored is kept as it is and listed in
-    the attribute unsymmetrized.
+    the attribute unsymmetrized. Petals that pass through or touch each other are moved
+    apart (remesh.separate; at least effects.collisions.thickness apart; the attribute
+    separation says how far), or refused in one line naming their parts.
     """
     from pipeline.chain import remesh
 

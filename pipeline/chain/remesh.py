@@ -33,7 +33,9 @@ def run(mesh: str | Path | None, out: str | Path, cfg: Config, *, overwrite: boo
     input/parts. Remeshes each petal to remesh.target_edge or remesh.petal_vertices
     (boundary included), with remesh.symmetrize makes each petal mirror-symmetric about
     its center plane, and scales the mesh so its mean edge is 1 (the scale is recorded;
-    the mesh is never rotated).
+    the mesh is never rotated). Moves petal sheets that pass through or touch each other
+    apart (remesh.separate, :mod:`pipeline.flower.separation`) before the user's parts are
+    bound to them.
     """
     where = str(cfg.path) if cfg.path else "defaults"
     mesh_path = mesh or cfg.mesh_path()
@@ -47,6 +49,7 @@ def run(mesh: str | Path | None, out: str | Path, cfg: Config, *, overwrite: boo
                            closed_parts=cfg["remesh.closed_parts"],
                            petals_globs=cfg["scene.petals"], exclude_globs=cfg["scene.exclude"])
     report = result.report
+    separation = _separated(result, cfg, mesh_path, mesh_file)
     asset, bindings = _bound_asset(mesh_path, mesh_file, result)
     for i, part in enumerate(result.parts):
         done = {"petal": "simulated", "kept": "kept as it is (carried forward)",
@@ -83,6 +86,7 @@ def run(mesh: str | Path | None, out: str | Path, cfg: Config, *, overwrite: boo
         "min_angle": result.min_angle,
         "parts": json.dumps(result.parts),
         "file_up": mesh_file.up or "",
+        "separation": json.dumps(separation),
     }
     if mesh_file.meters_per_unit is not None:
         attrs["meters_per_unit"] = float(mesh_file.meters_per_unit)
@@ -111,6 +115,29 @@ def run(mesh: str | Path | None, out: str | Path, cfg: Config, *, overwrite: boo
     log.info("wrote %s", out)
 
 
+
+
+def _separated(result, cfg, mesh_path, mesh_file) -> dict:
+    """The sheets moved apart where they pass through or touch each other (remesh.separate,
+    before the user's parts are bound to them: those come back as they were, and follow
+    the separated sheet); logged, and returned for the artifact."""
+    if not cfg["remesh.separate"]:
+        return {"enabled": False}
+    from pipeline.flower.separation import separate_sheets
+
+    gap = cfg["effects.collisions.thickness"]
+    done = separate_sheets(result, gap=gap, names=[p.name for p in mesh_file.parts],
+                           where=str(mesh_path))
+    if done["crossed"] or done["close"]:
+        log.info("%s: separated petals: %s; moved %d of %d vertices, the largest move %.2f%% "
+                 "of a petal's length, RMS %.3f%%, in %d round(s); the nearest petals are now "
+                 "%.3g apart (remesh.separate)", mesh_path,
+                 "; ".join([f"through each other {done['crossed_parts']}"] * bool(done["crossed"])
+                           + [f"nearer than effects.collisions.thickness = {gap:g} "
+                              f"{done['close_parts']}"] * bool(done["close"])),
+                 done["moved"], len(result.vertices), 100 * done["largest"], 100 * done["rms"],
+                 done["rounds"], done["distance"] or float("inf"))
+    return {"enabled": True, **done}
 
 
 def _bound_asset(mesh_path, mesh_file, result):

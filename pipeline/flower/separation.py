@@ -1,0 +1,59 @@
+"""The remesh stage's separation of petal sheets that start through each other or touching
+(:func:`pipeline.mesh.separate.separate`), with the stage's words: petals named by their
+parts, the figures for the log and the artifact, a refusal in one line."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from pipeline.errors import BloomError
+from pipeline.mesh import symmetry
+from pipeline.mesh.separate import SeparationError, separate
+
+KEY = "remesh.separate"
+
+
+def separate_sheets(sheets, *, gap: float, names: list[str], where: str) -> dict:
+    """Move the petal sheets of ``sheets`` (a :class:`pipeline.flower.petals.Petals`, mean
+    edge 1) apart in place, so that no two pass through each other and none are nearer
+    than ``gap`` (mesh units); refresh ``asymmetry_after`` of the petals that moved.
+
+    ``names`` are the input's part names (``sheets.part`` indexes them). Returns what it
+    did (for the log and the artifact's ``separation`` attribute): the petal pairs through
+    each other and too close before, named, the vertices moved, the largest and RMS move in
+    petal lengths, the rounds, the gap and the distance of the nearest petals after.
+
+    Raises :class:`BloomError` naming ``where`` (the input file), the parts and the key
+    when the petals cannot be moved apart."""
+    petal = sheets.petal
+    part_of = np.zeros(int(petal.max()) + 1, dtype=np.int64)
+    part_of[petal] = sheets.part
+
+    def pairs(found) -> str:
+        """"0-1, 1-2 (0: 'a', 1: 'b', 2: 'c')", or "... (of part 'a')" when one part."""
+        if not found:
+            return ""
+        petals = sorted({p for pair in found for p in pair})
+        parts = [names[part_of[p]] for p in petals]
+        which = (f"of part {parts[0]!r}" if len(set(parts)) == 1 else
+                 ", ".join(f"{p}: {n!r}" for p, n in zip(petals, parts, strict=True)))
+        return ", ".join(f"{a}-{b}" for a, b in found) + f" ({which})"
+
+    try:
+        done = separate(sheets.vertices, sheets.faces, petal, gap)
+    except SeparationError as exc:
+        raise BloomError(
+            f"petals {pairs(exc.pairs)} pass through or touch each other and cannot "
+            f"be separated: {exc.reason}; fix them in the input mesh, or set {KEY} = false and "
+            "effects.collisions.enabled = false (the run then lets them pass through each "
+            "other)", where=where) from None
+    moved = np.unique(petal[np.any(done.vertices != sheets.vertices, axis=1)])
+    sheets.vertices = done.vertices
+    for p in moved:
+        sheets.asymmetry_after[p] = symmetry.asymmetry(done.vertices[petal == p], sheets.plane[p])
+    return {"gap": float(gap), "crossed": [list(p) for p in done.crossed],
+            "crossed_parts": pairs(done.crossed), "close": [list(p) for p in done.close],
+            "close_parts": pairs(done.close), "moved": done.moved,
+            "moved_petals": [int(p) for p in moved], "largest": done.largest, "rms": done.rms,
+            "rounds": done.iterations,
+            "distance": done.distance if np.isfinite(done.distance) else None}

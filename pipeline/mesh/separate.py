@@ -1,0 +1,538 @@
+"""Petals that pass through or touch each other, moved apart: :func:`separate`."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+import scipy.sparse as sp
+from scipy.sparse.csgraph import connected_components, dijkstra
+from scipy.spatial import cKDTree
+
+from pipeline.io.binding import nearest_among
+from pipeline.mesh.topology import face_normals, unique_edges, vertex_normals
+
+#: no vertex moves further than this fraction of its petal's length
+MAX_MOVE = 0.1
+#: rounds of push and check before giving up
+MAX_ITERATIONS = 40
+#: a vertex on the wrong side, or too close, is pushed to this many gaps from the other petal
+#: (the check asks for one gap: the margin lets a round end clean)
+PUSH = 1.5
+#: pairs of petals apart but nearer than this many gaps keep their distance while others
+#: are pushed (a stack of petals moves together), or are pushed apart to ``PUSH`` gaps
+KEEP = 3.0
+#: weight of a push against the smoothness of the move (the spring between neighbours is 1)
+WEIGHT = 1e1
+#: a move fades away over this fraction of a petal's length (at least SPREAD_EDGES mean
+#: edges), and is zero beyond four times that
+SPREAD = 0.05
+SPREAD_EDGES = 2.0
+
+
+@dataclass
+class Separation:
+    """Result of :func:`separate`."""
+
+    vertices: np.ndarray  #: (V, 3) the petals moved apart (a copy, equal to the input when clean)
+    crossed: list = field(default_factory=list)  #: petal pairs (a, b) through each other before
+    close: list = field(default_factory=list)  #: pairs closer than the gap (not through) before
+    moved: int = 0  #: vertices that moved at all
+    largest: float = 0.0  #: largest move of a vertex, in its petal's lengths
+    rms: float = 0.0  #: RMS move over all vertices, each in its petal's lengths
+    iterations: int = 0  #: rounds of push and check
+    distance: float = np.inf  #: smallest distance between two petals after (inf: none near)
+    length: np.ndarray = None  #: (P,) the length of each petal the moves are measured in
+
+
+class SeparationError(ValueError):
+    """The petal ``pairs`` cannot be moved apart within the bounds, for ``reason``."""
+
+    def __init__(self, pairs, reason: str):
+        self.pairs = [tuple(int(x) for x in p) for p in pairs]
+        self.reason = reason
+        super().__init__(f"petals {_names(self.pairs)} cannot be separated: {reason}")
+
+
+def separate(vertices: np.ndarray, faces: np.ndarray, petal: np.ndarray, gap: float, *,
+             max_move: float = MAX_MOVE, max_iterations: int = MAX_ITERATIONS) -> Separation:
+    """Move petals that pass through or touch each other apart, by as little as it takes.
+
+    Parameters
+    ----------
+    vertices : (V, 3) float
+    faces : (F, 3) int, consistently oriented within each petal
+    petal : (V,) int, the petal of each vertex (petals share no vertex)
+    gap : float, the smallest distance two petals may have after (same units as vertices)
+    max_move : float, the bound on any vertex's move, as a fraction of its petal's length
+    max_iterations : int, the bound on the rounds of push and check
+
+    Returns
+    -------
+    Separation
+        ``vertices`` such that no edge of one petal passes through a triangle of another
+        (ipctk's exact test) and no two petals are closer than ``gap``; what moved and how far.
+
+    Raises
+    ------
+    SeparationError
+        naming the petal pairs, when they are still through each other or closer than the
+        gap after ``max_iterations`` rounds, or a vertex would move further than
+        ``max_move``.
+
+    Notes
+    -----
+    Each round finds the edges of one petal that pass through a triangle of another
+    (ipctk's exact test). For each pair of petals so found, their overlap around the
+    crossings (the vertices of either petal lying over or under the other, within reach,
+    joined to a crossing through vertices on the same side of it) decides which side of
+    the other each belongs on: the side most of the overlap is on, weighted by area. It
+    is decided once per pair and kept, and per pair, not once for the flower, so a
+    pinwheel (each petal over one neighbour and under the other) is separated as it lies.
+    Every vertex joined to a crossing on the wrong side asks to move across, to ``PUSH``
+    gaps on its side; every pair of primitives of two petals apart but nearer than
+    ``KEEP`` gaps (ipctk's distances: vertex-triangle, edge-edge) asks to be ``PUSH``
+    gaps apart, or to keep its distance, so that petals stacked close move together.
+    One least-squares solve finds the smallest, smoothest move that does it: each ask is
+    an equation (of weight ``WEIGHT``) on the relative move of the two petals along the
+    direction that parts them (so it is shared between them), against the bending and
+    stretching of the move and a pull back to where each vertex was, which make a move
+    fade over ``SPREAD`` of a petal's length (a neighbourhood: no spike, no fold). Rounds
+    go on until the exact test finds no crossing and no pair is nearer than the gap.
+    The fixed base of a petal is not known yet (this runs before the axis is found): it
+    moves like the rest.
+
+    A clean input (nothing through anything, nothing nearer than ``gap``) comes back
+    unchanged, bit for bit. The result does not depend on ipctk's threads (every list it
+    gives is sorted first): the same bits every run. The cost is about linear in the
+    vertices: crossings through ipctk's BVH, closest points through a k-d tree per pair
+    of petals that cross, and one sparse solve over the vertices near a move.
+    """
+    import ipctk
+
+    X0 = np.array(vertices, dtype=np.float64)
+    F = np.ascontiguousarray(faces, dtype=np.int64)
+    petal = np.ascontiguousarray(petal, dtype=np.int64)
+    if len(X0) == 0 or len(F) == 0:
+        return Separation(X0, length=np.zeros(0))
+    count = int(petal.max()) + 1
+    length = _petal_lengths(X0, petal, count)
+    E = np.asarray(ipctk.edges(np.asfortranarray(F, dtype=np.int32)), dtype=np.int64)
+    # (ipctk keeps references to these arrays: they must live as long as the mesh)
+    rest, edges32, faces32 = (np.asfortranarray(X0), np.asfortranarray(E, dtype=np.int32),
+                              np.asfortranarray(F, dtype=np.int32))
+    patches = np.ascontiguousarray(petal, dtype=np.int32)
+    mesh = ipctk.CollisionMesh(rest, edges32, faces32)
+    mesh.can_collide = ipctk.make_vertex_patches_filter(patches)
+    graph = _graph(E, len(X0))
+    area = _vertex_areas(X0, F)
+    edge = _mean_edge(X0, E)
+    spread = np.maximum(SPREAD * length, SPREAD_EDGES * edge)  # (P,)
+
+    folded0 = _folded(X0, F, petal)
+    X = X0.copy()
+    crossed0 = close0 = None
+    sides: dict = {}
+    for it in range(max_iterations + 1):
+        crossing = _crossings(X, F, E, petal)
+        near = _near(mesh, X, petal, gap, crossing)
+        close = [c for c in near if c[2] < gap]
+        if crossed0 is None:
+            crossed0 = _pair_list(crossing, E, F, petal)
+            close0 = sorted({(a, b) for a, b, _, _ in close} - set(crossed0))
+            if not crossed0 and not close0:
+                return Separation(X0, moved=0, distance=_min_distance(mesh, X0, gap),
+                                  length=length)
+        if not len(crossing) and not close:
+            break
+        if it == max_iterations:
+            raise SeparationError(_involved(crossing, close, E, F, petal),
+                                  f"still {_state(crossing, close, E, F, petal)} after "
+                                  f"{max_iterations} rounds")
+        rows = _overlap_rows(X, F, E, petal, crossing, area, length, max_move, gap, sides)
+        rows += [r for _, _, _, r in near]
+        D = _solve(X, graph, rows, petal, spread / edge)
+        X = X + D
+        reach = np.linalg.norm(X - X0, axis=1) / length[petal]
+        if reach.max() > max_move:
+            worst = int(np.argmax(reach))
+            pairs = _involved(crossing, close, E, F, petal)
+            mine = [p for p in pairs if petal[worst] in p] or pairs
+            raise SeparationError(mine, f"a vertex of petal {petal[worst]} would move "
+                                        f"{reach[worst]:.1%} of its length (at most "
+                                        f"{max_move:.0%})")
+    folded = sorted(set(_folded(X, F, petal)) - set(folded0))
+    if folded:  # (the moves are smooth: this is a petal folded over itself at its base)
+        raise SeparationError(crossed0 + close0, "it would fold petal(s) "
+                              f"{', '.join(str(p) for p in folded)} over itself")
+    move = np.linalg.norm(X - X0, axis=1) / length[petal]
+    return Separation(X, crossed0, close0, int(np.count_nonzero(np.any(X != X0, axis=1))),
+                      float(move.max()), float(np.sqrt(np.mean(move ** 2))), it,
+                      _min_distance(mesh, X, gap), length)
+
+
+# --- finding what to move -------------------------------------------------------------------
+
+def _crossings(X, F, E, petal) -> np.ndarray:
+    """(k, 2) the (edge, face) pairs of different petals where the edge passes through the
+    face (ipctk's exact test, the one ``has_intersections`` makes), sorted."""
+    import ipctk
+
+    Xf = np.asfortranarray(X)
+    broad = ipctk.LBVH()
+    broad.build(Xf, np.asfortranarray(E, dtype=np.int32), np.asfortranarray(F, dtype=np.int32), 0.0)
+    found = broad.detect_edge_face_candidates()
+    if not found:
+        return np.zeros((0, 2), dtype=np.int64)
+    ids = np.array([(c.edge_id, c.face_id) for c in found], dtype=np.int64)
+    ids = ids[petal[E[ids[:, 0], 0]] != petal[F[ids[:, 1], 0]]]
+    # (a cheap first look: the edge's ends on either side of the face's plane, or on it)
+    tri = X[F[ids[:, 1]]]
+    n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    side0 = np.einsum("ij,ij->i", X[E[ids[:, 0], 0]] - tri[:, 0], n)
+    side1 = np.einsum("ij,ij->i", X[E[ids[:, 0], 1]] - tri[:, 0], n)
+    scale = np.linalg.norm(n, axis=1) * np.abs(tri - tri.mean(axis=1, keepdims=True)).max(axis=(1, 2))
+    ids = ids[(side0 * side1 <= 0) | (np.minimum(np.abs(side0), np.abs(side1)) <= 1e-9 * scale)]
+    hit = [k for k, (e, f) in enumerate(ids) if ipctk.is_edge_intersecting_triangle(
+        X[E[e, 0]], X[E[e, 1]], X[F[f, 0]], X[F[f, 1]], X[F[f, 2]])]
+    out = ids[hit]
+    return out[np.lexsort((out[:, 1], out[:, 0]))]
+
+
+def _folded(X, F, petal) -> list[int]:
+    """The petals that pass through themselves (ipctk's exact test, each petal alone)."""
+    import ipctk
+
+    Xf = np.asfortranarray(X)
+    F32 = np.asfortranarray(F, dtype=np.int32)
+    whole = ipctk.CollisionMesh(Xf, ipctk.edges(F32), F32)
+    if not ipctk.has_intersections(whole, Xf):
+        return []
+    out = []
+    face_petal = petal[F[:, 0]]
+    for p in np.unique(face_petal):
+        sub = np.asfortranarray(F[face_petal == p], dtype=np.int32)
+        if ipctk.has_intersections(ipctk.CollisionMesh(Xf, ipctk.edges(sub), sub), Xf):
+            out.append(int(p))
+    return out
+
+
+def _pair_list(crossing, E, F, petal) -> list[tuple[int, int]]:
+    if not len(crossing):
+        return []
+    a, b = petal[E[crossing[:, 0], 0]], petal[F[crossing[:, 1], 0]]
+    return sorted({(int(min(x, y)), int(max(x, y))) for x, y in zip(a, b, strict=True)})
+
+
+def _near(mesh, X, petal, gap, crossing):
+    """Pairs of primitives (vertex-triangle, edge-edge, ...) of two petals that are apart
+    (not through each other) and nearer than ``KEEP`` gaps: ``[(a, b, distance, row)]``,
+    the row asking them to ``PUSH`` gaps apart, or to keep their distance when further
+    (see :func:`_solve`). Pairs of petals that cross are :func:`_overlap_rows`'s."""
+    import ipctk
+
+    Xf = np.asfortranarray(X)
+    found = ipctk.NormalCollisions()
+    found.build(mesh, Xf, KEEP * gap)
+    if len(found) == 0:
+        return []
+    crossed = set()
+    if len(crossing):
+        crossed = set(_pair_list(crossing, mesh.edges.astype(np.int64),
+                                 mesh.faces.astype(np.int64), petal))
+    edges, faces = mesh.edges, mesh.faces
+    out = []
+    for k in range(len(found)):
+        row = _near_row(found, k, Xf, edges, faces, petal, gap, crossed)
+        if row is not None:
+            out.append(row)
+    return sorted(out, key=lambda r: (r[0], r[1], tuple(r[3][0])))
+
+
+def _near_row(found, k, Xf, edges, faces, petal, gap, crossed):
+    """:func:`_near`'s entry of the ``k``-th collision of ``found``, or None. (``found[k]``
+    refers into ``found``: it must be let go of first, as it is here, on returning.)"""
+    c = found[k]
+    ids = [int(i) for i in c.vertex_ids(edges, faces) if i >= 0]
+    pair = tuple(sorted({int(petal[i]) for i in ids}))
+    if len(pair) != 2 or pair in crossed:
+        return None
+    x = c.dof(Xf, edges, faces)
+    d = float(np.sqrt(c.compute_distance(x)))
+    if d >= KEEP * gap:
+        return None
+    grad = np.asarray(c.compute_distance_gradient(x)).reshape(-1, 3)[:len(ids)]
+    if not np.linalg.norm(grad) > 0.0:
+        return None
+    # the distance's gradient (ipctk's is the squared distance's): d(d) = grad . dx / (2 d)
+    return (pair[0], pair[1], d,
+            (np.array(ids), grad / (2.0 * max(d, 1e-300)), max(PUSH * gap - d, 0.0)))
+
+
+def _overlap_rows(X, F, E, petal, crossing, area, length, max_move, gap, sides) -> list:
+    """For each pair of petals that cross: the rows (see :func:`_solve`) asking the
+    vertices on the wrong side of the other petal, joined to a crossing, across to
+    ``PUSH`` gaps on the right side, and the vertices nearer than the gap away.
+
+    ``sides`` maps a pair ``(a, b)`` (a < b) to the side of ``b`` (+1: where ``b``'s
+    normals point) that ``a`` belongs on; a pair not in it yet is decided here (and
+    added, so that later rounds keep it): the side most of their overlap is on, by area.
+    The overlap is every vertex of either petal over or under the other (its closest
+    point there inside it, not on its rim), within reach, joined to a crossing through
+    vertices on the same side; a vertex of ``b`` counts for the side of ``b`` that ``a``
+    is then on (by the sign of the cosine between their normals)."""
+    rows = []
+    normals = vertex_normals(X, F)
+    rim = _rim(F, len(X))
+    ea, fb = petal[E[crossing[:, 0], 0]], petal[F[crossing[:, 1], 0]]
+    for a, b in _pair_list(crossing, E, F, petal):
+        reach = max_move * (length[a] + length[b])
+        mine = crossing[((ea == a) & (fb == b)) | ((ea == b) & (fb == a))]
+        seeds = np.unique(np.r_[E[mine[:, 0]].ravel(), F[mine[:, 1]].ravel()])
+        recs = [_records(X, F, petal, normals, rim, p, q, reach) for p, q in ((a, b), (b, a))]
+        # each record's side in a's terms: +1 where a lies on the side of b's normals
+        for k, r in enumerate(recs):
+            r["says"] = np.sign(r["s"]) if k == 0 else -np.sign(r["s"]) * np.sign(r["kappa"])
+            r["joined"] = _joined(E, r, seeds)
+        if (a, b) not in sides:  # the side most of the overlap is on (a tie: b's normal side)
+            weight = [sum(float(area[r["vertex"][r["joined"] & (r["says"] == sg)]].sum())
+                          for r in recs) for sg in (1.0, -1.0)]
+            sides[(a, b)] = 1.0 if weight[0] >= weight[1] else -1.0
+        side = sides[(a, b)]
+        for k, r in enumerate(recs):
+            v = r["vertex"]
+            wrong = r["joined"] & (r["says"] != side)
+            # the side of the other petal this one belongs on, by the other's normal
+            want = np.where(wrong, side if k == 0 else -side * np.sign(r["kappa"]),
+                            np.sign(r["s"]))
+            for i in np.flatnonzero(wrong | (r["d"] < gap)):
+                if wrong[i] or r["over"][i]:
+                    direction, have = want[i] * r["n"][i], want[i] * r["s"][i]
+                else:  # beside the other's rim, too close: straight away from it
+                    u = r["dv"][i]
+                    norm = np.linalg.norm(u)
+                    if not norm > 0.0:
+                        continue
+                    direction, have = u / norm, norm
+                need = PUSH * gap - have
+                if need > 0.0:
+                    ids = np.r_[v[i], F[r["face"][i]]]
+                    grad = np.vstack([direction, -r["bary"][i][:, None] * direction])
+                    rows.append((ids, grad, need))
+        # every crossing asks too, its edge's end on the wrong side across the face's plane
+        # (an edge through a petal's rim may have neither end over or under it)
+        for e, f in mine:
+            tri = X[F[f]]
+            nf = np.cross(tri[1] - tri[0], tri[2] - tri[0])
+            nf /= max(np.linalg.norm(nf), 1e-300)
+            want = side
+            if petal[E[e, 0]] != a:  # the side of a that b belongs on, by a's normal
+                want = -side * (1.0 if normals[E[e, 0]] @ nf >= 0.0 else -1.0)
+            ends = X[E[e]]
+            t = (ends - tri[0]) @ nf
+            cut = ends[0] + (ends[1] - ends[0]) * (t[0] / (t[0] - t[1]) if t[0] != t[1] else 0.5)
+            bary = _plane_bary(cut, tri)
+            for k in range(2):
+                need = PUSH * gap - want * t[k]
+                if need > 0.0:
+                    rows.append((np.r_[E[e, k], F[f]],
+                                 np.vstack([want * nf, -bary[:, None] * want * nf]), need))
+    return rows
+
+
+def _rim(F, count) -> dict:
+    """The mesh's boundary: ``vertex (V,) bool``, and ``edges``, sorted keys ``i * count + j``
+    (i < j) of its boundary edges."""
+    edges, _, uses = unique_edges(F)
+    rim = edges[uses == 1]
+    vertex = np.zeros(count, dtype=bool)
+    vertex[rim.ravel()] = True
+    return {"vertex": vertex, "edges": np.sort(rim[:, 0] * count + rim[:, 1]), "count": count}
+
+
+def _joined(E, r, seeds) -> np.ndarray:
+    """(n,) bool, per record of ``r``: over or under the other petal and joined to a
+    crossing (a vertex of ``seeds``) through the mesh's edges, by vertices over or under
+    the other petal on the same side."""
+    v = r["vertex"][r["over"]]
+    if not len(v):
+        return np.zeros(len(r["vertex"]), dtype=bool)
+    says = r["says"][r["over"]]
+    slot = np.full(int(E.max()) + 1, -1, dtype=np.int64)
+    slot[v] = np.arange(len(v))
+    i, j = slot[E[:, 0]], slot[E[:, 1]]
+    keep = (i >= 0) & (j >= 0)
+    i, j = i[keep], j[keep]
+    keep = says[i] == says[j]
+    g = sp.coo_matrix((np.ones(int(keep.sum())), (i[keep], j[keep])), shape=(len(v), len(v)))
+    _, label = connected_components(g, directed=False)
+    seeded = np.zeros(label.max() + 1, dtype=bool)
+    mine = np.isin(v, seeds)
+    seeded[label[mine]] = True
+    out = np.zeros(len(r["vertex"]), dtype=bool)
+    out[r["over"]] = seeded[label]
+    return out
+
+
+def _plane_bary(point, tri) -> np.ndarray:
+    """Barycentric coordinates of ``point``'s projection on the plane of ``tri``, clamped
+    to the triangle (non-negative, summing to 1)."""
+    e0, e1, p = tri[1] - tri[0], tri[2] - tri[0], point - tri[0]
+    d00, d01, d11 = e0 @ e0, e0 @ e1, e1 @ e1
+    denom = d00 * d11 - d01 * d01
+    if not denom > 0.0:
+        return np.full(3, 1.0 / 3.0)
+    v = (d11 * (p @ e0) - d01 * (p @ e1)) / denom
+    w = (d00 * (p @ e1) - d01 * (p @ e0)) / denom
+    out = np.clip(np.array([1.0 - v - w, v, w]), 0.0, None)
+    return out / out.sum()
+
+
+def _records(X, F, petal, normals, rim, a, b, reach) -> dict:
+    """Each vertex of petal ``a`` within ``reach`` of petal ``b``: its closest point on
+    ``b`` (``face``, barycentric coordinates ``bary``), distance ``d``, the offset ``dv``
+    from that point, ``b``'s normal there ``n`` (its vertex normals blended), the signed
+    distance ``s`` along it, whether the vertex is over or under ``b`` (``over``: the
+    closest point is not on ``b``'s rim, ``rim`` of :func:`_rim`), and ``kappa``: the
+    cosine between ``a``'s normal at the vertex and ``n``."""
+    va = np.flatnonzero(petal == a)
+    fb = np.flatnonzero(petal[F[:, 0]] == b)
+    used = np.unique(F[fb])
+    tri = X[F[fb]]
+    longest = float(np.linalg.norm(tri - tri[:, [1, 2, 0]], axis=2).max())
+    tree = cKDTree(X[used])
+    near = tree.query_ball_point(X[va], reach + longest)
+    count = np.fromiter((len(x) for x in near), dtype=np.int64, count=len(near))
+    hits = sp.csr_matrix((np.ones(int(count.sum()), dtype=np.int8),
+                          np.fromiter((k for x in near for k in x), dtype=np.int64,
+                                      count=int(count.sum())),
+                          np.r_[0, np.cumsum(count)]), shape=(len(va), len(used)))
+    slot = np.searchsorted(used, F[fb])
+    incident = sp.csr_matrix((np.ones(slot.size, dtype=np.int8),
+                              (slot.ravel(), np.repeat(np.arange(len(fb)), 3))),
+                             shape=(len(used), len(fb)))
+    pairs = (hits @ incident).tocoo()
+    order = np.lexsort((pairs.col, pairs.row))
+    r, f, bary, d = nearest_among(X[va], X, F, pairs.row[order].astype(np.int64),
+                                  fb[pairs.col[order]].astype(np.int64))
+    keep = d <= reach
+    r, f, bary, d = r[keep], f[keep], bary[keep], d[keep]
+    v = va[r]
+    c = np.einsum("ij,ijk->ik", bary, X[F[f]])
+    n = np.einsum("ij,ijk->ik", bary, normals[F[f]])
+    n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
+    dv = X[v] - c
+    s = np.einsum("ij,ij->i", dv, n)
+    # over or under b: the closest point is inside b, not on its rim (a rim edge or vertex)
+    zero = bary <= 0.0
+    corners = F[f]
+    on_rim = np.where(zero.sum(axis=1) == 2, rim["vertex"][corners[np.arange(len(f)),
+                                                                    np.argmax(~zero, axis=1)]],
+                      False)
+    single = zero.sum(axis=1) == 1
+    k = np.argmax(zero, axis=1)
+    ends = np.sort(np.stack([corners[np.arange(len(f)), (k + 1) % 3],
+                             corners[np.arange(len(f)), (k + 2) % 3]], axis=1), axis=1)
+    key = ends[:, 0] * rim["count"] + ends[:, 1]
+    on_rim |= single & np.isin(key, rim["edges"])
+    over = ~on_rim
+    kappa = np.einsum("ij,ij->i", normals[v], n)
+    return {"vertex": v, "face": f, "bary": bary, "d": d, "dv": dv, "n": n, "s": s,
+            "over": over, "kappa": kappa}
+
+
+# --- moving --------------------------------------------------------------------------------
+
+def _solve(X, graph, rows, petal, spread) -> np.ndarray:
+    """The smallest, smoothest move ``D (V, 3)`` that does what ``rows`` ask.
+
+    Each row ``(ids (k,), grad (k, 3), need)`` asks ``sum_j grad_j . D[ids_j] = need``,
+    with weight ``WEIGHT``. Against the rows, per vertex ``i`` of spread ``l`` (its
+    petal's, in mean edges): ``l^2 |(L D)_i|^2`` (bending: ``L`` is the mesh's graph
+    Laplacian), ``|D_i - D_j|^2`` per edge (stretching) and ``|D_i|^2 / l^2`` (the pull
+    back), so that a move fades over about ``l`` edges. Only the vertices within four
+    spreads of one asked to move are free; the others stay where they are."""
+    asked = np.unique(np.concatenate([r[0] for r in rows]))
+    hops = np.ceil(4.0 * float(spread.max()))
+    reach = dijkstra(graph, indices=asked, unweighted=True, limit=hops, min_only=True)
+    free = np.flatnonzero(np.isfinite(reach))
+    n = len(free)
+    slot = np.full(len(X), -1, dtype=np.int64)
+    slot[free] = np.arange(n)
+    lap = sp.diags(np.asarray(graph.sum(axis=1)).ravel()) - graph
+    cols = lap[:, free]
+    scale = spread[petal[free]]
+    A = (sp.diags(scale) @ (cols.T @ cols) @ sp.diags(scale) + lap[free][:, free]
+         + sp.diags(1.0 / scale ** 2))
+    A = sp.kron(A, sp.identity(3), format="csr")
+    sizes = np.array([len(r[0]) for r in rows])
+    row_of = np.repeat(np.arange(len(rows)), 3 * sizes)
+    vertex = np.concatenate([r[0] for r in rows])
+    col = (3 * slot[vertex][:, None] + np.arange(3)).ravel()
+    val = np.concatenate([np.asarray(r[1], dtype=np.float64).ravel() for r in rows])
+    J = sp.csr_matrix((val, (row_of, col)), shape=(len(rows), 3 * n))
+    need = np.array([r[2] for r in rows], dtype=np.float64)
+    from scipy.sparse.linalg import spsolve
+
+    d = spsolve((A + WEIGHT * (J.T @ J)).tocsc(), WEIGHT * (J.T @ need))
+    D = np.zeros_like(X)
+    D[free] = d.reshape(-1, 3)
+    return D
+
+
+# --- measures ------------------------------------------------------------------------------
+
+def _petal_lengths(X, petal, count) -> np.ndarray:
+    """(P,) each petal's length: its diameter, found by two sweeps (the vertex furthest
+    from the centroid, then the vertex furthest from that)."""
+    out = np.zeros(count)
+    for p in range(count):
+        pts = X[petal == p]
+        if len(pts) < 2:
+            continue
+        far = pts[np.argmax(np.linalg.norm(pts - pts.mean(axis=0), axis=1))]
+        out[p] = np.linalg.norm(pts - far, axis=1).max()
+    return np.where(out > 0.0, out, max(out.max(), 1.0))
+
+
+def _mean_edge(X, E) -> float:
+    return float(np.linalg.norm(X[E[:, 0]] - X[E[:, 1]], axis=1).mean())
+
+
+def _graph(E, n) -> sp.csr_matrix:
+    return sp.coo_matrix((np.ones(2 * len(E)), (np.r_[E[:, 0], E[:, 1]], np.r_[E[:, 1], E[:, 0]])),
+                         shape=(n, n)).tocsr()
+
+
+def _vertex_areas(X, F) -> np.ndarray:
+    a = 0.5 * np.linalg.norm(face_normals(X, F), axis=1) / 3.0
+    out = np.zeros(len(X))
+    for c in range(3):
+        np.add.at(out, F[:, c], a)
+    return out
+
+
+def _min_distance(mesh, X, reach) -> float:
+    import ipctk
+
+    Xf = np.asfortranarray(X)
+    found = ipctk.NormalCollisions()
+    found.build(mesh, Xf, 4.0 * reach)
+    return float(np.sqrt(found.compute_minimum_distance(mesh, Xf))) if len(found) else np.inf
+
+
+def _involved(crossing, close, E, F, petal) -> list[tuple[int, int]]:
+    return sorted(set(_pair_list(crossing, E, F, petal)) | {(a, b) for a, b, _, _ in close})
+
+
+def _names(pairs) -> str:
+    return ", ".join(f"{a}-{b}" for a, b in pairs)
+
+
+def _state(crossing, close, E, F, petal) -> str:
+    parts = []
+    if len(crossing):
+        parts.append(f"through each other ({_names(_pair_list(crossing, E, F, petal))})")
+    if close:
+        parts.append(f"nearer than the gap ({_names(sorted({(a, b) for a, b, _, _ in close}))})")
+    return " and ".join(parts)

@@ -1,0 +1,266 @@
+"""Petals that start through each other, or touching, moved apart (pipeline.mesh.separate)
+and the remesh stage that does it (remesh.separate): a pinwheel, petals crossing near the
+base, two sheets through each other, a dense crossed bud; a clean bud untouched; the same
+bits every run; a hopeless input refused naming its parts."""
+
+from __future__ import annotations
+
+import json
+
+import h5py
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from pipeline.mesh import procedural
+from pipeline.mesh.clean import mean_edge_length
+from pipeline.mesh.separate import SeparationError, separate
+from pipeline.sim.terms.contact import Contact, frame_intersections
+from stages.cli import cli
+
+GAP = 0.01  #: mesh units (mean edge 1), as the remesh stage uses it (effects.collisions.thickness)
+
+
+def _at_mean_edge_1(v, f, p):
+    return v / mean_edge_length(v, f), np.asarray(f), np.asarray(p)
+
+
+def pinwheel(petals: int = 5, seed: int = 0):
+    """Flat petals round an axis, each tilted across its width (leading edge up), wide
+    enough that each lies over its next neighbour's trailing edge: a pinwheel, each petal
+    over one neighbour and under the other. The leading edge's last fifth dives down through
+    the neighbour: every neighbouring pair crosses, most of each overlap the pinwheel's way."""
+    pts, tri = procedural.flat_petal(procedural.Outline(), 0.05, np.random.default_rng(seed))
+    u, s = 2.2 * pts[:, 0], pts[:, 1]
+    z = 0.15 * u - 0.6 * np.maximum(u - 0.33, 0.0)
+    v, f, p = [], [], []
+    for i in range(petals):
+        t = 2.0 * np.pi * i / petals
+        out, across = np.array([np.cos(t), np.sin(t), 0.0]), np.array([-np.sin(t), np.cos(t), 0.0])
+        v.append(np.outer(0.15 + s, out) + np.outer(u, across) + np.outer(z, [0.0, 0.0, 1.0]))
+        f.append(tri + i * len(pts))
+        p.append(np.full(len(pts), i))
+    return _at_mean_edge_1(np.vstack(v), np.vstack(f), np.concatenate(p))
+
+
+def sheet(x0, x1, y0, y1, spacing=1.0):
+    """A flat triangulated rectangle in the plane z = 0: ``(points (n, 2), faces)``."""
+    xs = np.arange(x0, x1 + 1e-9, spacing)
+    ys = np.arange(y0, y1 + 1e-9, spacing * np.sqrt(3.0) / 2.0)
+    pts = np.array([(x + 0.5 * spacing * (j % 2), y) for j, y in enumerate(ys) for x in xs
+                    if x + 0.5 * spacing * (j % 2) <= x1 + 1e-9])
+    from scipy.spatial import Delaunay
+
+    tri = Delaunay(pts).simplices
+    a, b, c = (pts[tri[:, k]] for k in range(3))
+    flip = (b - a)[:, 0] * (c - a)[:, 1] - (b - a)[:, 1] * (c - a)[:, 0] < 0
+    tri[flip] = tri[flip][:, [0, 2, 1]]
+    return pts, tri
+
+
+def two_sheets(slope=0.1):
+    """Sheet 0 rises along x (z = slope x, x in [-8, 2]), sheet 1 falls (z = -slope x, x in
+    [-3, 8]): they pass through each other along x = 0, sheet 0 under sheet 1 over 3 units
+    of their overlap, over it over 2."""
+    pa, ta = sheet(-8, 2, -4, 4)
+    pb, tb = sheet(-3, 8, -4, 4)
+    v = np.vstack([np.c_[pa, slope * pa[:, 0]], np.c_[pb, -slope * pb[:, 0]]])
+    return v, np.vstack([ta, tb + len(pa)]), np.r_[np.zeros(len(pa), int), np.ones(len(pb), int)]
+
+
+def _height_of(v, f, petal, q, x, y):
+    """The height of petal ``q`` over the point (x, y) (its triangle there, seen from +z)."""
+    tri = v[f[petal[f[:, 0]] == q]]
+    for a, b, c in tri:
+        m = np.array([[b[0] - a[0], c[0] - a[0]], [b[1] - a[1], c[1] - a[1]]])
+        if abs(np.linalg.det(m)) < 1e-12:
+            continue
+        s, t = np.linalg.solve(m, [x - a[0], y - a[1]])
+        if s >= 0 and t >= 0 and s + t <= 1:
+            return a[2] + s * (b[2] - a[2]) + t * (c[2] - a[2])
+    raise AssertionError("not over that petal")
+
+
+def _crossing_pairs(v, f, p):
+    return Contact.build(v, f, p, gap=GAP, stiffness=1.0).intersecting_pairs(v)
+
+
+def _apart(v, f, p):
+    """No intersection (the report's exact test: petals against each other and each against
+    itself), and no two petals nearer than the gap."""
+    c = Contact.build(v, f, p, gap=GAP, stiffness=1.0)
+    return frame_intersections([v], f) == [False] and c.min_distance(v, 4 * GAP) >= GAP
+
+
+def test_a_pinwheel_is_separated_each_petal_over_its_neighbour():
+    """Every neighbouring pair of the pinwheel crosses; after, none does, all are a gap
+    apart, and each petal's diving edge is over its neighbour again: the pinwheel's cycle
+    (0 over 1 over ... over 4 over 0) kept, decided pair by pair where they overlap."""
+    v, f, p = pinwheel()
+    assert _crossing_pairs(v, f, p) == [(0, 1), (0, 4), (1, 2), (2, 3), (3, 4)]
+    out = separate(v, f, p, GAP)
+    assert out.crossed == [(0, 1), (0, 4), (1, 2), (2, 3), (3, 4)]
+    assert _apart(out.vertices, f, p)
+    for i in range(5):
+        mine = np.flatnonzero(p == i)
+        tip = mine[np.argmax(v[mine] @ np.cross([0.0, 0.0, 1.0], v[mine].mean(axis=0)))]
+        x, y = v[tip, :2]
+        before = v[tip, 2] - _height_of(v, f, p, (i + 1) % 5, x, y)
+        after = out.vertices[tip, 2] - _height_of(out.vertices, f, p, (i + 1) % 5, x, y)
+        assert before < 0.0 < after, (i, before, after)
+    assert 0.0 < out.largest < 0.05 and out.rms < out.largest
+
+
+def test_petals_crossing_near_the_base_are_separated():
+    """An open five-tepal flower whose tepals leave a receptacle too small for them: each
+    crosses its neighbours from near the base up."""
+    v, f, p = _at_mean_edge_1(*procedural.open_flower(5, 900, 0, procedural.OpenShape(
+        receptacle_radius=0.1)))
+    before = _crossing_pairs(v, f, p)
+    assert len(before) == 5
+    low = v[:, 2] < 0.3 * v[:, 2].max()
+    out = separate(v, f, p, GAP)
+    assert out.crossed == before and _apart(out.vertices, f, p)
+    assert np.any(out.vertices[low] != v[low])  # the base moved too
+    assert out.largest <= 0.1
+
+
+def test_two_sheets_through_each_other_part_the_way_most_of_them_lie():
+    """Sheet 0 is under sheet 1 over most of their overlap: after, it is under it all the
+    way to its far edge, which it was over; both moved (the move is shared)."""
+    v, f, p = two_sheets()
+    out = separate(v, f, p, GAP)
+    assert out.crossed == [(0, 1)] and _apart(out.vertices, f, p)
+    edge = np.flatnonzero((p == 0) & (v[:, 0] == v[p == 0, 0].max()) & (np.abs(v[:, 1]) < 1))[0]
+    x, y = v[edge, :2]
+    assert v[edge, 2] > _height_of(v, f, p, 1, x, y)
+    assert out.vertices[edge, 2] < _height_of(out.vertices, f, p, 1, x, y)
+    moved = np.any(out.vertices != v, axis=1)
+    assert moved[p == 0].any() and moved[p == 1].any()
+    move = np.linalg.norm(out.vertices - v, axis=1)
+    assert move[v[:, 0] < -7].max() < 0.2 * move.max()  # it fades away from the crossing
+
+
+def test_a_clean_bud_comes_back_to_the_bit():
+    v, f, p = _at_mean_edge_1(*procedural.bud(6, 1200, 0))
+    out = separate(v, f, p, GAP)
+    assert out.vertices is not v and np.array_equal(out.vertices, v)
+    assert out.vertices.tobytes() == v.tobytes()
+    assert (out.crossed, out.close, out.moved, out.largest, out.iterations) == ([], [], 0, 0.0, 0)
+
+
+def test_petals_nearer_than_the_gap_are_parted_to_it():
+    """Two parallel sheets half a gap apart: not through each other, but too close."""
+    pa, ta = sheet(0, 6, 0, 6)
+    v = np.vstack([np.c_[pa, np.zeros(len(pa))], np.c_[pa + 2.0, np.full(len(pa), 0.5 * GAP)]])
+    f, p = np.vstack([ta, ta + len(pa)]), np.r_[np.zeros(len(pa), int), np.ones(len(pa), int)]
+    out = separate(v, f, p, GAP)
+    assert out.crossed == [] and out.close == [(0, 1)] and _apart(out.vertices, f, p)
+    assert out.largest < 0.01
+
+
+def test_the_same_bits_every_run_and_with_any_number_of_threads():
+    import ipctk
+
+    v, f, p = pinwheel()
+    first = separate(v, f, p, GAP).vertices
+    threads = ipctk.get_num_threads()
+    try:
+        ipctk.set_num_threads(2)
+        again = separate(v, f, p, GAP).vertices
+    finally:
+        ipctk.set_num_threads(threads)
+    assert first.tobytes() == again.tobytes()
+
+
+def test_sheets_crossed_through_their_middles_are_refused_naming_them():
+    """Two sheets at right angles, each through the middle of the other: either half of
+    either would have to move half a sheet. Refused, naming the pair."""
+    pa, ta = sheet(-4, 4, -4, 4)
+    v = np.vstack([np.c_[pa, np.zeros(len(pa))], np.c_[np.zeros(len(pa)), pa[:, 0], pa[:, 1]]])
+    v[len(pa):, 1] += 0.1  # (no vertex on the other sheet)
+    f, p = np.vstack([ta, ta + len(pa)]), np.r_[np.zeros(len(pa), int), np.ones(len(pa), int)]
+    with pytest.raises(SeparationError) as err:
+        separate(v, f, p, GAP)
+    assert err.value.pairs == [(0, 1)] and "petals 0-1 cannot be separated" in str(err.value)
+
+
+@pytest.mark.slow
+def test_the_dense_crossed_12_petal_bud_is_separated():
+    """The bud of 12 petals as bent, before it is untangled (crossing=True): 11 pairs cross."""
+    v, f, p = _at_mean_edge_1(*procedural.bud(12, 2400, 0, crossing=True))
+    out = separate(v, f, p, GAP)
+    assert len(out.crossed) == 11 and _apart(out.vertices, f, p)
+    assert out.largest <= 0.1
+
+
+# --- the remesh stage ------------------------------------------------------------------------
+
+def _write(path, v, f, p, names):
+    lines = [f"v {x:.9f} {y:.9f} {z:.9f}" for x, y, z in v]
+    for k, name in enumerate(names):
+        lines.append(f"o {name}")
+        lines += [f"f {a + 1} {b + 1} {c + 1}" for a, b, c in f[p[f[:, 0]] == k]]
+    path.write_text("\n".join(lines) + "\n")
+
+
+def test_remesh_separates_and_binds_the_parts_to_the_separated_sheet(tmp_path):
+    """The stability suite's crossed bud through `bloom remesh`: the sheets come out apart,
+    the figures are logged and recorded, and the user's parts come back exactly where they
+    were from the separated sheet (the binding is to it)."""
+    from pipeline.io import binding, userasset
+
+    v, f, p = procedural.bud(6, 1200, 0, procedural.BudShape(layer_gap=-0.04), crossing=True)
+    mesh = tmp_path / "crossed.obj"
+    _write(mesh, v, f, p, [f"Petal.{k:03d}" for k in range(6)])
+    out = tmp_path / "remesh.h5"
+    r = CliRunner().invoke(cli, ["remesh", str(mesh), "--out", str(out)])
+    assert r.exit_code == 0, r.output
+    said = [line for line in r.output.splitlines() if "separated petals" in line]
+    assert len(said) == 1 and "remesh.separate" in said[0] and "Petal.001" in said[0], r.output
+    with h5py.File(out) as h:
+        X, F, P = h["mesh/vertices"][()], h["mesh/faces"][()], h["mesh/petal"][()]
+        record = json.loads(h.attrs["separation"])
+        asset, bound, scale = userasset.read(h), binding.read_bindings(h), h.attrs["scale"]
+    assert record["enabled"] and len(record["crossed"]) >= 5 and 0 < record["largest"] <= 0.1
+    assert record["moved"] > 0 and record["distance"] >= GAP
+    assert _apart(X, F, P)
+    for i, b in bound.items():
+        np.testing.assert_allclose(binding.deform(X, F, b) / scale, asset.parts[i].points,
+                                   atol=1e-9 * np.abs(asset.parts[i].points).max())
+
+
+def test_remesh_separate_false_keeps_them_crossed(tmp_path):
+    """The key turns it off (and is recorded): the two sheets come out through each other."""
+    v, f, p = two_sheets()
+    mesh = tmp_path / "two.obj"
+    _write(mesh, v, f, p, ["left", "right"])
+    out = tmp_path / "remesh.h5"
+    for separate_, crossed in (("false", True), ("true", False)):
+        r = CliRunner().invoke(cli, ["remesh", str(mesh), "--out", str(out), "--overwrite",
+                                     "--set", f"remesh.separate={separate_}",
+                                     "--set", "remesh.symmetrize=false",
+                                     "--set", 'scene.petals=["left", "right"]'])
+        assert r.exit_code == 0, r.output
+        with h5py.File(out) as h:
+            assert json.loads(h.attrs["separation"])["enabled"] == (separate_ == "true")
+            X, F = h["mesh/vertices"][()], h["mesh/faces"][()]
+            assert frame_intersections([X], F) == [crossed]
+
+
+def test_remesh_refuses_petals_it_cannot_separate_in_one_line(tmp_path):
+    """Two petals at right angles, one through the other all along its midrib: refused in
+    one line naming the file, the pair and its parts, and the key; nothing written."""
+    pts, tri = procedural.flat_petal(procedural.Outline(), 0.08, np.random.default_rng(0))
+    u, s = pts[:, 0], pts[:, 1]
+    v = 10.0 * np.vstack([np.c_[u, s, 0.0 * u], np.c_[0.0 * u + 0.013, s + 0.02, u]])
+    f, p = np.vstack([tri, tri + len(pts)]), np.repeat([0, 1], len(pts))
+    mesh = tmp_path / "cross.obj"
+    _write(mesh, v, f, p, ["Blade.A", "Blade.B"])
+    out = tmp_path / "remesh.h5"
+    r = CliRunner().invoke(cli, ["-q", "remesh", str(mesh), "--out", str(out), "--set",
+                                 'scene.petals=["Blade.*"]'])
+    assert r.exit_code != 0 and list(tmp_path.iterdir()) == [mesh]
+    lines = r.output.strip().splitlines()
+    assert len(lines) == 1 and "Traceback" not in r.output, r.output
+    assert all(w in lines[0] for w in (str(mesh), "0-1", "Blade.A", "Blade.B", "remesh.separate"))
