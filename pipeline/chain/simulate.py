@@ -74,7 +74,7 @@ def run(growth_h5: str | Path, out: str | Path, cfg: Config, *, overwrite: bool 
             model_positions = np.asarray(v)
             v, model, rest_angle, params, bud_info = open_start(
                 cfg, model, model_positions, rest_angle, params, build_effects, petal, base,
-                prep.s, prep.x, prep.flower_axis, where)
+                prep.s, prep.x, prep.flower_axis, where, faces=prep.faces, plane=prep.plane)
         petals = prep.frames(v)
         if cfg["growth.keys"]:
             control = Control.keyed(cfg["growth.keys"], frames, steps, h)
@@ -83,6 +83,8 @@ def run(growth_h5: str | Path, out: str | Path, cfg: Config, *, overwrite: bool 
         integrator = make_integrator(sim["integrator"], sim["eta"], sim["damping"],
                                      sim["speed_limit"], sim["stages"], sim["tolerance"],
                                      sim["substeps"], sim["inertia"])
+        if hasattr(integrator, "petal"):  # (it names the petal of each rescue in the log)
+            integrator.petal = np.asarray(petal)
         effects = build_effects(v)
         state = State.at_rest(model, v, control)
         effects.constrain(state.forces)

@@ -37,6 +37,12 @@ log = logging.getLogger("bloom")
 #: growth.start = open: the nudge toward closing that picks the bud's branch, in petal
 #: lengths at the tip (see :func:`find_bud`)
 LIFT = 0.05
+#: a lift that leaves a triangle under this fraction of its own shape quality (twice its
+#: area over its longest edge squared) folds it: the path's rest state would hold a crease
+#: that the closing growth collapses (pchinyun's Solidify petal: its tip triangle at 0.108
+#: of its quality under ``s^2 + x^2``, collapsed at A = 0.5; every other external model
+#: keeps 0.33 or more, the project's open lily 0.71)
+FOLD = 0.25
 
 
 class Backward:
@@ -87,7 +93,7 @@ def rest_at(model: Model, positions) -> Model:
 
 
 def find_bud(model: Model, open_positions, effects, *, stages: int, tolerance: float,
-             lift=None, settle_effects=None):
+             lift=None, settle_effects=None, petal=None):
     """The equilibrium at A = 0 reached from the model (at A = 1) along the path of
     equilibria. Returns ``(positions, solver)``; the solver's diagnostics say what it took.
 
@@ -95,9 +101,10 @@ def find_bud(model: Model, open_positions, effects, *, stages: int, tolerance: f
     can close up or down): the path is followed from the model moved by ``lift`` (rest
     lengths and angles measured there), and the bud it reaches is then settled at A = 0
     on the model itself (``settle_effects``: fresh effects for that solve), so the bud
-    is the model's own equilibrium, on the branch the lift chose."""
+    is the model's own equilibrium, on the branch the lift chose. ``petal`` ``(V,)``
+    names the petals in the log (of the solver's rescues)."""
     backward = Backward()
-    solver = QuasiStatic(stages=stages, tolerance=tolerance)
+    solver = QuasiStatic(stages=stages, tolerance=tolerance, petal=petal)
     start = np.asarray(open_positions, dtype=np.float64)
     if lift is not None:
         start = start + lift
@@ -106,7 +113,7 @@ def find_bud(model: Model, open_positions, effects, *, stages: int, tolerance: f
     solver.advance(path_model, state, backward, 1, 1.0, effects)
     if lift is None:
         return state.positions.copy(), solver
-    settle = QuasiStatic(stages=stages, tolerance=tolerance, perturbation=0.0)
+    settle = QuasiStatic(stages=stages, tolerance=tolerance, perturbation=0.0, petal=petal)
     bud = State.at_rest(model, state.positions, _Bud())
     settle.advance(model, bud, _Bud(), 0, 1.0, settle_effects if settle_effects is not None else effects)
     solver.iterations += settle.iterations
@@ -121,6 +128,46 @@ def closing_lift(positions, s, x, pinned, up, size: float) -> np.ndarray:
     lift = size * 0.5 * (s ** 2 + x ** 2)[:, None] * np.asarray(up)[None, :]
     lift[np.asarray(pinned, bool)] = 0.0
     return lift
+
+
+def triangle_quality(positions, faces) -> np.ndarray:
+    """``(F,)`` twice each triangle's area over its longest edge squared (0: collapsed;
+    0.87 equilateral)."""
+    X = np.asarray(positions, dtype=np.float64)
+    f = np.asarray(faces, dtype=np.int64)
+    a, b, c = X[f[:, 0]], X[f[:, 1]], X[f[:, 2]]
+    longest = np.max([np.sum((b - a) ** 2, axis=1), np.sum((c - b) ** 2, axis=1),
+                      np.sum((a - c) ** 2, axis=1)], axis=0)
+    return np.linalg.norm(np.cross(b - a, c - a), axis=1) / longest
+
+
+def plane_across(positions, petal, plane) -> np.ndarray:
+    """``(V,)`` a cross-section coordinate smooth in space: each vertex's signed distance
+    to its petal's center plane over the largest in that petal. (``x`` is not smooth where
+    a petal narrows: near its tip it runs from -1 to 1 within an edge or two.)"""
+    X = np.asarray(positions, dtype=np.float64)
+    petal = np.asarray(petal, dtype=np.int64)
+    pl = np.asarray(plane, dtype=np.float64).reshape(-1, 4)[petal]
+    d = np.einsum("ij,ij->i", X, pl[:, :3]) + pl[:, 3]
+    largest = np.zeros(int(petal.max()) + 1 if len(petal) else 0)
+    np.maximum.at(largest, petal, np.abs(d))
+    return d / np.where(largest > 0.0, largest, 1.0)[petal]
+
+
+def unfolded_lift(positions, faces, petal, plane, s, x, pinned, up, size):
+    """The closing lift (:func:`closing_lift`), mended where it would fold a triangle
+    (leave it under :data:`FOLD` of its own quality): then across each petal it follows
+    the distance from the center plane (:func:`plane_across`) instead of ``x``. Returns
+    ``(lift, folded)``: ``folded`` the petals whose triangles ``s^2 + x^2`` folded (empty:
+    that lift is kept as it is)."""
+    lift = closing_lift(positions, s, x, pinned, up, size)
+    quality = triangle_quality(positions, faces)
+    folded = triangle_quality(np.asarray(positions) + lift, faces) < FOLD * quality
+    if not folded.any():
+        return lift, []
+    petals = sorted({int(p) for p in np.asarray(petal)[np.asarray(faces)[folded, 0]]})
+    return closing_lift(positions, s, plane_across(positions, petal, plane), pinned, up,
+                        size), petals
 
 
 def petal_lengths(positions, petal, base) -> np.ndarray:
@@ -142,12 +189,14 @@ def distance_to_model(positions, model_positions, petal, base) -> float:
 
 
 def open_start(cfg, model: Model, positions, rest_angle, params: Params, build_effects, petal,
-               base, s, x, flower_axis, where: str):
+               base, s, x, flower_axis, where: str, *, faces=None, plane=None):
     """``growth.start = "open"``: the model at A = 1, the bud at A = 0. Returns the bud's
     positions, the model, rest angles and effect parameters that grow from it back to
     the mesh, and figures for the artifact (``bud_seconds``, ``bud_newton_iterations``,
     ``bud_distance``). ``build_effects(positions)`` builds the scene's effects at
-    ``positions``. Raises :class:`BloomError` naming the key to change."""
+    ``positions``. With ``faces`` and ``plane`` (each petal's center plane) a lift that
+    would fold a triangle is mended (:func:`unfolded_lift`). Raises :class:`BloomError`
+    naming the key to change."""
     close = cfg["growth.close"]
     try:
         model = open_model(model, close)
@@ -160,10 +209,19 @@ def open_start(cfg, model: Model, positions, rest_angle, params: Params, build_e
     try:
         _, up = flower_axis_or_guess(positions, flower_axis)
         size = LIFT * petal_lengths(positions, petal, base).mean()
-        lift = closing_lift(positions, s, x, base, up, size)
+        if faces is not None and plane is not None:
+            lift, folded = unfolded_lift(positions, faces, petal, plane, s, x, base, up, size)
+            if folded:
+                log.info("growth.start = open: the closing lift (s^2 + x^2) would fold a "
+                         "triangle of petal(s) %s (under %g of its shape); lifted by the "
+                         "distance from each center plane instead", ", ".join(map(str, folded)),
+                         FOLD)
+        else:
+            lift = closing_lift(positions, s, x, base, up, size)
         bud, solver = find_bud(model, positions, build_effects(positions + lift),
                                stages=cfg["simulate.stages"], tolerance=cfg["simulate.tolerance"],
-                               lift=lift, settle_effects=build_effects(positions))
+                               lift=lift, settle_effects=build_effects(positions),
+                               petal=np.asarray(petal))
     except NotConverged as exc:
         raise BloomError(f"growth.close: finding the bud, the quasi-static solver found {exc} "
                          f"(petal {int(petal[exc.vertex])}); remedy: a smaller growth.close, or "

@@ -41,6 +41,13 @@ ROUNDING_FACTOR = 2.0
 #: a group's factorization is reused for a step at most this fraction of its last one
 CHORD = 0.1
 EPS = float(np.finfo(np.float64).eps)
+#: a sheet whose force scale (what the elastic kernel adds and subtracts at a vertex,
+#: :meth:`Newton.rounding`) passes this many times its scale where the path started has a
+#: triangle collapsed to (nearly) no area: its bending force grows as 1 / height^2, and
+#: the rounding level with it, so that any residual would pass for converged. No such
+#: state is an equilibrium. (On the project's scenes and the external models the scale
+#: stays within 3 times its start; a triangle of 1e-3 of the mean edge high gives ~1e3.)
+OUT_OF_SCALE = 1e4
 
 
 @dataclass
@@ -49,8 +56,13 @@ class Failure:
 
     residual: float  #: largest gradient component left (force units)
     scale: float  #: the force scale there (eps * scale * ROUNDING_FACTOR: the rounding level)
-    how: str  #: stalled (no descent along the step), iterations, or shift (no shift helped)
+    #: stalled (no descent along the step), iterations, shift (no shift helped), or
+    #: degenerate (the sheet's forces went out of scale: a triangle collapsed)
+    how: str
     inertia: str  #: the Hessian's last factorization: definite, indefinite or singular
+    vertex: int = -1  #: where: the largest residual force (degenerate: the largest force scale)
+    #: degenerate: the force scale there over the sheet's where the path started
+    out_of_scale: float = 0.0
 
     @property
     def rounding(self) -> float:
@@ -77,6 +89,11 @@ class NotConverged(RuntimeError):
         super().__init__(f"{text}; {detail}" if detail else text)
 
 
+def _largest(g) -> int:
+    """The vertex of the largest component of a flattened per-vertex vector."""
+    return int(np.argmax(np.abs(g))) // 3 if len(g) else -1
+
+
 @dataclass
 class Counters:
     """What the solver has done so far (a frame's diagnostics)."""
@@ -87,6 +104,11 @@ class Counters:
     descents: int = 0  #: searches along a direction of negative curvature
     ccd_cuts: int = 0  #: steps cut short by continuous collision detection
     breaks: int = 0  #: connection springs broken (each break redoes its increment)
+    #: rescues: increments where Newton found no equilibrium even after the usual halvings,
+    #: stepped through (:meth:`~pipeline.sim.solver.quasistatic.QuasiStatic._rescue`)
+    rescues: int = 0
+    rescue_halvings: int = 0  #: halvings past the usual limit in those rescues
+    rescue_inertia_steps: int = 0  #: implicit Euler steps (the snap as a motion) in them
 
 
 @dataclass
@@ -108,6 +130,11 @@ class Newton:
     #: the inertia term of the increment being solved (None: the quasi-static path)
     dyn: Inertia | None = None
     energy_rounding: float = 0.0  #: the energy's rounding level at the last iterate
+    #: the sheet's force scale where the path started (the largest over its free vertices
+    #: of the elastic kernel's, :meth:`rounding`); 0: not measured (no check)
+    reference: float = 0.0
+    #: the elastic force scale at the last iterate and the vertex where it is largest
+    sheet: tuple = (0.0, -1)
     residuals: list = field(default_factory=list, repr=False)  #: per iteration of the last solve
     _scale_work: np.ndarray | None = field(default=None, repr=False)
     _coupling: np.ndarray | None = field(default=None, repr=False)  #: their last forces
@@ -221,6 +248,10 @@ class Newton:
             self.residuals.append(residual)
             scale, self.energy_rounding = self.rounding(X)
             rounding = ROUNDING_FACTOR * EPS * scale
+            if self.reference > 0.0 and self.sheet[0] > OUT_OF_SCALE * self.reference:
+                # (before the test at rounding: that level has gone out of scale too)
+                return Failure(residual, scale, "degenerate", self.factor_inertia(),
+                               vertex=self.sheet[1], out_of_scale=self.sheet[0] / self.reference)
             if residual <= rounding:
                 return None  # at rounding: no step can do better
             # a mode as soft as floor moves less than tolerance
@@ -288,7 +319,8 @@ class Newton:
                 for _gr, (mu, rejected) in zip(lost, _map(shift, lost), strict=True):
                     self.counts.shifted += rejected
                     if mu is None:
-                        return Failure(residual, scale, "shift", self.factor_inertia())
+                        return Failure(residual, scale, "shift", self.factor_inertia(),
+                                       vertex=_largest(g))
             step = system.solve(-g, moving, None if lost else solved)
             length = self.line_search(X, scratch, energy, g, step)
             if length == 0.0:
@@ -296,7 +328,8 @@ class Newton:
                 if reused:  # an old factorization is no excuse: factor afresh
                     stale.update(reused)
                     continue
-                return Failure(residual, scale, "stalled", self.factor_inertia(lost))
+                return Failure(residual, scale, "stalled", self.factor_inertia(lost),
+                               vertex=_largest(g))
             # (a step cut by CCD is no sign of convergence: the whole step was not small)
             for gr in moving:
                 gr.moved = length * float(np.abs(step[gr.dofs]).max())
@@ -309,7 +342,15 @@ class Newton:
                 done.update(gr.key for gr in moving if gr.shift == 0.0)
             if all(gr.key in done for gr in moving):  # (the others had converged)
                 return None  # (the factorization is that of the equilibrium, to rounding)
-        return Failure(residual, scale, "iterations", self.factor_inertia())
+        return Failure(residual, scale, "iterations", self.factor_inertia(),
+                       vertex=_largest(self.constrained(-scratch)) if self._accepted is not None
+                       else -1)
+
+    def sheet_scale(self, X) -> float:
+        """The sheet's force scale at X (the elastic kernel's, largest over the free
+        vertices: :meth:`rounding`), at the growth last set."""
+        self.rounding(X)
+        return self.sheet[0]
 
     def factor_inertia(self, lost=None) -> str:
         """The last factorizations' inertia, as a failure names it."""
@@ -329,6 +370,10 @@ class Newton:
         if per_vertex is None or len(per_vertex) != len(X):
             per_vertex = self._scale_work = np.empty(len(X))
         energy = self.terms.elastic.rounding(X, per_vertex)
+        free = ~self.system.pinned
+        if free.any():  # (the sheet's own: what a collapsed triangle drives out of scale)
+            worst = int(np.argmax(np.where(free, per_vertex, -np.inf)))
+            self.sheet = (float(per_vertex[worst]), worst)
         if self.dyn is not None:  # the inertia term's force w (x - x_pred)
             x_pred, weight = self.dyn.predicted, self.dyn.weight
             size = np.abs(X).max(axis=1) + np.abs(x_pred).max(axis=1)
@@ -338,7 +383,6 @@ class Newton:
             per_vertex += np.abs(self._coupling).max(axis=1)
             if self.springs is not None:
                 self.springs.scale(X, per_vertex)
-        free = ~self.system.pinned
         force = float(per_vertex[free].max()) if free.any() else 0.0
         return force, EPS * energy
 

@@ -28,6 +28,14 @@ of the last two equilibria, or the tangent).
   energy is accepted.
 - Increments: ``ceil(dA * stages)`` per call, so ``stages`` bounds the growth per
   increment; an increment that does not converge is halved (up to 6 times).
+- Rescue: where an increment still does not converge (a snap, a buckle, a stage that
+  will not converge), the path steps through it (:meth:`QuasiStatic._rescue`): more,
+  smaller increments where they converge, then the snap as a motion, implicit Euler
+  steps with the inertia term at the growth past the snag until the sheet comes to rest,
+  and Newton's equilibrium from there; then the path goes on. Each rescue is counted in
+  the diagnostics and logged in one line. A state whose forces have gone out of scale
+  (a triangle collapsed: :data:`~pipeline.sim.solver.newton.OUT_OF_SCALE`) is no
+  equilibrium, and is rescued or refused like any other failure.
 - Symmetry breaking: at the first increment every free vertex is moved by a tiny,
   seeded random amount (``perturbation`` mesh units), so that a perfectly symmetric
   petal can leave an unstable symmetric branch; Newton removes it where the branch is
@@ -58,6 +66,7 @@ velocities stay zero.
 
 from __future__ import annotations
 
+import logging
 import math
 from dataclasses import dataclass, field
 
@@ -73,6 +82,25 @@ from pipeline.sim.terms.connections import Springs
 from pipeline.sim.terms.contact import Contact
 from pipeline.sim.terms.inertia import Inertia
 
+log = logging.getLogger("bloom")
+
+#: an increment where Newton finds no equilibrium is halved up to this many times ...
+HALVINGS = 6
+#: ... then the path is rescued (:meth:`QuasiStatic._rescue`): up to this many more
+#: halvings (more, smaller increments, where they converge) ...
+EXTRA_HALVINGS = 4
+#: ... then the snap as a motion: implicit Euler steps (at most this many) ...
+RESCUE_STEPS = 200
+#: ... each halved at most this many times where Newton fails on it ...
+RESCUE_DT_HALVINGS = 10
+#: ... until the motion has come to rest: a step moves the sheet this fraction of the
+#: largest step so far or less (then Newton seeks the equilibrium from there)
+REST = 1e-2
+#: an implicit Euler step that converges in this many Newton iterations or fewer doubles
+#: the next one's time step
+EASY = 8
+#: a growth increment is rescued at most this many times
+RESCUES = 8
 
 @dataclass
 class QuasiStatic:
@@ -93,6 +121,10 @@ class QuasiStatic:
     _perturbed: bool = field(default=False, repr=False)  #: the symmetry-breaking nudge is made
     #: the equilibrium before the last one on the path: (A, X), for the secant predictor
     _behind: tuple | None = field(default=None, repr=False)
+    #: (V,) petal of each vertex, to name it in the log (None: named by vertex)
+    petal: np.ndarray | None = field(default=None, repr=False)
+    #: the rescues since the last :meth:`advance` logged them (:class:`Rescue`)
+    rescued: list = field(default_factory=list, repr=False)
 
     def __post_init__(self):
         if self.newton is None:
@@ -117,7 +149,9 @@ class QuasiStatic:
         return {"newton_iterations": self.counts.iterations, "growth_increments": self.counts.increments,
                 "shifted_factorizations": self.counts.shifted,
                 "negative_curvature_steps": self.counts.descents, "ccd_cut_steps": self.counts.ccd_cuts,
-                "redone_increments": self.counts.breaks}
+                "redone_increments": self.counts.breaks, "rescues": self.counts.rescues,
+                "rescue_halvings": self.counts.rescue_halvings,
+                "rescue_inertia_steps": self.counts.rescue_inertia_steps}
 
     # --- one call: growth from A(t0) to A(t0 + n h) -----------------------------------
     def advance(self, model: Model, state: State, control: Control, n_steps: int, h: float,
@@ -135,7 +169,10 @@ class QuasiStatic:
         if self._parts is None:
             self._split(model, effects)
         if not self._parts:
-            self._advance(model, state, control, n_steps, h, effects)
+            try:
+                self._advance(model, state, control, n_steps, h, effects)
+            finally:
+                self._log_rescues()
         for part in self._parts:  # independent petals: each follows its own path
             part.state.positions[:] = state.positions[part.vertices]
             part.state.velocities[:] = state.velocities[part.vertices]
@@ -146,14 +183,24 @@ class QuasiStatic:
             except NotConverged as exc:
                 exc.vertex = int(part.vertices[exc.vertex])  # name it in the whole mesh
                 raise
+            finally:
+                for r in part.solver.rescued:
+                    r.vertex = int(part.vertices[r.vertex]) if r.vertex >= 0 else -1
 
-        _map(follow, self._parts)
+        try:
+            _map(follow, self._parts)
+        finally:  # (in the petals' order: the same log every run)
+            for part in self._parts:
+                self.rescued.extend(part.solver.rescued)
+                part.solver.rescued.clear()
+            self._log_rescues()
         for part in self._parts:
             state.positions[part.vertices] = part.state.positions
             state.velocities[part.vertices] = part.state.velocities
         if self._parts:
             state.step += n_steps
-            for k in ("iterations", "increments", "shifted", "descents"):
+            for k in ("iterations", "increments", "shifted", "descents", "rescues",
+                      "rescue_halvings", "rescue_inertia_steps"):
                 setattr(self.counts, k, sum(getattr(p.solver.counts, k) for p in self._parts))
         if not self.inertia:
             state.velocities[:] = 0.0
@@ -189,9 +236,10 @@ class QuasiStatic:
     def state(self) -> dict:
         """Everything this solver carries from one frame to the next, as plain numbers
         and arrays (a tree of dicts and lists): its counters, where the path is (the
-        equilibrium behind, for the secant predictor), its contact's gap and sweep, its
-        groups' patterns and last factorizations, and the same of each independent
-        petal's solver. A checkpoint saves it; :meth:`restore` puts it back, so a resumed
+        equilibrium behind, for the secant predictor), the sheet's force scale where the
+        path started (what a collapsed triangle is measured against), its contact's gap
+        and sweep, its groups' patterns and last factorizations, and the same of each
+        independent petal's solver. A checkpoint saves it; :meth:`restore` puts it back, so a resumed
         run goes on to the bit as an uninterrupted one."""
         newton = self.newton
         behind = self._behind
@@ -201,6 +249,7 @@ class QuasiStatic:
             "behind_growth": None if behind is None else float(behind[0]),
             "behind_positions": None if behind is None else behind[1],
             "energy_rounding": newton.energy_rounding,
+            "reference": newton.reference,
             "contact": None if newton.contact is None else newton.contact.snapshot(),
             "system": None if newton.system is None else newton.system.snapshot(),
             "parts": None if self._parts is None else [p.solver.state() for p in self._parts],
@@ -215,6 +264,7 @@ class QuasiStatic:
         self._behind = None if saved["behind_growth"] is None else (
             float(saved["behind_growth"]), np.array(saved["behind_positions"], dtype=np.float64))
         self.newton.energy_rounding = float(saved["energy_rounding"])
+        self.newton.reference = float(saved["reference"])
         if saved["parts"] is not None:  # (the solver of the whole, past its first advance)
             self._couple(model, state, effects, check=False)
             if saved["contact"] is not None:
@@ -234,9 +284,16 @@ class QuasiStatic:
         if not self._started:  # settle at the start so that a tangent exists
             self._started = True
             a0 = control.growth_at(state.step * h)
+            self.newton.at(model, effects, a0)
+            self.newton.reference = self.newton.sheet_scale(state.positions)
             failure = self.newton.solve(model, state, effects, a0)
-            if failure is not None:
-                raise self._not_converged(model, state.positions, state.step, a0, failure)
+            if failure is not None:  # (no increment to halve: the motion from here)
+                rescue = Rescue(a0, a0, failure)
+                self.counts.rescues += 1
+                failure = self._snap(model, state, effects, a0, rescue, lambda a: state.step)
+                if failure is not None:
+                    raise self._not_converged(model, state.positions, state.step, a0, failure,
+                                              rescue)
         a0 = control.growth_at(state.step * h)
         a1 = control.growth_at((state.step + n_steps) * h)
         pieces = max(1, math.ceil(abs(a1 - a0) * self.stages - 1e-9))
@@ -275,6 +332,7 @@ class QuasiStatic:
             t_from = state.step * h + (k - 1) * n_steps * h / pieces
             t_to = t_end if k == pieces else state.step * h + k * n_steps * h / pieces
             t_now, size, halvings = t_from, t_to - t_from, 0
+            rescue = None  #: past the usual halvings (:class:`Rescue`)
             while t_now != t_to:
                 t_next = t_to if t_to - t_now <= size * (1 + 1e-9) else t_now + size
                 dt = t_next - t_now
@@ -304,23 +362,40 @@ class QuasiStatic:
                     continue
                 state.positions[:] = start
                 halvings += 1
-                if halvings > 6:
-                    raise self._not_converged(model, state.positions, int(round(t_next / h)),
-                                              a_next, failure)
+                if halvings > HALVINGS:  # (the rescue here: more, smaller time steps)
+                    if rescue is None:
+                        rescue = Rescue(a_now, a_next, failure, kind="time")
+                        self.counts.rescues += 1
+                    if rescue.halvings >= EXTRA_HALVINGS:
+                        raise self._not_converged(model, state.positions,
+                                                  int(round(t_next / h)), a_next, failure, rescue)
+                    rescue.halvings += 1
+                    self.counts.rescue_halvings += 1
                 size *= 0.5
+            if rescue is not None:
+                rescue.smallest, rescue.done = size, True
+                self.rescued.append(rescue)
         state.step += n_steps
 
     def _not_converged(self, model, X, step: int, growth: float,
-                       failure: Failure) -> NotConverged:
+                       failure: Failure, rescue: Rescue | None = None) -> NotConverged:
         """The failure, with the cause named: a piece held on a line (it can turn about
-        it), no stable equilibrium (a stall where the Hessian is not positive definite:
-        it buckles or snaps), or a stall at a positive definite Hessian."""
+        it), a triangle collapsed (its forces out of scale), no stable equilibrium (a
+        stall where the Hessian is not positive definite: it buckles or snaps), or a
+        stall at a positive definite Hessian; and what the rescue tried (``rescue``)."""
         how = {"stalled": "found no descent along its step",
                "iterations": f"ran out of iterations ({self.max_iterations})",
-               "shift": "found no shift that makes the Hessian positive definite"}[failure.how]
+               "shift": "found no shift that makes the Hessian positive definite",
+               "degenerate": "found the sheet's forces out of scale"}[failure.how]
         pinned = model.pinned
         width = axis.base_width(X[pinned], X)
-        if width < axis.MIN_BASE_WIDTH:
+        if failure.how == "degenerate":
+            cause = "degenerate"
+            detail = (f"Newton {how}: the force scale at vertex {failure.vertex} is "
+                      f"{failure.out_of_scale:.3g} times the sheet's where the path started, "
+                      "so a triangle has collapsed to (nearly) no area and the petal folds "
+                      "through itself there")
+        elif width < axis.MIN_BASE_WIDTH:
             cause = "weak"
             detail = (f"its piece is held by {int(pinned.sum())} fixed vertices on a line (they "
                       f"stray {width:.2g} of its length from it) and can turn about it "
@@ -333,8 +408,10 @@ class QuasiStatic:
         else:
             cause = "stalled"
             detail = f"Newton {how} where the Hessian is positive definite"
+        if rescue is not None:
+            detail += f"; {rescue.tried()}"
         return NotConverged(step, growth, failure.residual, scale=failure.scale, cause=cause,
-                            detail=detail)
+                            detail=detail, vertex=max(failure.vertex, 0))
 
     def _perturb(self, model: Model, state: State, effects: Effects) -> None:
         if self.perturbation <= 0.0:
@@ -349,35 +426,152 @@ class QuasiStatic:
     def _reach(self, model, state, effects, a_from: float, a_to: float, step: int,
                step_of=None) -> float:
         """Equilibrium at growth ``a_to``; an increment where Newton fails is halved
-        (up to 6 times), then the path goes on to ``a_to``. An increment that ends with
+        (up to :data:`HALVINGS` times), then the path goes on to ``a_to``. Where it still
+        fails, the path is rescued (:meth:`_rescue`). An increment that ends with
         connection springs past their breaking length breaks them (at ``step_of(A)``) and
         is redone from where it started."""
+        step_of = (lambda a: step) if step_of is None else step_of
         a_now, size, halvings = a_from, a_to - a_from, 0
+        full = size
+        rescue = None  #: the rescue under way (:class:`Rescue`), past the usual halvings
         while a_now != a_to:
             a_next = a_to if abs(a_to - a_now) <= abs(size) * (1 + 1e-9) else a_now + size
             start = state.positions.copy()
             self._predict(model, state, effects, a_now, a_next)
             failure = self.newton.solve(model, state, effects, a_next)
             if failure is None:
-                over = self.newton.springs.over_limit(state.positions) if self.newton.springs else ()
-                if len(over):
-                    c = self.newton.springs.connections
-                    c.alive[over] = False
-                    c.broken_step[over] = step if step_of is None else step_of(a_next)
-                    self.counts.breaks += 1
-                    state.positions[:] = start
+                if self._break_springs(state, start, step_of(a_next)):
                     self._behind = None  # (another path from here on)
                     continue
                 self.counts.increments += 1
                 self._behind = (a_now, start)
                 a_now = a_next
+                if rescue is not None:  # past the snag: the increments grow back
+                    size = full if abs(2.0 * size) >= abs(full) else 2.0 * size
                 continue
             state.positions[:] = start
             halvings += 1
-            if halvings > 6:
-                raise self._not_converged(model, state.positions, step, a_next, failure)
-            size *= 0.5
+            if halvings <= HALVINGS:
+                size *= 0.5
+                continue
+            if rescue is None or rescue.done:
+                if rescue is not None and rescue.count >= RESCUES:
+                    raise self._not_converged(model, state.positions, step_of(a_next), a_next,
+                                              failure, rescue)
+                rescue = Rescue(a_now, a_next, failure, count=0 if rescue is None else rescue.count)
+                rescue.count += 1
+                self.counts.rescues += 1
+            size = self._rescue(model, state, effects, rescue, a_now, a_next, size, failure,
+                                step_of)
+            if rescue.done:
+                a_now = rescue.target
         return a_to
+
+    def _rescue(self, model, state, effects, rescue: Rescue, a_now: float, a_next: float,
+                size: float, failure: Failure, step_of) -> float:
+        """One move of a rescue where the increment from ``a_now`` to ``a_next`` failed
+        after the usual halvings: a further halving (more, smaller increments, up to
+        :data:`EXTRA_HALVINGS`), or, past those, the snap as a motion (:meth:`_snap`) to
+        the growth ``a_next`` of the smallest increment tried, then Newton's equilibrium
+        there; the path goes on from it (``rescue.done``). Returns the next increment's
+        size. Raises :class:`NotConverged` (naming what was tried) if the motion finds no
+        equilibrium."""
+        if rescue.halvings < EXTRA_HALVINGS:
+            rescue.halvings += 1
+            self.counts.rescue_halvings += 1
+            rescue.smallest = min(abs(rescue.smallest) or math.inf, abs(0.5 * size))
+            return 0.5 * size
+        rescue.target = a_next
+        snagged = self._snap(model, state, effects, a_next, rescue, step_of)
+        if snagged is not None:
+            raise self._not_converged(model, state.positions, step_of(a_next), a_next, snagged,
+                                      rescue)
+        self.counts.increments += 1
+        self._behind = None  # (a jump: the secant of the path behind is no guide)
+        rescue.done = True
+        self.rescued.append(rescue)
+        return size
+
+    def _break_springs(self, state, start, step: int) -> bool:
+        """Connection springs past their breaking length at the converged positions
+        break (recorded at ``step``): then the positions go back to ``start`` and the
+        increment is redone (True)."""
+        over = self.newton.springs.over_limit(state.positions) if self.newton.springs else ()
+        if not len(over):
+            return False
+        c = self.newton.springs.connections
+        c.alive[over] = False
+        c.broken_step[over] = step
+        self.counts.breaks += 1
+        state.positions[:] = start
+        return True
+
+    def _snap(self, model, state, effects, growth: float, rescue: Rescue,
+              step_of) -> Failure | None:
+        """The snap as a motion: from rest, implicit Euler steps with the inertia term at
+        ``growth`` (each the minimum of ``U(x) + |x - x_pred|_M^2 / (2 dt^2)``, as
+        :meth:`_advance_dynamic`'s), until the sheet comes to rest (a step moves it
+        :data:`REST` of its largest step or less); then Newton's equilibrium from there.
+        The time step starts at the sheet's fastest spring period (``sqrt(m / K_s)``),
+        doubles after a step Newton solves easily and halves where it fails. None when
+        the equilibrium is found (the positions at it); else the last failure (the
+        positions as they were). Bounded: :data:`RESCUE_STEPS` steps."""
+        X = state.positions
+        origin = X.copy()
+        velocity = np.zeros_like(X)
+        dt = math.sqrt(float(model.vertex_mass.min()) / float(model.edge_stiffness.max()))
+        rescue.dt = [dt, dt]
+        largest, halvings, failure = 0.0, 0, rescue.failure
+        newton = self.newton
+        for _ in range(RESCUE_STEPS):
+            start = X.copy()
+            newton.dyn = Inertia(start + dt * velocity, model.vertex_mass / (dt * dt))
+            newton.system.inertia = newton.dyn.diagonal()
+            try:
+                self._predict(model, state, effects, growth, growth,
+                              guess=newton.dyn.predicted - start)
+                failure = newton.solve(model, state, effects, growth)
+            finally:
+                newton.dyn, newton.system.inertia = None, None
+            if failure is not None:
+                X[:] = start
+                halvings += 1
+                if halvings > RESCUE_DT_HALVINGS:
+                    break
+                dt *= 0.5
+                continue
+            if self._break_springs(state, start, step_of(growth)):
+                continue
+            easy = len(newton.residuals) <= EASY + 1
+            self.counts.rescue_inertia_steps += 1
+            rescue.inertia += 1
+            moved = float(np.abs(X - start).max())
+            largest = max(largest, moved)
+            velocity[:] = (X - start) / dt
+            rescue.dt[1] = dt
+            if rescue.inertia >= 2 and moved <= REST * largest:
+                # at rest: the equilibrium from here (else on, until it slows again)
+                at_rest = X.copy()
+                failure = newton.solve(model, state, effects, growth)
+                if failure is None:
+                    rescue.moved = float(np.linalg.norm(X - origin, axis=1).max())
+                    return None
+                X[:] = at_rest
+                largest = moved
+            if easy:
+                dt *= 2.0
+        X[:] = origin
+        return failure if failure is not None else rescue.failure  # (never came to rest)
+
+    def _log_rescues(self) -> None:
+        """One log line per rescue since the last call."""
+        for r in self.rescued:
+            where = "" if r.vertex < 0 else (
+                f" (petal {int(self.petal[r.vertex])})" if self.petal is not None
+                else f" (vertex {r.vertex})")
+            log.info("rescued the path at growth A = %.6g%s, where Newton %s: %s", r.growth,
+                     where, r.why, r.tried())
+        self.rescued.clear()
 
     def _predict(self, model, state, effects, a_now: float, a_next: float,
                  guess: np.ndarray | None = None) -> None:
@@ -412,3 +606,52 @@ class QuasiStatic:
         length = self.newton.line_search(X, scratch, energy, g, step)
         for gr in self.newton.system.groups:
             gr.moved = length * float(np.abs(step[gr.dofs]).max(initial=0.0))
+
+
+@dataclass
+class Rescue:
+    """What one rescue did (:meth:`QuasiStatic._rescue`): where the path snagged, why,
+    and how it got through."""
+
+    growth: float  #: the growth A the path had reached (converged)
+    target: float  #: the growth past the snag it reached (or tried to)
+    failure: Failure  #: Newton's failure that started it (after the usual halvings)
+    kind: str = "growth"  #: growth (increments of A) or time (the inertia variant's steps)
+    count: int = 0  #: rescues of this increment so far (this one included)
+    halvings: int = 0  #: halvings past the usual limit
+    smallest: float = 0.0  #: the smallest increment tried (of A, or of time)
+    inertia: int = 0  #: implicit Euler steps of the snap
+    dt: list = field(default_factory=list)  #: the snap's first and last time steps
+    moved: float = 0.0  #: how far the snap moved the sheet (largest vertex distance)
+    done: bool = False  #: got through: the path goes on from ``target``
+
+    @property
+    def vertex(self) -> int:
+        return self.failure.vertex
+
+    @vertex.setter
+    def vertex(self, value: int) -> None:
+        self.failure.vertex = value
+
+    @property
+    def why(self) -> str:
+        return {"stalled": "found no descent along its step",
+                "iterations": "ran out of iterations",
+                "shift": "found no shift that makes the Hessian positive definite",
+                "degenerate": "found the sheet's forces out of scale (a triangle collapsed)",
+                }[self.failure.how] + f" (Hessian {self.failure.inertia})"
+
+    def tried(self) -> str:
+        """What it did, in words."""
+        unit = "dA" if self.kind == "growth" else "dt"
+        parts = []
+        if self.halvings:
+            parts.append(f"{self.halvings} more halving(s) (increments down to {unit} = "
+                         f"{abs(self.smallest):.3g})")
+        if self.inertia or self.dt:
+            parts.append(f"{self.inertia} implicit Euler step(s) with the inertia term (dt "
+                         f"{self.dt[0]:.3g} to {self.dt[1]:.3g}) at A = {self.target:.6g}"
+                         + (f", coming to rest {self.moved:.3g} mesh units away" if self.done
+                            else ""))
+        done = "; the path goes on" if self.done else "; no equilibrium found"
+        return (", then ".join(parts) or "nothing more") + done
