@@ -49,3 +49,39 @@ def stability() -> None:
     if cases.main():
         raise BloomError("a stability case did not end as expected (see the table)",
                          where="bloom study stability")
+
+
+@command.command("models")
+@click.argument("models", nargs=-1, type=click.Path(exists=True, dir_okay=False))
+@click.option("--dir", "folder", type=click.Path(exists=True, file_okay=False),
+              help="Run every mesh file in this folder (e.g. ../shared/external-meshes).")
+@click.option("--out", "out", default="outputs/models", show_default=True,
+              type=click.Path(file_okay=False), help="Folder for each model's artifacts and models.csv.")
+@click.option("--timeout", default=900.0, show_default=True, type=click.FloatRange(min=1),
+              help="Seconds each model may take through the four stages.")
+@click.option("--into", "into", type=click.Path(dir_okay=False),
+              help="Also write the table into this Markdown file, between <!-- models --> "
+                   "and <!-- /models --> (e.g. docs/performance.md).")
+def models(models: tuple[str, ...], folder: str | None, out: str, timeout: float,
+           into: str | None) -> None:
+    """Real flower models, each with a scene of scene.mesh only, through remesh, axis,
+    growth and simulate; a table of what was decided and whether the bloom is one an
+    artist would keep (no frame with an intersection; an open model ends on itself from
+    a bud at least 20 deg more closed; a lone petal opens 10 deg; a bud opens forward).
+    Exits 1 if a model fails."""
+    from pipeline.studies import models as study
+
+    meshes = [Path(m) for m in models] + (study.models_in(Path(folder)) if folder else [])
+    if not meshes:
+        raise BloomError("no models given (MODELS... or --dir)", where="bloom study models")
+    root = Path(out)
+    root.mkdir(parents=True, exist_ok=True)
+    rows = study.study(meshes, root, timeout=timeout, echo=click.echo)
+    text = study.table(rows)
+    click.echo(text)
+    if into:
+        study.into(Path(into), text)
+        click.echo(f"wrote the table into {into}")
+    if any(r.verdict != "ok" for r in rows):
+        raise BloomError(f"{sum(r.verdict != 'ok' for r in rows)} of {len(rows)} models failed "
+                         "(see the table)", where="bloom study models")

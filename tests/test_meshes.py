@@ -247,7 +247,8 @@ def test_real_meshes_go_through_the_geometry_stages_and_simulate(tmp_path, name,
         v, f, petal_id, x = (h[k][()] for k in ("mesh/vertices", "mesh/faces", "mesh/petal", "axis/x"))
         scale = h.attrs["scale"]
     assert petal_id.max() + 1 == petals
-    assert abs(clean.mean_edge_length(v, f) - 1) < 1e-9
+    # mean edge 1, up to the separation of crossing petals (after scaling: moves < 10%)
+    assert abs(clean.mean_edge_length(v, f) - 1) < 0.02
     for p in range(petals):
         assert x[petal_id == p].min() == -1.0 and x[petal_id == p].max() == 1.0
         count = int((petal_id == p).sum())

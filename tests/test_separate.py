@@ -17,6 +17,7 @@ from pipeline.mesh.clean import mean_edge_length
 from pipeline.mesh.separate import SeparationError, separate
 from pipeline.sim.terms.contact import Contact, frame_intersections
 from stages.cli import cli
+from tests.conftest import min_distance
 
 GAP = 0.01  #: mesh units (mean edge 1), as the remesh stage uses it (effects.collisions.thickness)
 
@@ -89,7 +90,7 @@ def _apart(v, f, p):
     """No intersection (the report's exact test: petals against each other and each against
     itself), and no two petals nearer than the gap."""
     c = Contact.build(v, f, p, gap=GAP, stiffness=1.0)
-    return frame_intersections([v], f) == [False] and c.min_distance(v, 4 * GAP) >= GAP
+    return frame_intersections([v], f) == [False] and min_distance(c, v, 4 * GAP) >= GAP
 
 
 def test_a_pinwheel_is_separated_each_petal_over_its_neighbour():

@@ -1,4 +1,12 @@
-"""Petals that pass through or touch each other, moved apart: :func:`separate`."""
+"""Petals that pass through or touch each other, moved apart: :func:`separate`.
+
+For each pair of petals that cross, the side most of their overlap lies on (by area)
+decides which way each goes; the vertices on the wrong side, and those joined to a
+crossing, are pushed across, shared between the two petals, by one smooth least-squares
+move per round; rounds go on until ipctk's exact test finds no crossing and no pair is
+nearer than the gap. The module is long because those steps (finding the crossings and
+the sides, the pushes, the smooth move, the rounds and the refusal that names the pairs)
+share per-pair records and are only meaningful together."""
 
 from __future__ import annotations
 
@@ -9,7 +17,7 @@ import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components, dijkstra
 from scipy.spatial import cKDTree
 
-from pipeline.io.binding import nearest_among
+from pipeline.mesh.nearest import nearest_among
 from pipeline.mesh.topology import face_normals, unique_edges, vertex_normals
 
 #: no vertex moves further than this fraction of its petal's length

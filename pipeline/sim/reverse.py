@@ -30,7 +30,7 @@ from pipeline.sim.effects import Params, flower_axis_or_guess
 from pipeline.sim.model import Model, State
 from pipeline.sim.solver.newton import NotConverged
 from pipeline.sim.solver.quasistatic import QuasiStatic
-from pipeline.sim.terms.contact import ContactError
+from pipeline.sim.terms.contact import Contact, ContactError
 
 log = logging.getLogger("bloom")
 
@@ -170,6 +170,23 @@ def unfolded_lift(positions, faces, petal, plane, s, x, pinned, up, size):
                         size), petals
 
 
+def contact_free(lift, positions, effects):
+    """The lift, cut short where it would bring petals nearer than the contact's gap
+    (petals that lie close in the model, a pinwheel's, pressed into each other by it): to
+    half the largest fraction of the straight move that keeps them apart (continuous
+    collision detection). As it is without contact."""
+    c = effects.collisions
+    if c is None:
+        return lift
+    contact = Contact.build(positions, c.faces, c.vertex_petal, gap=c.thickness, stiffness=1.0)
+    fraction = contact.max_step(positions, positions + lift)
+    if fraction >= 1.0:
+        return lift
+    log.info("growth.start = open: the closing lift would press petals into each other; cut "
+             "to %.3g of it (%.3g petal lengths at the tip)", 0.5 * fraction, 0.5 * fraction * LIFT)
+    return 0.5 * fraction * lift
+
+
 def petal_lengths(positions, petal, base) -> np.ndarray:
     """``(P,)`` each petal's length: the farthest of its vertices from its base's centre."""
     X = np.asarray(positions)
@@ -218,6 +235,7 @@ def open_start(cfg, model: Model, positions, rest_angle, params: Params, build_e
                          FOLD)
         else:
             lift = closing_lift(positions, s, x, base, up, size)
+        lift = contact_free(lift, positions, build_effects(positions))
         bud, solver = find_bud(model, positions, build_effects(positions + lift),
                                stages=cfg["simulate.stages"], tolerance=cfg["simulate.tolerance"],
                                lift=lift, settle_effects=build_effects(positions),

@@ -28,14 +28,9 @@ of the last two equilibria, or the tangent).
   energy is accepted.
 - Increments: ``ceil(dA * stages)`` per call, so ``stages`` bounds the growth per
   increment; an increment that does not converge is halved (up to 6 times).
-- Rescue: where an increment still does not converge (a snap, a buckle, a stage that
-  will not converge), the path steps through it (:meth:`QuasiStatic._rescue`): more,
-  smaller increments where they converge, then the snap as a motion, implicit Euler
-  steps with the inertia term at the growth past the snag until the sheet comes to rest,
-  and Newton's equilibrium from there; then the path goes on. Each rescue is counted in
-  the diagnostics and logged in one line. A state whose forces have gone out of scale
-  (a triangle collapsed: :data:`~pipeline.sim.solver.newton.OUT_OF_SCALE`) is no
-  equilibrium, and is rescued or refused like any other failure.
+- Rescue: where an increment still does not converge (a snap, a buckle), the path
+  steps through it (:mod:`pipeline.sim.solver.rescue`). A state whose forces have gone
+  out of scale (a collapsed triangle) is no equilibrium, and is rescued or refused.
 - Symmetry breaking: at the first increment every free vertex is moved by a tiny,
   seeded random amount (``perturbation`` mesh units), so that a perfectly symmetric
   petal can leave an unstable symmetric branch; Newton removes it where the branch is
@@ -77,6 +72,7 @@ from pipeline.sim.effects import NO_EFFECTS, Effects
 from pipeline.sim.model import Control, Model, State
 from pipeline.sim.solver.newton import Counters, Failure, Newton, NotConverged
 from pipeline.sim.solver.pieces import _map, split
+from pipeline.sim.solver.rescue import EXTRA_HALVINGS, RESCUES, Rescue, log_rescues, snap, step_through
 from pipeline.sim.solver.system import System
 from pipeline.sim.terms.connections import Springs
 from pipeline.sim.terms.contact import Contact
@@ -86,21 +82,6 @@ log = logging.getLogger("bloom")
 
 #: an increment where Newton finds no equilibrium is halved up to this many times ...
 HALVINGS = 6
-#: ... then the path is rescued (:meth:`QuasiStatic._rescue`): up to this many more
-#: halvings (more, smaller increments, where they converge) ...
-EXTRA_HALVINGS = 4
-#: ... then the snap as a motion: implicit Euler steps (at most this many) ...
-RESCUE_STEPS = 200
-#: ... each halved at most this many times where Newton fails on it ...
-RESCUE_DT_HALVINGS = 10
-#: ... until the motion has come to rest: a step moves the sheet this fraction of the
-#: largest step so far or less (then Newton seeks the equilibrium from there)
-REST = 1e-2
-#: an implicit Euler step that converges in this many Newton iterations or fewer doubles
-#: the next one's time step
-EASY = 8
-#: a growth increment is rescued at most this many times
-RESCUES = 8
 
 @dataclass
 class QuasiStatic:
@@ -172,7 +153,7 @@ class QuasiStatic:
             try:
                 self._advance(model, state, control, n_steps, h, effects)
             finally:
-                self._log_rescues()
+                log_rescues(self)
         for part in self._parts:  # independent petals: each follows its own path
             part.state.positions[:] = state.positions[part.vertices]
             part.state.velocities[:] = state.velocities[part.vertices]
@@ -193,7 +174,7 @@ class QuasiStatic:
             for part in self._parts:
                 self.rescued.extend(part.solver.rescued)
                 part.solver.rescued.clear()
-            self._log_rescues()
+            log_rescues(self)
         for part in self._parts:
             state.positions[part.vertices] = part.state.positions
             state.velocities[part.vertices] = part.state.velocities
@@ -290,7 +271,7 @@ class QuasiStatic:
             if failure is not None:  # (no increment to halve: the motion from here)
                 rescue = Rescue(a0, a0, failure)
                 self.counts.rescues += 1
-                failure = self._snap(model, state, effects, a0, rescue, lambda a: state.step)
+                failure = snap(self, model, state, effects, a0, rescue, lambda a: state.step)
                 if failure is not None:
                     raise self._not_converged(model, state.positions, state.step, a0, failure,
                                               rescue)
@@ -426,10 +407,10 @@ class QuasiStatic:
     def _reach(self, model, state, effects, a_from: float, a_to: float, step: int,
                step_of=None) -> float:
         """Equilibrium at growth ``a_to``; an increment where Newton fails is halved
-        (up to :data:`HALVINGS` times), then the path goes on to ``a_to``. Where it still
-        fails, the path is rescued (:meth:`_rescue`). An increment that ends with
-        connection springs past their breaking length breaks them (at ``step_of(A)``) and
-        is redone from where it started."""
+        (up to :data:`HALVINGS` times), then the path goes on to ``a_to``; where it still
+        fails, the path is rescued (:func:`~pipeline.sim.solver.rescue.step_through`). An
+        increment that ends with connection springs past their breaking length breaks them
+        (at ``step_of(A)``) and is redone from where it started."""
         step_of = (lambda a: step) if step_of is None else step_of
         a_now, size, halvings = a_from, a_to - a_from, 0
         full = size
@@ -461,36 +442,11 @@ class QuasiStatic:
                 rescue = Rescue(a_now, a_next, failure, count=0 if rescue is None else rescue.count)
                 rescue.count += 1
                 self.counts.rescues += 1
-            size = self._rescue(model, state, effects, rescue, a_now, a_next, size, failure,
+            size = step_through(self, model, state, effects, rescue, a_now, a_next, size, failure,
                                 step_of)
             if rescue.done:
                 a_now = rescue.target
         return a_to
-
-    def _rescue(self, model, state, effects, rescue: Rescue, a_now: float, a_next: float,
-                size: float, failure: Failure, step_of) -> float:
-        """One move of a rescue where the increment from ``a_now`` to ``a_next`` failed
-        after the usual halvings: a further halving (more, smaller increments, up to
-        :data:`EXTRA_HALVINGS`), or, past those, the snap as a motion (:meth:`_snap`) to
-        the growth ``a_next`` of the smallest increment tried, then Newton's equilibrium
-        there; the path goes on from it (``rescue.done``). Returns the next increment's
-        size. Raises :class:`NotConverged` (naming what was tried) if the motion finds no
-        equilibrium."""
-        if rescue.halvings < EXTRA_HALVINGS:
-            rescue.halvings += 1
-            self.counts.rescue_halvings += 1
-            rescue.smallest = min(abs(rescue.smallest) or math.inf, abs(0.5 * size))
-            return 0.5 * size
-        rescue.target = a_next
-        snagged = self._snap(model, state, effects, a_next, rescue, step_of)
-        if snagged is not None:
-            raise self._not_converged(model, state.positions, step_of(a_next), a_next, snagged,
-                                      rescue)
-        self.counts.increments += 1
-        self._behind = None  # (a jump: the secant of the path behind is no guide)
-        rescue.done = True
-        self.rescued.append(rescue)
-        return size
 
     def _break_springs(self, state, start, step: int) -> bool:
         """Connection springs past their breaking length at the converged positions
@@ -505,73 +461,6 @@ class QuasiStatic:
         self.counts.breaks += 1
         state.positions[:] = start
         return True
-
-    def _snap(self, model, state, effects, growth: float, rescue: Rescue,
-              step_of) -> Failure | None:
-        """The snap as a motion: from rest, implicit Euler steps with the inertia term at
-        ``growth`` (each the minimum of ``U(x) + |x - x_pred|_M^2 / (2 dt^2)``, as
-        :meth:`_advance_dynamic`'s), until the sheet comes to rest (a step moves it
-        :data:`REST` of its largest step or less); then Newton's equilibrium from there.
-        The time step starts at the sheet's fastest spring period (``sqrt(m / K_s)``),
-        doubles after a step Newton solves easily and halves where it fails. None when
-        the equilibrium is found (the positions at it); else the last failure (the
-        positions as they were). Bounded: :data:`RESCUE_STEPS` steps."""
-        X = state.positions
-        origin = X.copy()
-        velocity = np.zeros_like(X)
-        dt = math.sqrt(float(model.vertex_mass.min()) / float(model.edge_stiffness.max()))
-        rescue.dt = [dt, dt]
-        largest, halvings, failure = 0.0, 0, rescue.failure
-        newton = self.newton
-        for _ in range(RESCUE_STEPS):
-            start = X.copy()
-            newton.dyn = Inertia(start + dt * velocity, model.vertex_mass / (dt * dt))
-            newton.system.inertia = newton.dyn.diagonal()
-            try:
-                self._predict(model, state, effects, growth, growth,
-                              guess=newton.dyn.predicted - start)
-                failure = newton.solve(model, state, effects, growth)
-            finally:
-                newton.dyn, newton.system.inertia = None, None
-            if failure is not None:
-                X[:] = start
-                halvings += 1
-                if halvings > RESCUE_DT_HALVINGS:
-                    break
-                dt *= 0.5
-                continue
-            if self._break_springs(state, start, step_of(growth)):
-                continue
-            easy = len(newton.residuals) <= EASY + 1
-            self.counts.rescue_inertia_steps += 1
-            rescue.inertia += 1
-            moved = float(np.abs(X - start).max())
-            largest = max(largest, moved)
-            velocity[:] = (X - start) / dt
-            rescue.dt[1] = dt
-            if rescue.inertia >= 2 and moved <= REST * largest:
-                # at rest: the equilibrium from here (else on, until it slows again)
-                at_rest = X.copy()
-                failure = newton.solve(model, state, effects, growth)
-                if failure is None:
-                    rescue.moved = float(np.linalg.norm(X - origin, axis=1).max())
-                    return None
-                X[:] = at_rest
-                largest = moved
-            if easy:
-                dt *= 2.0
-        X[:] = origin
-        return failure if failure is not None else rescue.failure  # (never came to rest)
-
-    def _log_rescues(self) -> None:
-        """One log line per rescue since the last call."""
-        for r in self.rescued:
-            where = "" if r.vertex < 0 else (
-                f" (petal {int(self.petal[r.vertex])})" if self.petal is not None
-                else f" (vertex {r.vertex})")
-            log.info("rescued the path at growth A = %.6g%s, where Newton %s: %s", r.growth,
-                     where, r.why, r.tried())
-        self.rescued.clear()
 
     def _predict(self, model, state, effects, a_now: float, a_next: float,
                  guess: np.ndarray | None = None) -> None:
@@ -606,52 +495,3 @@ class QuasiStatic:
         length = self.newton.line_search(X, scratch, energy, g, step)
         for gr in self.newton.system.groups:
             gr.moved = length * float(np.abs(step[gr.dofs]).max(initial=0.0))
-
-
-@dataclass
-class Rescue:
-    """What one rescue did (:meth:`QuasiStatic._rescue`): where the path snagged, why,
-    and how it got through."""
-
-    growth: float  #: the growth A the path had reached (converged)
-    target: float  #: the growth past the snag it reached (or tried to)
-    failure: Failure  #: Newton's failure that started it (after the usual halvings)
-    kind: str = "growth"  #: growth (increments of A) or time (the inertia variant's steps)
-    count: int = 0  #: rescues of this increment so far (this one included)
-    halvings: int = 0  #: halvings past the usual limit
-    smallest: float = 0.0  #: the smallest increment tried (of A, or of time)
-    inertia: int = 0  #: implicit Euler steps of the snap
-    dt: list = field(default_factory=list)  #: the snap's first and last time steps
-    moved: float = 0.0  #: how far the snap moved the sheet (largest vertex distance)
-    done: bool = False  #: got through: the path goes on from ``target``
-
-    @property
-    def vertex(self) -> int:
-        return self.failure.vertex
-
-    @vertex.setter
-    def vertex(self, value: int) -> None:
-        self.failure.vertex = value
-
-    @property
-    def why(self) -> str:
-        return {"stalled": "found no descent along its step",
-                "iterations": "ran out of iterations",
-                "shift": "found no shift that makes the Hessian positive definite",
-                "degenerate": "found the sheet's forces out of scale (a triangle collapsed)",
-                }[self.failure.how] + f" (Hessian {self.failure.inertia})"
-
-    def tried(self) -> str:
-        """What it did, in words."""
-        unit = "dA" if self.kind == "growth" else "dt"
-        parts = []
-        if self.halvings:
-            parts.append(f"{self.halvings} more halving(s) (increments down to {unit} = "
-                         f"{abs(self.smallest):.3g})")
-        if self.inertia or self.dt:
-            parts.append(f"{self.inertia} implicit Euler step(s) with the inertia term (dt "
-                         f"{self.dt[0]:.3g} to {self.dt[1]:.3g}) at A = {self.target:.6g}"
-                         + (f", coming to rest {self.moved:.3g} mesh units away" if self.done
-                            else ""))
-        done = "; the path goes on" if self.done else "; no equilibrium found"
-        return (", then ".join(parts) or "nothing more") + done
