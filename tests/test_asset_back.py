@@ -16,7 +16,8 @@ from stages.cli import cli
 
 SHARED = Path(__file__).resolve().parents[2] / "shared" / "external-meshes"
 KEYS = "growth.keys=[[0, 0], [2, 0], [6, 1]]"  # hold the bud 2 frames, open over 4, hold
-SHORT = ["--set", "simulate.steps=2000", "--set", "simulate.frames=9", "--set", KEYS]
+SHORT = ["--set", "simulate.steps=2000", "--set", "simulate.frames=9", "--set", KEYS,
+         "--set", "growth.start=bud"]  # (frame 0 is the input: a bud that opens)
 
 
 def invoke(*args):

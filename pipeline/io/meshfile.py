@@ -18,6 +18,7 @@ import trimesh
 from trimesh.util import unique_name
 
 from pipeline.errors import BloomError
+from pipeline.mesh.topology import stack
 
 FORMATS = (".obj", ".ply", ".stl", ".off", ".glb", ".gltf")
 
@@ -63,10 +64,21 @@ def _check_path(path: Path) -> str:
     return where
 
 
-def _load(path: Path, where: str, **kwargs):
+#: the last file loaded: ``(key, scene)``; the remesh stage reads a glTF for its parts and
+#: again for the user's asset (materials, UVs, normals): the file is parsed once
+_LOADED: list = [None, None]
 
+
+def _load(path: Path, where: str, **kwargs):
+    """``trimesh.load`` of ``path`` (unprocessed), kept for the next call with the same
+    file (same size and modification time) and arguments; callers only read it."""
+    stat = Path(path).stat()
+    key = (str(Path(path).resolve()), stat.st_mtime_ns, stat.st_size, tuple(sorted(kwargs.items())))
+    if _LOADED[0] == key:
+        return _LOADED[1]
     try:
-        return trimesh.load(path, process=False, **kwargs)
+        _LOADED[:] = [key, trimesh.load(path, process=False, **kwargs)]
+        return _LOADED[1]
     except Exception as exc:  # trimesh raises many types for broken files
         reason = str(exc).splitlines()[0][:120] if str(exc) else type(exc).__name__
         raise BloomError(f"not a readable {path.suffix[1:].upper()} mesh ({reason})",
@@ -282,20 +294,21 @@ def gltf_node_frames(scene, header: dict):
             yield node, name, out
 
 
+def placed(frames) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A node's primitives (:func:`gltf_node_frames`) in the scene's frame, as one mesh:
+    ``(vertices, faces, which)`` (:func:`~pipeline.mesh.topology.stack`)."""
+    return stack([(np.asarray(mesh.vertices, dtype=np.float64) @ t[:3, :3].T + t[:3, 3],
+                   np.asarray(mesh.faces, dtype=np.int64)) for t, mesh in frames])
+
+
 def _read_gltf(path: Path, where: str) -> MeshFile:
     scene = _load(path, where, force="scene")
     header = _gltf_header(path)
     graph = scene.graph
     parts = []
     for _, name, frames in gltf_node_frames(scene, header):
-        verts, faces, offset = [], [], 0
-        for transform, mesh in frames:
-            v = np.asarray(mesh.vertices, dtype=np.float64)
-            verts.append(v @ transform[:3, :3].T + transform[:3, 3])
-            faces.append(np.asarray(mesh.faces, dtype=np.int64) + offset)
-            offset += len(v)
-        parts.append(Part(name, *_checked(np.vstack(verts), np.vstack(faces), where,
-                                           f"part {name!r}")))
+        verts, faces, _ = placed(frames)
+        parts.append(Part(name, *_checked(verts, faces, where, f"part {name!r}")))
     if not parts and scene.geometry:  # no node table (unexpected): trimesh's own frames
         for k, frame in enumerate(graph.nodes_geometry):
             transform, geometry = graph[frame]

@@ -35,6 +35,7 @@ from pipeline.io.meshfile import (
     _obj_units,
     gltf_node_frames,
     obj_text,
+    placed,
     read_parts,
 )
 
@@ -204,13 +205,10 @@ def _read_gltf(path: Path, where: str) -> Asset:
         m = node.get("mesh")
         prims = meshes[m].get("primitives", []) if m is not None and m < len(meshes) else []
         file_normals = bool(prims) and all("NORMAL" in p.get("attributes", {}) for p in prims)
-        pts, tris, uvs, nrm, mats, face_mat = [], [], [], [], [], []
-        offset = 0
+        points, faces, _ = placed(frames)
+        uvs, nrm, mats, face_mat = [], [], [], []
         for transform, mesh in frames:
-            vtx = np.asarray(mesh.vertices, dtype=np.float64)
-            pts.append(vtx @ transform[:3, :3].T + transform[:3, 3])
-            tris.append(np.asarray(mesh.faces, dtype=np.int64) + offset)
-            offset += len(vtx)
+            vtx = mesh.vertices
             uv = getattr(mesh.visual, "uv", None)
             uvs.append(None if uv is None or len(uv) != len(vtx) else np.asarray(uv, dtype=np.float64))
             if file_normals:
@@ -222,10 +220,9 @@ def _read_gltf(path: Path, where: str) -> Asset:
                 mats.append(material)
             face_mat.append(np.full(len(mesh.faces), mats.index(material) if material is not None
                                     else -1, dtype=np.int64))
-        if not pts:
+        if not len(points):
             continue
-        faces = np.vstack(tris)
-        part = AssetPart(name, np.vstack(pts), np.full(len(faces), 3, dtype=np.int64),
+        part = AssetPart(name, points, np.full(len(faces), 3, dtype=np.int64),
                          faces.ravel().copy(), materials=mats, face_material=np.concatenate(face_mat))
         if all(u is not None for u in uvs):
             part.uv = np.vstack(uvs)
