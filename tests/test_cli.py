@@ -95,7 +95,8 @@ def test_sim_artifact(chain):
     with h5py.File(chain["sim"]) as f:
         pos, t = f["frames/positions"][()], f["frames/time"][()]
         assert f.attrs["stage"] == "simulate" and f.attrs["steps"] == 600
-        assert f.attrs["wall_seconds"] > 0 and f.attrs["effects"] == ""
+        # contact is on by default where petals can meet (effects.collisions.enabled = auto)
+        assert f.attrs["wall_seconds"] > 0 and f.attrs["effects"] == "collisions"
         ke, speed = f["diagnostics/kinetic_energy"][()], f["diagnostics/max_speed"][()]
         faces = f["mesh/faces"][()]
         integrator = f.attrs["integrator"]
@@ -237,9 +238,9 @@ def test_effects_run_only_when_enabled_and_are_recorded(chain, tmp_path):
         intact = f["diagnostics/connections_intact"][()]
         assert intact[0] == len(f["effects/connections/pairs"]) > 0
         assert np.all(np.diff(intact) <= 0)  # springs only ever break
-    with h5py.File(chain["sim"]) as f:
-        assert f.attrs["effects"] == ""
-        assert "diagnostics/contacts" not in f and "effects" not in f
+    with h5py.File(chain["sim"]) as f:  # the defaults: contact alone (auto), nothing else
+        assert f.attrs["effects"] == "collisions"
+        assert "diagnostics/connections_intact" not in f and "effects/connections" not in f
 
 
 def test_config_command_lists_keys_and_values(chain):
