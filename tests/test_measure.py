@@ -78,3 +78,17 @@ def test_petals_whose_bases_meet_on_the_axis_open_outward():
                                    flower_axis=axes.flower_axis)
     angles = frames.opening_angles(_turned(met, petal, axes, 20.0, side="centroid"))
     assert np.all(np.abs(angles - 20.0) < 2.0), angles
+
+
+def test_an_open_start_measures_opening_toward_the_model():
+    """A bud found backward may curl past where its chord and cup tell which way is out:
+    the model (open by definition) decides, so the bloom from the bud to it opens."""
+    from pipeline.flower.measure import PetalFrames
+
+    frames = PetalFrames(np.zeros((2, 3)), np.array([1, 3]), np.array([[0.0, 0, 1], [0, 0, 1]]),
+                         np.array([[1.0, 0, 0], [1, 0, 0]]))
+    model = np.array([[0.0, 0, 0], [-1, 0, 1], [0, 0, 0], [1, 0, 1]])
+    assert np.allclose(frames.opening_angles(model), [-45.0, 45.0])
+    toward = frames.opening_toward(model)
+    assert np.allclose(toward.opening_angles(model), [45.0, 45.0])
+    assert np.array_equal(toward.chord_dirs, frames.chord_dirs)

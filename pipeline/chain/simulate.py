@@ -76,6 +76,8 @@ def run(growth_h5: str | Path, out: str | Path, cfg: Config, *, overwrite: bool 
                 cfg, model, model_positions, rest_angle, params, build_effects, petal, base,
                 prep.s, prep.x, prep.flower_axis, where, faces=prep.faces, plane=prep.plane)
         petals = prep.frames(v)
+        if model_positions is not None:  # the model is the open flower: it says which way is out
+            petals = petals.opening_toward(model_positions)
         if cfg["growth.keys"]:
             control = Control.keyed(cfg["growth.keys"], frames, steps, h)
         else:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
@@ -58,6 +59,13 @@ class PetalFrames:
             outs.append(out)
         return cls(np.array(centers).reshape(-1, 3), np.asarray(tips, dtype=np.int64),
                    np.array(chords).reshape(-1, 3), np.array(outs).reshape(-1, 3))
+
+    def opening_toward(self, X) -> PetalFrames:
+        """The same frames with each petal's outward direction the way it turns to reach
+        ``X`` (an open start's model: the bloom ends there, and it is open by definition;
+        a bud found backward may curl so far that its chord and cup no longer tell)."""
+        sign = np.where(self.opening_angles(X) < 0.0, -1.0, 1.0)
+        return dataclasses.replace(self, outward_dirs=self.outward_dirs * sign[:, None])
 
     def opening_angles(self, X) -> np.ndarray:
         """``(P,)`` opening angle of each petal in degrees (0 on the initial mesh)."""
