@@ -293,11 +293,11 @@ def speed(petals: int = 6, vertices: int = 2000, repeat: int = 30) -> dict:
     of each Hessian (a petal's): the shell's pattern is wider. Ratios shell/springs."""
     import time
 
-    from pipeline.sim import hessian as hs
-    from pipeline.sim.terms import shell as sh
-    from pipeline.sim import terms
+    from pipeline.sim.blocks import Blocks
     from pipeline.sim.build import Prepared
     from pipeline.sim.solver.ldl import BlockLDL
+    from pipeline.sim.terms import shell as sh
+    from pipeline.sim.terms.elastic import Elastic
     from tests.conftest import prepared
 
     v, f, p, axes, growth = prepared(petals, vertices)
@@ -305,9 +305,9 @@ def speed(petals: int = 6, vertices: int = 2000, repeat: int = 30) -> dict:
     springs = prep.model(0.1, 0.0005)
     shell = prep.shell_model(27.3, 0.013, 1 / 3)
     X = v + np.random.default_rng(0).normal(scale=0.05, size=v.shape)
-    paper_term = terms.Elastic.of(springs).at(0.5)
+    paper_term = Elastic.of(springs).at(0.5)
     shell_term = sh.ShellTerm(shell).at(0.5)
-    paper_blocks = hs.Blocks.build(springs)
+    paper_blocks = Blocks.build(springs)
     shell_blocks = sh.ShellBlocks.build(shell)
     F = np.zeros_like(X)
 

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 from scipy.sparse.csgraph import dijkstra
 
-from pipeline.mesh import topology
 from pipeline.flower.axis import find_axes
+from pipeline.mesh import topology
 from pipeline.mesh.geodesic import heat_distance
 from tests import shell_study as study
 

@@ -43,9 +43,8 @@ import numpy as np
 from scipy.sparse.csgraph import connected_components, dijkstra
 
 from pipeline.directions import parse_direction
+from pipeline.flower.coords import base_distance, base_edge, cross_section, edge_cross_section, tip_distance
 from pipeline.mesh import symmetry, topology
-from pipeline.flower.coords import (base_distance, base_edge, cross_section,
-                                    edge_cross_section, tip_distance)
 
 
 @dataclass

@@ -21,11 +21,24 @@ import numpy as np
 import scipy.sparse as sp
 
 from pipeline.sim.blocks import Part
-from pipeline.sim.terms.shell_kernels import (KERNEL_SCRATCH, rest_dets, second_form,
-                                              shell_forces, shell_hessian, shell_rounding)
-from pipeline.sim.terms.shell_stencil import (clamped_anchors, face_edges, face_opposite,
-                                              face_pattern, face_stencil, ghost_rows)
+from pipeline.sim.terms.shell_kernels import (
+    KERNEL_SCRATCH,
+    rest_dets,
+    second_form,
+    shell_forces,
+    shell_hessian,
+    shell_rounding,
+)
+from pipeline.sim.terms.shell_stencil import (
+    clamped_anchors,
+    face_edges,
+    face_opposite,
+    face_pattern,
+    face_stencil,
+    ghost_rows,
+)
 from pipeline.sim.terms.term import Term
+
 
 def petal_size(vertices, faces, petal=None) -> float:
     """The length the shell's units are given in: ``sqrt`` of the mean petal area (mesh

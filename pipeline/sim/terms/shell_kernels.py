@@ -37,9 +37,9 @@ Per face ``f`` with corners ``q0, q1, q2``, in the face's own barycentric coordi
   of the opposite vertices above the face's plane at their barycentric coordinates:
   ``G c = w``, ``G_ik = bubble_k(opposite_i)``. Then ``b = Hess_xi z = sum_k c_k
   Hess bubble_k``. A boundary edge has no vertex across: another vertex near the face
-  stands in (:func:`pipeline.sim.terms.shell_stencil.face_stencil`), so that the fit stays exact for a quadratic surface
-  at the rim too (a ghost row, the corner mirrored across the edge at height 0, only
-  where no vertex conditions the fit).
+  stands in (:func:`pipeline.sim.terms.shell_stencil.face_stencil`), so that the fit
+  stays exact for a quadratic surface at the rim too (a ghost row, the corner mirrored
+  across the edge at height 0, only where no vertex conditions the fit).
 
 Why this bending and not the two classic ones: both the discrete-shells hinge
 (``3 |e|^2 / (A1 + A2) (theta - theta0)^2``, Grinspun et al. 2003) and the mid-edge
@@ -63,7 +63,8 @@ into mesh units there, so that the same deformation has the same energy at any
 resolution.
 
 The kernels (numba, cached): :func:`shell_forces`, :func:`shell_hessian` (3x3 blocks in
-the solver's layout, see :func:`pipeline.sim.terms.shell_stencil.face_pattern`), :func:`shell_rounding`. One routine,
+the solver's layout, see :func:`pipeline.sim.terms.shell_stencil.face_pattern`),
+:func:`shell_rounding`. One routine,
 :func:`_face`, computes a face's energy, gradient and (optionally) Hessian, so the
 three agree. Faces are done in order, serially: the same bits on every run.
 

@@ -13,6 +13,7 @@ import scipy.sparse as sp
 
 from pipeline.mesh import topology
 
+
 def face_opposite(faces: np.ndarray) -> np.ndarray:
     """``(F, 3)`` the vertex across the edge opposite each corner (the third vertex of the
     face on the other side), -1 on the boundary.
