@@ -113,6 +113,17 @@ SCHEMA: dict[str, Any] = {
         "base_fraction": Key(float, 0.04, "boundary vertices this close to the base end, as a "
                              "fraction of the petal's length, are fixed", low=0.0, high=0.5,
                              low_open=True),
+        "base_region": Key(str, "auto", "which vertices near the base end are fixed: rim "
+                           "(the boundary vertices within axis.base_fraction, the paper's), band "
+                           "(every vertex within axis.base_band), edge (the base edge: the rim "
+                           "between the base corners; the shell clamps it: the same boundary "
+                           "condition at any mesh resolution, but a short base edge resolved by few "
+                           "vertices holds the petal's twist unevenly) or auto (band with "
+                           "simulate.model = shell, else rim)", choices=("auto", "rim", "band", "edge")),
+        "base_band": Key(float, 0.08, "base_region = band: the clamped band's extent from the "
+                         "base end, as a fraction of the petal's length; keep it wider than an "
+                         "edge of the coarsest mesh (5% of the length at 300 vertices)",
+                         low=0.0, high=0.5, low_open=True),
         "flower_axis": Key(str, "auto", "direction of the flower's axis, from the receptacle "
                            "toward the tips: auto (where the petals' center planes meet), +x, -x, "
                            "+y, -y, +z, -z, or a vector \"x,y,z\"; given, it passes through the "
@@ -169,6 +180,27 @@ SCHEMA: dict[str, Any] = {
                          "vertex further than this (mesh units)", low=0.0, low_open=True),
         "damping": Key(float, 0.9999, "velocity factor d of the explicit-damping integrator "
                        "(Eq. 9)", low=0.0, high=1.0),
+        "model": Key(str, "paper", "elasticity: paper (the paper's springs and hinges, one K_s "
+                     "per edge and one K_b per hinge: the bloom depends on the triangulation) or "
+                     "shell (a thin shell whose energy is a property of the surface: the same "
+                     "flower blooms the same at any mesh density; quasi-static integrator)",
+                     choices=("paper", "shell")),
+        "stretch_modulus": Key(float, 27.3, "shell: Young's modulus times thickness, energy per "
+                               "area with area in units of the petal size (sqrt of the mean "
+                               "petal area); 27.3 is the paper's K_s = 0.1 on the default petal "
+                               "(317 vertices)", low=0.0, low_open=True),
+        "thickness": Key(float, 0.013, "shell: thickness over the petal size (sqrt of the mean "
+                         "petal area); sets bending (~t^3) against stretching (~t). 0.013 is "
+                         "the paper's K_b = 0.0005 on the default petal. A thick petal's own "
+                         "thickness (mesh/thickness) wins where it is known", low=0.0,
+                         high=0.5, low_open=True),
+        "imperfection": Key(float, 1e-4, "shell: the bud's imperfection, a sideways offset "
+                            "along each petal's center-plane normal of this fraction of the "
+                            "petal size at the tip (s^2 from the base): where a symmetric petal "
+                            "must lean or twist one way, it chooses the same way at any mesh "
+                            "resolution (0: none; the solver then nudges at random)", low=0.0),
+        "poisson": Key(float, 1.0 / 3.0, "shell: Poisson's ratio (1/3: the paper's lattice of "
+                       "springs)", low=0.0, high=0.5, high_open=True),
         "stretch_stiffness": Key(float, 0.1, "K_s, per edge (paper: 0.1)", low=0.0, low_open=True),
         "bending_stiffness": Key(float, 0.0005, "K_b, per interior edge (paper: 0.0005)",
                                  low=0.0),
@@ -200,6 +232,11 @@ SCHEMA: dict[str, Any] = {
             "thickness": Key(float, 0.01, "quasi-static: the gap the contact barrier keeps "
                              "between petals (mesh units, mean edge 1); the barrier acts from "
                              "twice this distance on", low=0.0, high=0.25, low_open=True),
+            "gap": Key(float, 0.00065, "simulate.model = shell: the gap the contact barrier "
+                       "keeps between petals, as a fraction of the petal size (sqrt of the mean "
+                       "petal area; it replaces thickness, whose mesh units shrink as the mesh "
+                       "is refined); 0.00065 is 0.01 mean edges on the default petal",
+                       low=0.0, high=0.02, low_open=True),
             "offset": Key(float, 0.001, "a vertex that went through a petal is put back this far "
                           "on its side (mesh units; keep it below a step's motion, or the "
                           "push-back pumps energy in)", low=0.0, low_open=True),

@@ -39,6 +39,37 @@ def accuracy(out: str, petals: int, vertices: int, quick: bool) -> None:
     click.echo(f"wrote {folder / 'accuracy.csv'} and {folder / 'accuracy.png'}")
 
 
+@command.command("resolution")
+@click.option("--out", "out", required=True, type=click.Path(file_okay=False),
+              help="Folder for the runs and resolution.csv (created if missing).")
+@click.option("--config", "config", required=True, type=click.Path(exists=True, dir_okay=False),
+              help="The scene (its mesh a procedural asset, `bloom asset`).")
+@click.option("--counts", default="300,1200,4800", show_default=True,
+              help="Vertices per petal, comma-separated (the finest regular run is the reference).")
+@click.option("--set", "overrides", multiple=True, metavar="KEY=VALUE",
+              help="Config overrides for every run, e.g. simulate.model=shell.")
+@click.option("--regular-only", is_flag=True, help="Only the scene's own remesh (no irregular meshes).")
+def resolution(out: str, config: str, counts: str, overrides, regular_only: bool) -> None:
+    """Run one scene at several mesh densities, on regular and irregular triangulations of
+    the same surface, and measure each bloom against the finest regular one: the largest
+    opening difference over the frames and the RMS shape difference (points matched by
+    (s, x)) over the petal length."""
+    from pipeline.studies import resolution as study
+
+    try:
+        numbers = tuple(int(c) for c in counts.split(","))
+    except ValueError:
+        raise BloomError(f"not a list of vertex counts: {counts!r}", where="--counts") from None
+    try:
+        rows = study.resolution(Path(out), config, counts=numbers, overrides=overrides,
+                                kinds=("regular",) if regular_only else ("regular", "irregular"),
+                                echo=click.echo)
+    except ValueError as exc:
+        raise BloomError(str(exc), where=config) from None
+    click.echo("\n".join(study.table(rows)))
+    click.echo(f"wrote {Path(out) / 'resolution.csv'}")
+
+
 @command.command("stability")
 def stability() -> None:
     """The hard cases (dense buds, extreme growth, contact, snaps), slow ones included:

@@ -36,8 +36,16 @@ def run(remesh_h5: str | Path, out: str | Path, cfg: Config, *, overwrite: bool 
                 raise BloomError(f"file_up: {up!r} is not one of {', '.join(DIRECTIONS)}; set "
                                  "scene.up", where=remesh_h5)
         try:
-            axes = find_axes(v, f, petal, base_mode=cfg["axis.base"],
-                             base_fraction=cfg["axis.base_fraction"],
+            # the shell (simulate.model = shell) runs on s and x along the surface and
+            # holds a band (the same region at any resolution); the paper's springs on
+            # distances along edges and the rim
+            shell = cfg["simulate.model"] == "shell"
+            region = cfg["axis.base_region"]
+            if region == "auto":
+                region = "band" if shell else "rim"
+            fraction = cfg["axis.base_band"] if region == "band" else cfg["axis.base_fraction"]
+            axes = find_axes(v, f, petal, base_mode=cfg["axis.base"], base_fraction=fraction,
+                             base_region=region, surface=shell,
                              planes=src["mesh/plane"] if "mesh/plane" in src else None,
                              flower_axis=cfg["axis.flower_axis"], up=np.array(DIRECTIONS[up]))
             check_axes(axes, petal)  # no NaN, x in [-1, 1], s in [0, 1], a base and a tip

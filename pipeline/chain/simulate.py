@@ -55,14 +55,32 @@ def run(growth_h5: str | Path, out: str | Path, cfg: Config, *, overwrite: bool 
     with artifact.Artifact(growth_h5, needs="growth", reader="simulate") as src:
         prep = Prepared.from_artifact(src)
         v, petal, base = prep.vertices, prep.petal, prep.base
+        shell = sim["model"] == "shell"
+        start = decide_start(cfg, prep)
+        if shell and (sim["integrator"] != "quasi-static" or start.start == "open"):
+            raise BloomError("simulate.model: the shell runs with simulate.integrator = "
+                             "quasi-static and growth.start = bud (for now); this scene has "
+                             f"{sim['integrator']} and a start {start.start} ({start.reason})",
+                             where=where)
+        if shell:  # a bud that is not perfectly symmetric, the same at any resolution (a
+            # random nudge per vertex picks a branch per mesh)
+            prep.vertices = v = prep.imperfect(sim["imperfection"])
         try:
-            model = prep.model(sim["stretch_stiffness"], sim["bending_stiffness"], sim["mass"])
+            if shell:
+                model = prep.shell_model(sim["stretch_modulus"], sim["thickness"],
+                                         sim["poisson"], sim["mass"])
+            else:
+                model = prep.model(sim["stretch_stiffness"], sim["bending_stiffness"],
+                                   sim["mass"])
         except ValueError as exc:
             raise BloomError(f"cannot build the model: {exc}", where=growth_h5) from None
         params = Params.of(cfg)
+        if shell:  # the contact gap in units of the petal (mesh units shrink as the mesh is
+            # refined)
+            params = params.but(collisions={
+                "thickness": cfg["effects.collisions.gap"] * model.shell.size})
         rest_angle = prep.rest_angle
         max_edge = prep.max_grown_edge()  # once: the bud search changes the model's rest lengths
-        start = decide_start(cfg, prep)
         names = decide_effects(cfg, prep)
 
         def build_effects(positions):
@@ -87,6 +105,8 @@ def run(growth_h5: str | Path, out: str | Path, cfg: Config, *, overwrite: bool 
                                      sim["substeps"], sim["inertia"])
         if hasattr(integrator, "petal"):  # (it names the petal of each rescue in the log)
             integrator.petal = np.asarray(petal)
+        if shell and sim["imperfection"] > 0.0:  # (the imperfection breaks the symmetry)
+            integrator.perturbation = 0.0
         effects = build_effects(v)
         state = State.at_rest(model, v, control)
         effects.constrain(state.forces)

@@ -14,14 +14,17 @@ Per petal (a connected component):
 - base: the end attached to the receptacle: with several petals (and an axis), the end
   nearer the flower's axis; a lone petal's, its narrow end, or with a given axis its
   end lowest along it. The fixed base vertices are the boundary vertices within
-  ``base_fraction`` of the petal's length from that end;
+  ``base_fraction`` of the petal's length from that end (``base_region = "rim"``), all
+  vertices there (``band``: the same at any resolution) or the base edge (``edge``);
 - tip: the far end of the axis: of the axis vertices, the one farthest from the base
   along the mesh;
 - s: distance from the base along the mesh, over the tip's (0 at the base, 1 at the
   tip and beyond: a petal's corners may reach a little farther than its tip);
 - x: cross-section coordinate: distance along the mesh from the axis vertices, signed
   by the side of the center plane and divided by the boundary's distance at the same s
-  on the same side (0 on the axis, +-1 on the two boundary curves).
+  on the same side (0 on the axis, +-1 on the two boundary curves). With ``surface=True``
+  (the shell's) s and x are along the surface (:mod:`pipeline.flower.coords`): they
+  converge as the mesh is refined; along edges they stay a few percent off.
 
 Every petal's axis is checked sane, or the petal is refused (:class:`BadPetal`, naming
 the key ``scene.exclude``): x reaches both -1 and +1, the on-axis vertices form a line
@@ -40,6 +43,7 @@ import numpy as np
 from scipy.sparse.csgraph import connected_components, dijkstra
 
 from pipeline.directions import parse_direction
+from pipeline.flower.coords import base_distance, base_edge, cross_section, edge_cross_section, tip_distance
 from pipeline.mesh import symmetry, topology
 
 
@@ -284,13 +288,15 @@ def _end_width(points: np.ndarray, proj: np.ndarray, plane: np.ndarray, low_end:
 
 
 def find_axes(vertices: np.ndarray, faces: np.ndarray, petal: np.ndarray, *,
-              base_mode: str = "auto", base_fraction: float = 0.04,
-              planes: np.ndarray | None = None, flower_axis=None,
+              base_mode: str = "auto", base_fraction: float = 0.04, base_region: str = "rim",
+              surface: bool = False, planes: np.ndarray | None = None, flower_axis=None,
               up: np.ndarray | None = None) -> PetalAxes:
     """Axes of every petal of a cleaned mesh (see the module docstring).
 
     ``base_mode``: auto, narrow, wide, or a direction (+x ... -z) the base end lies
-    towards (it wins over the flower's axis for choosing the base end). ``planes``: the
+    towards (it wins over the flower's axis for choosing the base end).
+    ``base_region``: rim, band or edge (see the module notes). ``surface``: s and x
+    along the surface (the shell's), else along edges (the paper's). ``planes``: the
     petals' center planes if known (remesh records them); a plane that is not finite or
     has no normal is found again from the petal. ``flower_axis``: None or "auto" (found
     from the center planes), or the direction of the flower's axis (a vector or a key
@@ -300,6 +306,7 @@ def find_axes(vertices: np.ndarray, faces: np.ndarray, petal: np.ndarray, *,
     Raises :class:`BadPetal` (a petal with no sound axis) or :class:`WeakBase`.
     """
     v = np.asarray(vertices, dtype=np.float64)
+    faces = np.asarray(faces, dtype=np.int64)
     petal = np.asarray(petal)
     nv = len(v)
     count = int(petal.max()) + 1
@@ -378,7 +385,11 @@ def find_axes(vertices: np.ndarray, faces: np.ndarray, petal: np.ndarray, *,
             direction = -direction
         span = proj.max() - proj.min()
         bnd = boundary[idx]
-        mine_base = bnd & (proj <= proj.min() + base_fraction * span)
+        local_faces = np.searchsorted(idx, faces[petal[faces[:, 0]] == p])
+        end = base_edge(pts, local_faces, bnd, proj, base_fraction * span) \
+            if surface or base_region == "edge" else None
+        mine_base = end.copy() if base_region == "edge" else (  # (rim: the paper's)
+            (bnd | (base_region == "band")) & (proj <= proj.min() + base_fraction * span))
         if mine_base.sum() < 3:  # a petal held by fewer than 3 vertices can spin
             order = np.argsort(np.where(bnd, proj, np.inf), kind="stable")
             mine_base[order[:3]] = True
@@ -391,8 +402,8 @@ def find_axes(vertices: np.ndarray, faces: np.ndarray, petal: np.ndarray, *,
         if mine_base.sum() > held:
             widened.append(p)
         base[idx] = mine_base
-
-        dist_base = dijkstra(sub, indices=np.flatnonzero(mine_base), min_only=True)
+        dist_base = (base_distance(pts, local_faces, end, mine_base) if surface
+                     else dijkstra(sub, indices=np.flatnonzero(mine_base), min_only=True))
 
         # the axis: vertices on the center plane and, of each edge crossing it, the end
         # nearer the plane (both ends would make a band two vertices wide)
@@ -414,7 +425,10 @@ def find_axes(vertices: np.ndarray, faces: np.ndarray, petal: np.ndarray, *,
                                "its base (a petal of a few triangles; remesh it finer)",
                                "remesh.petal_vertices")
         tips[p] = idx[tip_local]
-        s[idx] = np.minimum(dist_base / dist_base[tip_local], 1.0)
+        # (along the surface, 1 at the tip point: the same point at any resolution)
+        tip_at = tip_distance(dist_base, side, local_faces, dist_base[tip_local]) if surface \
+            else dist_base[tip_local]
+        s[idx] = np.minimum(dist_base / tip_at, 1.0)
 
         # orient the plane normal: (normal, base->tip chord, outward) right-handed
         chord = pts[tip_local] - pts[mine_base].mean(axis=0)
@@ -424,20 +438,9 @@ def find_axes(vertices: np.ndarray, faces: np.ndarray, petal: np.ndarray, *,
             side = -side
         on_axis[idx] = mine_axis
 
-        # cross-section coordinate
-        g = dijkstra(sub, indices=np.flatnonzero(mine_axis), min_only=True)
-        sign = np.where(mine_axis, 0.0, np.sign(side))
-        xs = np.zeros(len(idx))
-        rim = bnd & ~mine_base & ~mine_axis
-        for sg in (-1.0, 1.0):
-            ring = rim & (sign == sg)
-            here = sign == sg
-            if not ring.any() or not here.any():
-                continue
-            order = np.argsort(s[idx][ring], kind="stable")
-            width = np.interp(s[idx][here], s[idx][ring][order], g[ring][order])
-            xs[here] = sg * np.clip(g[here] / np.maximum(width, 1e-12), 0.0, 1.0)
-            xs[ring] = sg
+        rim = bnd & ~mine_base & ~mine_axis  # the cross-section coordinate:
+        xs = cross_section(pts, local_faces, rim, side, s[idx]) if surface \
+            else edge_cross_section(sub, mine_axis, rim, side, s[idx])
         x[idx] = xs
         _check_line(p, pts, sub, local_edges, mine_axis, dist_base, tip_local, xs)
 

@@ -55,6 +55,7 @@ class Part:
     blocks: np.ndarray
     static: tuple | None = None
     work: np.ndarray = field(default_factory=lambda: np.zeros((7, 4, 3, 3)))
+    faces: np.ndarray | None = None  #: a shell's faces in the part (:mod:`pipeline.sim.terms.shell`)
 
 
 @dataclass

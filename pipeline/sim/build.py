@@ -22,6 +22,7 @@ from pipeline.mesh.hinge import edge_lengths
 from pipeline.sim import effects as fx
 from pipeline.sim.model import Model
 from pipeline.sim.terms.elastic import internal_forces
+from pipeline.sim.terms.shell import ShellData, petal_size
 
 
 @dataclass
@@ -43,6 +44,8 @@ class Prepared:
     stiffness: np.ndarray  #: (E,) factors on simulate.stretch_stiffness
     hinges: np.ndarray  #: (H, 4)
     rest_angle: np.ndarray  #: (H,) dihedral angles of the rest state
+    #: (V,) a thick petal's mid-surface thickness (mesh units; 0 for sheets), or None
+    thickness: np.ndarray | None = None
 
     @classmethod
     def from_artifact(cls, src) -> Prepared:
@@ -51,7 +54,8 @@ class Prepared:
                    src["axis/on_axis"], src["axis/s"], src["axis/x"], src["axis/tip"],
                    src["axis/plane"], np.asarray(src.attrs["flower_axis"]), src["growth/edges"],
                    src["growth/alpha"], src["growth/stiffness"], src["growth/hinges"],
-                   src["growth/rest_angle"])
+                   src["growth/rest_angle"],
+                   src["mesh/thickness"] if "mesh/thickness" in src else None)
 
     @classmethod
     def of(cls, vertices, faces, petal, axes, growth) -> Prepared:
@@ -78,6 +82,40 @@ class Prepared:
         (``bending``), rest state measured on :attr:`vertices`, the base fixed."""
         return Model.build(self.vertices, self.edges, self.alpha, stretch * np.asarray(self.stiffness),
                            self.hinges, bending, self.base if pinned is None else pinned, mass=mass)
+
+    def imperfect(self, amount: float) -> np.ndarray:
+        """The bud's vertices with a small, smooth, mesh-independent imperfection: each
+        petal's vertices moved along its center plane's normal by ``amount`` times the
+        petal size times ``s^2`` (0 at the base, ``amount`` at the tip). A perfectly
+        symmetric petal can reach a fork in its path (a sideways lean, a twist) where
+        it must choose a side; this chooses it the same way at any resolution and on any
+        triangulation (a random nudge per vertex, or rounding, chooses per mesh)."""
+        v = np.asarray(self.vertices, dtype=np.float64)
+        if amount == 0.0:
+            return v
+        petal = np.asarray(self.petal)
+        normal = np.asarray(self.plane, dtype=np.float64)[petal, :3]
+        size = petal_size(v, self.faces, petal)
+        s = np.asarray(self.s, dtype=np.float64)
+        return v + (amount * size * s * s)[:, None] * normal
+
+    def shell_model(self, stretch_modulus: float, thickness: float, poisson: float,
+                    mass: float = 1.0, pinned=None) -> Model:
+        """The shell (:mod:`pipeline.sim.terms.shell`): the model's edges keep the rest lengths
+        and growth ratios (the rest metric of each face is made of them), and carry the
+        paper's equivalent stiffnesses for what is still counted in springs (contact,
+        the solver's scales). ``stretch_modulus`` and ``thickness`` are in units of the
+        petal size (see :func:`pipeline.sim.terms.shell.moduli`). A fixed boundary edge (the
+        base) is clamped (:func:`pipeline.sim.terms.shell.clamped_anchors`)."""
+        model = self.model(1.0, 1.0, mass=mass, pinned=pinned)
+        data = ShellData.build(self.vertices, self.faces, model, stretch_modulus=stretch_modulus,
+                               thickness=thickness, poisson=poisson, petal=self.petal,
+                               vertex_thickness=self.thickness)
+        ks, kb = data.equivalent()
+        model.edge_stiffness = np.full(model.edge_count, ks)
+        model.hinge_stiffness = np.full(model.hinge_count, kb)
+        model.shell = data
+        return model
 
     def effects(self, names, params: fx.Params, *, positions=None, rest_angle=None,
                 max_edge: float | None = None) -> fx.Effects:

@@ -16,6 +16,9 @@ The terms (docs/method.md, "Constraints and effects"), each built only when the 
 - :class:`Stretch` (Eq. 2) and :class:`Bending` (Eq. 3, with the curl of Eq. 11 moving
   its rest angles when the scene curls); :class:`Elastic` is the two in one pass, the
   form the solvers run (``pipeline.sim.explicit.step.advance`` fuses the same arithmetic into its step);
+- or, where the model is a shell (``simulate.model = "shell"``), one
+  :class:`~pipeline.sim.terms.shell.ShellTerm` instead of the two: membrane and bending
+  of the surface, in the elastic unit's place (the curl decays its rest curvature);
 - :class:`Inertia`: ``1/2 |x - x_pred|_M^2 / dt^2``, the implicit Euler step in
   incremental-potential form (``simulate.inertia``);
 - :class:`~pipeline.sim.contact.Contact`: the IPC barrier between petals
@@ -38,26 +41,28 @@ from __future__ import annotations
 
 from pipeline.sim.terms.elastic import Elastic
 from pipeline.sim.terms.fixed_base import FixedBase
+from pipeline.sim.terms.shell import ShellTerm
 
 
 class Terms:
     """What a scene's energy is made of: the elastic unit, the coupling terms (contact,
     connection springs) the scene has, and its constraints. Built by :func:`build`."""
 
-    def __init__(self, elastic: Elastic, coupling: list, constraints: list, model=None):
+    def __init__(self, elastic: Elastic | ShellTerm, coupling: list, constraints: list, model=None):
         self.elastic, self.coupling, self.constraints = elastic, coupling, constraints
         self.model = model  #: the model they were built of
 
     def __iter__(self):
         """The energy terms (the constraints are not)."""
-        return iter([self.elastic.stretch, self.elastic.bending, *self.coupling])
+        return iter([*self.elastic.units, *self.coupling])
 
     def names(self) -> list[str]:
         return [t.name for t in self] + [c.name for c in self.constraints]
 
 
 def build(model, effects, *, contact=None, springs=None) -> Terms:
-    """The terms of a scene: stretch and bending always (curl if the scene curls), the
+    """The terms of a scene: stretch and bending always (curl if the scene curls; the
+    shell's one term instead where the model is a shell), the
     coupling terms given (``contact``: a :class:`~pipeline.sim.contact.Contact`;
     ``springs``: :class:`~pipeline.sim.contact.Springs`), the fixed base, and the center
     plane if the scene has it."""
@@ -65,4 +70,6 @@ def build(model, effects, *, contact=None, springs=None) -> Terms:
     if effects.center_plane is not None:
         constraints.append(effects.center_plane)
     coupling = [t for t in (contact, springs) if t is not None]
+    if getattr(model, "shell", None) is not None:  # the surface's own elasticity
+        return Terms(ShellTerm(model, effects.curl), coupling, constraints, model)
     return Terms(Elastic.of(model, effects.curl), coupling, constraints, model)

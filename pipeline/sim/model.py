@@ -10,6 +10,7 @@ from scipy.interpolate import PchipInterpolator
 from pipeline.mesh.hinge import edge_lengths, hinge_cos_sin
 from pipeline.sim.terms.elastic import internal_forces
 from pipeline.sim.terms.growth import SCHEDULE_CODES, growth_value
+from pipeline.sim.terms.shell import ShellTerm
 
 
 def _c(a, dtype) -> np.ndarray:
@@ -67,6 +68,11 @@ class Model:
     hinge_rest_cos: np.ndarray  #: (H,) cos of the rest dihedral angle at t = 0
     hinge_rest_sin: np.ndarray  #: (H,) sin of the rest dihedral angle at t = 0
     hinge_stiffness: np.ndarray  #: (H,) K_b of each hinge
+    #: the surface's elasticity (:class:`pipeline.sim.terms.shell.ShellData`) when the model is a
+    #: shell (``simulate.model = "shell"``); then the springs and hinges above carry only
+    #: the rest lengths and growth (the rest metric is made of them) and the paper's
+    #: equivalent stiffnesses (the solver's scales, the contact barrier's stiffness)
+    shell: object = None
 
     @property
     def edge_count(self) -> int:
@@ -129,6 +135,10 @@ class State:
     def at_rest(cls, model: Model, positions, control: Control) -> State:
         X = _c(positions, np.float64).copy()
         state = cls(X, np.zeros_like(X), np.zeros_like(X), 0, 0.0, np.zeros_like(X))
+        if model.shell is not None:
+            state.potential_energy = ShellTerm(model).at(control.growth_at(0.0)).forces(
+                X, state.forces)
+            return state
         state.potential_energy = internal_forces(
             X, model.edge_indices, model.edge_rest_length, model.edge_growth,
             model.edge_stiffness, model.hinge_indices, model.hinge_rest_cos,

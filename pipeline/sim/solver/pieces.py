@@ -88,6 +88,10 @@ def split(model: Model, effects: Effects) -> list[Piece]:
             hinge_indices=local[model.hinge_indices[hmask]],
             hinge_rest_cos=model.hinge_rest_cos[hmask], hinge_rest_sin=model.hinge_rest_sin[hmask],
             hinge_stiffness=model.hinge_stiffness[hmask])
+        if model.shell is not None:
+            edge_map = np.cumsum(emask) - 1
+            sub.shell = model.shell.subset(label[model.shell.face_indices[:, 0]] == c, local,
+                                           edge_map)
         fx = Effects(names=effects.names)
         if effects.curl is not None:
             k = effects.curl

@@ -18,6 +18,7 @@ from pipeline.sim.blocks import Blocks, Part
 from pipeline.sim.effects import Effects
 from pipeline.sim.model import Model
 from pipeline.sim.solver.ldl import BlockLDL
+from pipeline.sim.terms.shell import ShellBlocks
 
 
 @dataclass
@@ -51,13 +52,14 @@ class System:
     """The block-sparse pattern and work arrays, built once per model, and the groups
     of pieces that are solved as one system each (:meth:`regroup`)."""
 
-    blocks: Blocks  #: the Hessian, assembled and constrained in place
+    blocks: Blocks | ShellBlocks  #: the Hessian, assembled and constrained in place
     pinned: np.ndarray
     plane_row: np.ndarray
     normals: np.ndarray
     piece: np.ndarray  #: (V,) connected piece (petal) of each vertex
     edge_piece: np.ndarray  #: (E,) piece of each edge
     hinge_piece: np.ndarray  #: (H,) piece of each hinge
+    face_piece: np.ndarray  #: (F,) piece of each face of a shell (empty for the springs)
     #: (3V, 3V) the constraints as a projection: 0 for a fixed vertex, I - n n^T for a
     #: center-plane vertex, I for the others (applied to the coupling terms' Hessian)
     project: sp.csr_matrix | None = None
@@ -75,7 +77,7 @@ class System:
     @classmethod
     def build(cls, model: Model, effects: Effects) -> System:
         n = model.vertex_count
-        blocks = Blocks.build(model)
+        blocks = ShellBlocks.build(model) if model.shell is not None else Blocks.build(model)
         plane_row = np.full(n, -1, dtype=np.int64)
         normals = np.zeros((0, 3))
         if effects.center_plane is not None:
@@ -84,8 +86,9 @@ class System:
         e = model.edge_indices
         graph = sp.coo_matrix((np.ones(len(e)), (e[:, 0], e[:, 1])), shape=(n, n))
         piece = connected_components(graph, directed=False)[1].astype(np.int64)
+        faces = model.shell.face_indices if model.shell is not None else np.zeros((0, 3), int)
         system = cls(blocks, model.pinned.copy(), plane_row, normals, piece, piece[e[:, 0]],
-                     piece[model.hinge_indices[:, 0]])
+                     piece[model.hinge_indices[:, 0]], piece[faces[:, 0]])
         if effects.collisions is not None or effects.connections is not None:
             P = np.broadcast_to(np.eye(3), (n, 3, 3)).copy()
             P[model.pinned] = 0.0
@@ -125,7 +128,8 @@ class System:
             part = self._parts[piece] = Part(
                 np.flatnonzero(self.edge_piece == piece),
                 np.flatnonzero(self.hinge_piece == piece),
-                np.concatenate([np.arange(indptr[v], indptr[v + 1]) for v in vertices]))
+                np.concatenate([np.arange(indptr[v], indptr[v + 1]) for v in vertices]),
+                faces=np.flatnonzero(self.face_piece == piece))
         return part
 
     def _group(self, key: tuple) -> Group:

@@ -129,6 +129,11 @@ class Elastic(Term):
     def A(self) -> float:
         return self.stretch.A
 
+    @property
+    def units(self) -> tuple:
+        """The energy terms it is made of."""
+        return (self.stretch, self.bending)
+
     def at(self, growth: float) -> Elastic:
         self.stretch.at(growth)
         self.bending.at(growth)

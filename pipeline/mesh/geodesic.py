@@ -1,0 +1,133 @@
+"""Geodesic distance on a triangle mesh by the heat method (Crane, Weischedel and Wardetzky
+2013), a distance that converges to the surface's own as the mesh is refined.
+
+Shortest paths along edges (Dijkstra) do not: a path made of edges zigzags, and how much
+longer it is than the geodesic depends on how the edges happen to run (a few percent,
+and not less on a finer mesh). The heat method: diffuse heat from the sources for a
+short time ``t ~ h^2``, take the direction in which the heat falls off, and find the
+function whose gradient is that unit field (a Poisson problem). Both linear systems are
+sparse and symmetric.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import scipy.sparse as sp
+from scipy.sparse.linalg import factorized
+
+
+def _operators(vertices: np.ndarray, faces: np.ndarray):
+    """Cotangent Laplacian ``L`` (positive semi-definite), lumped mass ``m (V,)``,
+    per-face gradient ``G (3F, V)`` (rows: x of every face, then y, then z) and face
+    areas ``(F,)``."""
+    v = np.asarray(vertices, dtype=np.float64)
+    f = np.asarray(faces, dtype=np.int64)
+    n, nf = len(v), len(f)
+    p0, p1, p2 = v[f[:, 0]], v[f[:, 1]], v[f[:, 2]]
+    normal = np.cross(p1 - p0, p2 - p0)
+    double = np.linalg.norm(normal, axis=1)
+    unit = normal / np.where(double > 0, double, 1.0)[:, None]
+    rows, cols, vals = [], [], []
+    grad = []
+    for k in range(3):
+        a, b, c = f[:, k], f[:, (k + 1) % 3], f[:, (k + 2) % 3]
+        # cotangent of the angle at a, for the edge b-c
+        u, w = v[b] - v[a], v[c] - v[a]
+        cot = np.einsum("ij,ij->i", u, w) / np.where(double > 0, double, np.inf)
+        rows += [b, c, b, c]
+        cols += [c, b, b, c]
+        vals += [-0.5 * cot, -0.5 * cot, 0.5 * cot, 0.5 * cot]
+        # gradient of the hat function of corner a: (n x (x_c - x_b)) / (2 area)
+        grad.append(np.cross(unit, v[c] - v[b]) / np.where(double > 0, double, np.inf)[:, None])
+    L = sp.coo_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
+                      shape=(n, n)).tocsc()
+    area = 0.5 * double
+    m = np.zeros(n)
+    for k in range(3):
+        np.add.at(m, f[:, k], area / 3.0)
+    gr, gc, gv = [], [], []
+    for d in range(3):
+        for k in range(3):
+            gr.append(d * nf + np.arange(nf))
+            gc.append(f[:, k])
+            gv.append(grad[k][:, d])
+    G = sp.coo_matrix((np.concatenate(gv), (np.concatenate(gr), np.concatenate(gc))),
+                      shape=(3 * nf, n)).tocsr()
+    return L, m, G, area
+
+
+def heat_distances(vertices: np.ndarray, faces: np.ndarray, sources: list,
+                   time: float = 1.0) -> list[np.ndarray]:
+    """For each source in ``sources`` (an index array or bool mask of vertices, or a
+    float load vector such as :func:`curve_load`'s), the ``(V,)`` geodesic distance
+    from it along the surface (one connected piece). ``time``: the
+    diffusion time in units of the mean edge length squared (Crane et al.'s ``m``; 1 is
+    their choice). Neumann boundary conditions (the heat does not leave the sheet).
+
+    Accuracy: the direction of the heat's fall-off is taken per triangle, and on an
+    irregular mesh it scatters by a few degrees, so distances come out short by the mean
+    of ``1 - cos`` of that scatter (0.7-0.9% measured on Poisson-disc and lattice meshes
+    of a plane, whatever the spacing); a *ratio* of two such distances (the
+    cross-section coordinate, s) converges under refinement: 1.9% -> 0.3% from h = 0.1
+    to 0.0125 (``tests/test_geodesic.py``)."""
+    v = np.asarray(vertices, dtype=np.float64)
+    f = np.asarray(faces, dtype=np.int64)
+    L, m, G, area = _operators(v, f)
+    n, nf = len(v), len(f)
+    edges = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
+    h = float(np.linalg.norm(v[edges[:, 0]] - v[edges[:, 1]], axis=1).mean())
+    heat = factorized((sp.diags(m) + time * h * h * L).tocsc())
+    keep = np.arange(1, n)  # L is singular (constants): hold vertex 0, shift afterwards
+    poisson = factorized(L[keep][:, keep].tocsc())
+    out = []
+    for chosen in sources:
+        chosen = np.asarray(chosen)
+        if chosen.dtype.kind == "f":  # a load vector: its weighted mean is the zero
+            load = chosen
+        else:
+            load = np.zeros(n)
+            load[chosen] = 1.0
+        u = heat(load)
+        g = (G @ u).reshape(3, nf).T
+        norm = np.linalg.norm(g, axis=1)
+        X = -g / np.where(norm > 0, norm, 1.0)[:, None]
+        div = G.T @ (X * area[:, None]).T.ravel()
+        phi = np.zeros(n)
+        phi[keep] = poisson(div[keep])
+        out.append(phi - float(load @ phi) / float(load.sum()))
+    return out
+
+
+def curve_load(vertices: np.ndarray, faces: np.ndarray, level: np.ndarray) -> np.ndarray:
+    """``(V,)`` the load vector of the curve where the piecewise-linear function ``level``
+    (per vertex) is zero: each face's segment of it, its length shared among the face's
+    corners by their barycentric weights at the segment's middle. A source for
+    :func:`heat_distances` that is the curve itself, wherever it crosses the triangles
+    (not the vertices nearest it, a zigzag that depends on the mesh). A vertex exactly on
+    the curve counts as just above it."""
+    v = np.asarray(vertices, dtype=np.float64)
+    f = np.asarray(faces, dtype=np.int64)
+    s = np.asarray(level, dtype=np.float64)
+    s = np.where(s == 0.0, np.finfo(np.float64).tiny, s)
+    out = np.zeros(len(v))
+    sf = s[f]
+    crossing = np.flatnonzero((sf.min(axis=1) < 0.0) & (sf.max(axis=1) > 0.0))
+    for k in crossing:
+        ends, weights = [], []
+        for a in range(3):
+            b = (a + 1) % 3
+            sa, sb = sf[k, a], sf[k, b]
+            if (sa < 0.0) != (sb < 0.0):
+                t = sa / (sa - sb)
+                ends.append((1.0 - t) * v[f[k, a]] + t * v[f[k, b]])
+                w = np.zeros(3)
+                w[a], w[b] = 1.0 - t, t
+                weights.append(w)
+        length = float(np.linalg.norm(ends[1] - ends[0]))
+        np.add.at(out, f[k], 0.5 * length * (weights[0] + weights[1]))
+    return out
+
+
+def heat_distance(vertices: np.ndarray, faces: np.ndarray, sources, time: float = 1.0):
+    """``(V,)`` geodesic distance from ``sources`` (see :func:`heat_distances`)."""
+    return heat_distances(vertices, faces, [sources], time)[0]

@@ -1,0 +1,303 @@
+"""A thin shell whose energy is a property of the surface, not of its triangles
+(``simulate.model = "shell"``): its units (:func:`moduli`, in units of the petal size, so
+that the same deformation has the same energy at any mesh resolution), what it adds to a
+model (:class:`ShellData`), its Hessian's blocks (:class:`ShellBlocks`) and the term the
+solver runs (:class:`ShellTerm`).
+
+The paper's model (Eq. 2-3) gives every spring one ``K_s`` and every hinge one ``K_b``,
+so the same petal triangulated twice is two different materials (issue 31). The shell is
+a discretization of a continuum shell (Koiter's energy, St. Venant-Kirchhoff material):
+a membrane energy from each face's strain against its grown rest metric, and a bending
+energy from a patch-quadratic second fundamental form. The discretization and its
+derivatives are in :mod:`pipeline.sim.terms.shell_kernels`; the stencils the kernels
+read in :mod:`pipeline.sim.terms.shell_stencil`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.sparse as sp
+
+from pipeline.sim.blocks import Part
+from pipeline.sim.terms.shell_kernels import (
+    KERNEL_SCRATCH,
+    rest_dets,
+    second_form,
+    shell_forces,
+    shell_hessian,
+    shell_rounding,
+)
+from pipeline.sim.terms.shell_stencil import (
+    clamped_anchors,
+    face_edges,
+    face_opposite,
+    face_pattern,
+    face_stencil,
+    ghost_rows,
+)
+from pipeline.sim.terms.term import Term
+
+
+def petal_size(vertices, faces, petal=None) -> float:
+    """The length the shell's units are given in: ``sqrt`` of the mean petal area (mesh
+    units). An area converges under refinement (to second order on a smooth surface),
+    unlike a length measured along edges, and does not care where the base or the tip
+    vertex falls."""
+    v = np.asarray(vertices, dtype=np.float64)
+    f = np.asarray(faces, dtype=np.int64)
+    area = 0.5 * np.linalg.norm(np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]]),
+                                axis=1).sum()
+    count = 1 if petal is None or len(petal) == 0 else int(np.max(petal)) + 1
+    return float(np.sqrt(area / count))
+
+
+#: defaults, chosen so that the default petal (assets/petal.obj, 317 vertices, mean
+#: edge 1) matches the paper's springs (K_s = 0.1, K_b = 0.0005; see ``moduli``):
+#: Poisson's ratio of a triangular lattice of springs ...
+POISSON = 1.0 / 3.0
+
+
+def moduli(size: float, stretch_modulus: float, thickness: float, poisson: float,
+           face_thickness=None):
+    """Per-face stretch modulus ``Y`` and bending modulus ``D`` in mesh units, from
+    units that do not depend on the mesh:
+
+    - ``stretch_modulus``: Young's modulus times thickness, energy per area, area in
+      units of the petal size ``L`` (``size``, mesh units): ``Y = stretch_modulus /
+      L^2``. Then a given strain field has the same membrane energy at any resolution;
+    - ``thickness``: relative to ``L``: ``t = thickness L`` (mesh units), and ``D = Y
+      t^2 / (12 (1 - nu^2))``: bending against stretching is fixed in units of the
+      petal;
+    - ``face_thickness (F,)`` (mesh units, 0 where unknown): a face with a thickness of
+      its own has ``Y_f = Y t_f / t`` and ``D_f = Y_f t_f^2 / (12 (1 - nu^2))`` (bending
+      ~ t^3, stretching ~ t; the material is the one of the configured sheet).
+
+    How the paper's springs map: a lattice of equilateral triangles of edge ``l`` with
+    springs ``K_s`` is a sheet of stretch modulus ``2 K_s / sqrt(3)`` and Poisson's ratio
+    1/3; its hinges ``K_b (1 - cos(theta - theta0))`` bend a cylinder with ``D = sqrt(3)
+    / 2 K_b`` (``l = 1``).
+    """
+    young = stretch_modulus / size ** 2
+    t = thickness * size
+    k = 1.0 / (12.0 * (1.0 - poisson ** 2))
+    if face_thickness is None:
+        return young, young * t * t * k
+    tf = np.asarray(face_thickness, dtype=np.float64)
+    own = tf > 0.0
+    y = np.where(own, young * tf / t, young)
+    tt = np.where(own, tf, t)
+    return y, y * tt * tt * k
+
+
+def paper_equivalent(size: float, stretch_stiffness: float = 0.1,
+                     bending_stiffness: float = 0.0005) -> tuple[float, float]:
+    """``(stretch_modulus, thickness)`` of the sheet the paper's spring network is, on a
+    mesh of mean edge 1 whose petal size is ``size`` (see :func:`moduli`)."""
+    young = 2.0 * stretch_stiffness / np.sqrt(3.0)
+    bend = np.sqrt(3.0) / 2.0 * bending_stiffness
+    t = np.sqrt(bend * 12.0 * (1.0 - POISSON ** 2) / young)
+    return young * size ** 2, t / size
+
+
+@dataclass
+class ShellData:
+    """What the shell adds to a :class:`~pipeline.sim.model.Model` (whose edges keep
+    their rest lengths and growth ratios: the rest metric is made of them)."""
+
+    face_indices: np.ndarray  #: (F, 3) int64 corners q0, q1, q2 (counter-clockwise)
+    #: (F, 3) int64 the vertex across the edge opposite q_i, or on the boundary a stand-in
+    #: (:func:`face_stencil`; -1: none, the ghost row)
+    face_opposite: np.ndarray
+    face_ghost: np.ndarray  #: (F, 3, 3) patch rows of the boundary edges (:func:`ghost_rows`)
+    face_edges: np.ndarray  #: (F, 3) int64 the model's edge opposite q_i
+    face_rest_form: np.ndarray  #: (F, 3) (b11, b12, b22) of the bud, growth 0
+    face_rest_det: np.ndarray  #: (F,) det of the rest metric at growth 0 (mesh units^4)
+    face_stretch: np.ndarray  #: (F,) stretch modulus Y (energy per mesh area)
+    face_bending: np.ndarray  #: (F,) bending modulus D (energy)
+    poisson: float  #: Poisson's ratio
+    size: float  #: the petal size L the moduli were given in (mesh units)
+    #: (K, 3) fixed points beyond the clamped base edge (:func:`clamped_anchors`); a face's
+    #: stencil names anchor k as vertex ``V + k``
+    anchors: np.ndarray = None
+    vertex_count: int = 0  #: V (stencil entries from V on are anchors)
+
+    @property
+    def face_count(self) -> int:
+        return len(self.face_indices)
+
+    @classmethod
+    def build(cls, vertices, faces, model, *, stretch_modulus: float, thickness: float,
+              poisson: float = POISSON, petal=None, vertex_thickness=None,
+              clamp: bool = True) -> ShellData:
+        """From the bud (``vertices``, ``faces``) and its model (rest lengths and growth
+        of its edges). ``vertex_thickness (V,)``: a mid-surface's thickness (mesh units;
+        0 where unknown), or None. ``clamp``: a boundary edge whose ends are fixed (the
+        model's ``pinned``) is clamped (:func:`clamped_anchors`)."""
+        X = np.ascontiguousarray(vertices, dtype=np.float64)
+        f = np.ascontiguousarray(faces, dtype=np.int64)
+        opp = face_stencil(X, f)
+        ghost = np.ascontiguousarray(ghost_rows(X, f, opp))
+        fe = face_edges(f, model.edge_indices)
+        form = np.empty((len(f), 3))
+        second_form(X, f, opp, ghost, form)
+        det0 = np.empty(len(f))
+        rest_dets(fe, model.edge_rest_length, model.edge_growth, det0)
+        if np.any(det0 <= 0.0):
+            raise ValueError(f"{int(np.sum(det0 <= 0))} faces have no area")
+        size = petal_size(X, f, petal)
+        tf = None
+        if vertex_thickness is not None:
+            t = np.asarray(vertex_thickness, dtype=np.float64)[f]
+            tf = np.where(np.all(t > 0.0, axis=1), t.mean(axis=1), 0.0)
+            if not np.any(tf > 0.0):
+                tf = None
+        young, bend = moduli(size, stretch_modulus, thickness, poisson, tf)
+        young = np.ascontiguousarray(np.broadcast_to(young, (len(f),)), dtype=np.float64)
+        bend = np.ascontiguousarray(np.broadcast_to(bend, (len(f),)), dtype=np.float64)
+        anchors = np.zeros((0, 3))
+        pinned = getattr(model, "pinned", None)
+        if clamp and pinned is not None and np.any(pinned):
+            held, corner, anchors = clamped_anchors(X, f, face_opposite(f), pinned)
+            opp[held, corner] = len(X) + np.arange(len(held))
+            Xa = np.concatenate([X, anchors])
+            form = np.empty((len(f), 3))
+            second_form(Xa, f, opp, ghost, form)
+        return cls(f, opp, ghost, fe, form, det0, young, bend, float(poisson), size, anchors,
+                   len(X))
+
+    def equivalent(self) -> tuple[float, float]:
+        """The paper's (K_s, K_b) of the same sheet (mean over faces), for what still
+        counts in springs: the contact barrier's stiffness, the solver's scales."""
+        return (float(np.sqrt(3.0) / 2.0 * self.face_stretch.mean()),
+                float(2.0 / np.sqrt(3.0) * self.face_bending.mean()))
+
+    def subset(self, face_mask, vertex_map, edge_map) -> ShellData:
+        """The faces ``face_mask`` of a piece, renumbered by ``vertex_map (V,)`` and
+        ``edge_map (E,)`` (old index -> new)."""
+        opp = self.face_opposite[face_mask]
+        count = int(np.max(vertex_map)) + 1  # (the piece's vertices: anchors follow them)
+        anchor = opp >= self.vertex_count
+        inside = (opp >= 0) & ~anchor
+        return ShellData(
+            vertex_map[self.face_indices[face_mask]],
+            np.where(inside, vertex_map[np.where(inside, opp, 0)],
+                     np.where(anchor, opp - self.vertex_count + count, -1)),
+            self.face_ghost[face_mask], edge_map[self.face_edges[face_mask]],
+            self.face_rest_form[face_mask], self.face_rest_det[face_mask],
+            self.face_stretch[face_mask], self.face_bending[face_mask], self.poisson,
+            self.size, self.anchors, count)
+
+
+@dataclass
+class ShellBlocks:
+    """The shell's Hessian as 3x3 blocks: the pattern (:func:`face_pattern`), each face's
+    slots and the data it is assembled into (built once; assembly allocates nothing).
+    The quasi-static solver reads ``indptr``, ``indices`` and ``data``."""
+
+    indptr: np.ndarray
+    indices: np.ndarray
+    face_slots: np.ndarray  #: (F, 36)
+    data: np.ndarray  #: (nnz, 3, 3)
+
+    @classmethod
+    def build(cls, model) -> ShellBlocks:
+        sh = model.shell
+        indptr, indices, slots = face_pattern(model.vertex_count, sh.face_indices,
+                                              sh.face_opposite)
+        return cls(indptr, indices, slots, np.zeros((len(indices), 3, 3)))
+
+    def matrix(self):
+        n = 3 * (len(self.indptr) - 1)
+        return sp.bsr_matrix((self.data, self.indices, self.indptr), shape=(n, n))
+
+
+class ShellTerm(Term):
+    """The shell's energy (membrane and bending) as a term (:class:`~pipeline.sim.terms.term.Term`'s
+    interface, and :class:`~pipeline.sim.terms.elastic.Elastic`'s: ``assemble`` into the
+    solver's blocks, ``rounding``). With curl, the rest curvature decays as ``1 - A
+    beta`` (Eq. 11, B = A)."""
+
+    name = "shell"
+
+    def __init__(self, model, curl=None):
+        self.model, self.shell = model, model.shell
+        self.beta = 0.0 if curl is None else float(curl.beta)
+        self.A, self.curl = 0.0, 1.0
+        self._scratch = np.zeros(KERNEL_SCRATCH)
+        self._blocks = None
+        anchors = self.shell.anchors
+        self._points = None if anchors is None or len(anchors) == 0 else np.zeros(
+            (model.vertex_count + len(anchors), 3))
+        if self._points is not None:
+            self._points[model.vertex_count:] = anchors
+
+    def _with_anchors(self, X):
+        """X followed by the clamped edges' fixed anchors (the stencils' vertices V...)."""
+        if self._points is None:
+            return X
+        self._points[:len(X)] = X
+        return self._points
+
+    @property
+    def units(self) -> tuple:
+        """The energy terms it is made of (one)."""
+        return (self,)
+
+    def at(self, growth: float) -> ShellTerm:
+        self.A = float(growth)
+        self.curl = 1.0 - self.A * self.beta
+        return self
+
+    def _args(self, faces=None):
+        m, sh = self.model, self.shell
+        if faces is None:
+            return (sh.face_indices, sh.face_opposite, sh.face_ghost, sh.face_edges,
+                    m.edge_rest_length, m.edge_growth, sh.face_stretch, sh.face_bending,
+                    sh.poisson, sh.face_rest_form, sh.face_rest_det)
+        return (sh.face_indices[faces], sh.face_opposite[faces], sh.face_ghost[faces],
+                sh.face_edges[faces], m.edge_rest_length, m.edge_growth,
+                sh.face_stretch[faces], sh.face_bending[faces], sh.poisson,
+                sh.face_rest_form[faces], sh.face_rest_det[faces])
+
+    def forces(self, X, F) -> float:
+        return shell_forces(self._with_anchors(X), *self._args(), self.A, self.curl, F,
+                            self._scratch)
+
+    def energy(self, X) -> float:
+        return self.forces(X, np.zeros_like(X, dtype=np.float64))
+
+    def gradient(self, X) -> np.ndarray:
+        F = np.zeros_like(X, dtype=np.float64)
+        self.forces(X, F)
+        return -F
+
+    def assemble(self, X, blocks: ShellBlocks, part: Part | None = None) -> None:
+        """The Hessian at X into ``blocks`` (zeroed first). ``part``: a piece of the mesh
+        no face joins to another (:class:`pipeline.sim.blocks.Part`, its ``faces``):
+        only its blocks are zeroed and assembled, with the part's own scratch."""
+        if part is None:
+            blocks.data[:] = 0.0
+            shell_hessian(self._with_anchors(X), *self._args(), self.A, self.curl, blocks.data,
+                          blocks.face_slots, self._scratch)
+            return
+        if part.static is None:
+            part.static = (self._args(part.faces), blocks.face_slots[part.faces],
+                           np.zeros(KERNEL_SCRATCH))
+        args, slots, scratch = part.static
+        blocks.data[part.blocks] = 0.0
+        points = X
+        if self._points is not None:  # (parts in threads: each its own copy of X + anchors)
+            points = np.concatenate([X, self.shell.anchors])
+        shell_hessian(points, *args, self.A, self.curl, blocks.data, slots, scratch)
+
+    def hessian(self, X, project: bool = False):
+        if self._blocks is None:
+            self._blocks = ShellBlocks.build(self.model)
+        self.assemble(X, self._blocks)
+        return self._blocks.matrix().tocsr()
+
+    def rounding(self, X, per_vertex) -> float:
+        return shell_rounding(self._with_anchors(X), *self._args(), self.A, self.curl,
+                              per_vertex, self._scratch)

@@ -1,0 +1,46 @@
+"""The resolution study's pieces (``bloom study resolution``, issue 31): the irregular
+triangulation lies on the asset's surface, and a bloom measured against itself differs by
+nothing. The study's runs themselves are slow: they are the study command's, not the
+suite's (docs/shell.md has the measured table)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from pipeline.studies import resolution as study
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def test_the_irregular_petal_is_the_assets_surface_other_triangles():
+    flat, V, F, petal = study.asset_pattern(ROOT / "assets" / "petal.obj")
+    assert flat.shape == (len(V), 2) and np.all(petal == 0)
+    v, f = study.irregular_mesh(ROOT / "assets" / "petal.obj", 300)
+    assert 240 <= len(v) <= 360 and f.min() == 0 and f.max() == len(v) - 1
+    # every point on the asset: within rounding of its nearest face's plane (a coarse check:
+    # the distance to the nearest asset vertex is under an asset edge)
+    from scipy.spatial import cKDTree
+
+    edge = np.linalg.norm(V[F[:, 0]] - V[F[:, 1]], axis=1).mean()
+    assert cKDTree(V).query(v)[0].max() < edge
+    # the area is the asset's (the same surface)
+    def area(X, T):
+        return 0.5 * np.linalg.norm(np.cross(X[T[:, 1]] - X[T[:, 0]], X[T[:, 2]] - X[T[:, 0]]),
+                                    axis=1).sum()
+
+    assert abs(area(v, f) / area(V, F) - 1.0) < 0.01
+
+
+def test_a_bloom_against_itself_differs_by_nothing():
+    rng = np.random.default_rng(0)
+    flat, V, F, petal = study.asset_pattern(ROOT / "assets" / "petal.obj")
+    s = np.clip(flat[:, 1] / flat[:, 1].max(), 0.0, 1.0)
+    x = flat[:, 0] / np.abs(flat[:, 0]).max()
+    P = np.stack([V, V + rng.normal(scale=0.01, size=V.shape)])
+    tip = np.array([int(np.argmax(s))])
+    run = dict(P=P, s=s, x=x, faces=F, petal=petal, base=s < 0.05, tip=tip,
+               opening=np.array([10.0, 50.0]))
+    rows = study.measure({"a": run}, "a")
+    assert rows[0]["shape_difference"] < 1e-12 and rows[0]["opening_difference"] == 0.0
