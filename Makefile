@@ -13,11 +13,13 @@ INSTALLED := $(VENV)/.installed
 OUT := outputs
 SCENES ?= $(sort $(basename $(notdir $(wildcard configs/*.toml))))
 PYTEST_ARGS ?=
+# real flower models other people made (make models)
+MODELS ?= ../shared/external-meshes
 
 # A stage's artifacts depend on the library and on the stage's own module.
 LIB := $(wildcard pipeline/*.py pipeline/*/*.py pipeline/*/*/*.py) stages/cli.py stages/common.py
 
-.PHONY: all test lint bench accuracy stability docs venv clean clean-venv help
+.PHONY: all test lint bench accuracy stability models docs venv clean clean-venv help
 all: $(SCENES:%=$(OUT)/%/render/bloom.mp4) $(SCENES:%=$(OUT)/%/report.json) $(SCENES:%=$(OUT)/%/bloom.usdc)  ## build every scene: artifacts, frames, MP4, report, USD
 
 help:  ## list the targets
@@ -43,6 +45,9 @@ accuracy: $(INSTALLED)  ## what accuracy costs in time, with and without contact
 stability: $(INSTALLED)  ## the hard cases, slow ones included; prints the README's table (~30 s)
 	$(BLOOM) study stability
 
+models: $(INSTALLED)  ## real flower models, scene.mesh only, judged; the table into docs/performance.md (~30 min)
+	$(BLOOM) study models --dir $(MODELS) --out $(OUT)/models --into docs/performance.md
+
 docs: $(INSTALLED)  ## the key table of docs/guide.md, made anew from the config schema
 	$(BLOOM) config --keys --markdown --into docs/guide.md
 
@@ -54,7 +59,7 @@ $(OUT)/%/mesh.d: configs/%.toml | $(INSTALLED)
 	@mkdir -p $(@D)
 	@echo "$(OUT)/$*/remesh.h5: $$($(BLOOM) config $< --mesh-path)" > $@
 
-ifeq ($(filter test lint bench accuracy stability docs venv clean clean-venv help,$(MAKECMDGOALS)),)
+ifeq ($(filter test lint bench accuracy stability models docs venv clean clean-venv help,$(MAKECMDGOALS)),)
 -include $(SCENES:%=$(OUT)/%/mesh.d)
 endif
 
