@@ -28,7 +28,8 @@ def _sim(path, *, start="bud", petals=2, opening=(0.0, 30.0), distance=None, cro
 @pytest.mark.parametrize("kw, verdict", [
     (dict(), "ok"),
     (dict(crossed=1), "petals through each other"),
-    (dict(opening=(0.0, -4.0)), "opens backward (-4.0 deg)"),
+    (dict(opening=(0.0, -4.0)), "opens backward (-4.0 deg); a petal did not open (-4.0 deg)"),
+    (dict(opening=(0.0, 3.0)), "a petal did not open (3.0 deg)"),
     (dict(petals=1, opening=(0.0, 8.0)), "opens 8.0 deg"),
     (dict(start="open", opening=(0.0, 25.0), distance=0.004), "ok"),
     (dict(start="open", opening=(0.0, 25.0), distance=0.02), "ends 0.02 petal lengths from the model"),

@@ -7,7 +7,8 @@ would judge the bloom:
   :data:`ON_MODEL` of a petal length (RMS), from a bud at least :data:`MORE_CLOSED`
   degrees more closed than the model;
 - a lone petal opens by at least :data:`LONE_OPENS` degrees;
-- a closed bud opens forward (its opening grows) with no petal through another.
+- a closed bud opens forward (its opening grows) with no petal through another;
+- every petal opens (at least :data:`~pipeline.review.report.NOT_OPEN` degrees).
 
 Each model runs in a subprocess per stage (the ``bloom`` commands), with a time limit, so
 one that hangs or crashes is a row of the table, not the end of the study. The table
@@ -28,6 +29,7 @@ import h5py
 import numpy as np
 
 from pipeline.chain import SIMULATION, argv
+from pipeline.review.report import NOT_OPEN
 
 #: an open model's last frame is within this fraction of a petal length of the model (RMS)
 ON_MODEL = 0.01
@@ -120,6 +122,8 @@ def judge(row: Row, h) -> None:
             failed.append(f"opens {row.opened:.1f} deg")
     elif not row.opened > 0.0:
         failed.append(f"opens backward ({row.opened:.1f} deg)")
+    if row.least < NOT_OPEN:
+        failed.append(f"a petal did not open ({row.least:.1f} deg)")
     row.verdict = "; ".join(failed) or "ok"
 
 
