@@ -1,4 +1,10 @@
-"""Petals that pass through or touch each other, moved apart: :func:`separate`."""
+"""Petals that pass through or touch each other, moved apart: :func:`separate`.
+
+The module is long because a separation is rounds of one move: finding the crossing and
+too-close pairs (exactly, by ipctk), choosing each pair's side by area, pushing the
+wrong-side vertices across and smoothing the move by least squares, then checking again;
+the steps share the petals' pairs and the moves made so far.
+"""
 
 from __future__ import annotations
 
@@ -9,7 +15,7 @@ import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components, dijkstra
 from scipy.spatial import cKDTree
 
-from pipeline.io.binding import nearest_among
+from pipeline.mesh.nearest import nearest_among
 from pipeline.mesh.topology import face_normals, unique_edges, vertex_normals
 
 #: no vertex moves further than this fraction of its petal's length
