@@ -19,7 +19,7 @@ MODELS ?= ../shared/external-meshes
 # A stage's artifacts depend on the library and on the stage's own module.
 LIB := $(wildcard pipeline/*.py pipeline/*/*.py pipeline/*/*/*.py) stages/cli.py stages/common.py
 
-.PHONY: all test lint bench accuracy stability models docs venv clean clean-venv help
+.PHONY: all test test-studio lint bench accuracy stability models docs venv clean clean-venv help
 all: $(SCENES:%=$(OUT)/%/render/bloom.mp4) $(SCENES:%=$(OUT)/%/report.json) $(SCENES:%=$(OUT)/%/bloom.usdc)  ## build every scene: artifacts, frames, MP4, report, USD
 
 help:  ## list the targets
@@ -35,6 +35,9 @@ $(INSTALLED): pyproject.toml constraints.txt
 
 test: $(INSTALLED)  ## run the test suite
 	$(VENV)/bin/python -m pytest $(PYTEST_ARGS)
+
+test-studio: $(INSTALLED)  ## the studio-sized models (../shared/external-meshes) through remesh, axis and growth (~6 min)
+	$(VENV)/bin/python -m pytest -m studio tests/test_studio_models.py $(PYTEST_ARGS)
 
 bench: $(INSTALLED)  ## print what each effect costs, as ratios to the bare simulation
 	$(BLOOM) bench
@@ -59,7 +62,7 @@ $(OUT)/%/mesh.d: configs/%.toml | $(INSTALLED)
 	@mkdir -p $(@D)
 	@echo "$(OUT)/$*/remesh.h5: $$($(BLOOM) config $< --mesh-path)" > $@
 
-ifeq ($(filter test lint bench accuracy stability models docs venv clean clean-venv help,$(MAKECMDGOALS)),)
+ifeq ($(filter test test-studio lint bench accuracy stability models docs venv clean clean-venv help,$(MAKECMDGOALS)),)
 -include $(SCENES:%=$(OUT)/%/mesh.d)
 endif
 

@@ -40,6 +40,7 @@ class Key:
     check: Callable[[Any], None] | None = None  # raises ValueError with a reason
     items: type = str  #: a list's items: str, or list (pairs of numbers)
     auto: bool = False  #: the string "auto" is also a value (decided from the model)
+    whole_numbers: bool = False  #: a str key that also takes a whole number (as its digits)
 
 
 def _check_color(value: str) -> None:
@@ -84,6 +85,10 @@ SCHEMA: dict[str, Any] = {
                       "matching part is a petal whatever its shape says"),
         "exclude": Key(list, [], "glob patterns over part names: a matching part is never a petal "
                        "(wins over scene.petals)"),
+        "flower": Key(str, "all", "which flower of a file of many (a bush, a bed, a branch) to "
+                      "simulate: all, a flower's index (0, 1, ...: in the order of their first "
+                      "petals, as the remesh log lists them) or a glob over part names (the one "
+                      "flower whose petals those parts hold)", whole_numbers=True),
         "up": Key(str, "auto", "the scene's up direction (+x ... -z): orients the flower's axis "
                   "where its petals do not (a flat open flower); recorded in the artifacts. auto: "
                   "the file's own (glTF: +y), else +z", choices=("auto", *DIRECTIONS)),
@@ -96,6 +101,9 @@ SCHEMA: dict[str, Any] = {
                               "length follows from the petal's area); 0: use target_edge",
                               low=0),
         "symmetrize": Key(bool, True, "make each petal mirror-symmetric about its center plane"),
+        "workers": Key(int, 0, "processes that remesh petals side by side (8 petals or more); "
+                       "0: the CPUs this process may use, at most 4; 1: none. The result is the "
+                       "same bit for bit", low=0),
         "closed_parts": Key(str, "refuse", "closed surfaces in the input (a thick petal, a "
                             "receptacle, a stem): refuse the mesh, or drop them and say so",
                             choices=("refuse", "drop")),
@@ -322,6 +330,8 @@ def _coerce(dotted: str, key: Key, value: Any, where: str) -> Any:
             if not math.isfinite(value):
                 raise BloomError(f"{dotted}: must be finite, got {value}", where=where)
     elif key.kind is str:
+        if key.whole_numbers and isinstance(value, int) and not isinstance(value, bool):
+            value = str(value)
         ok = isinstance(value, str)
     elif key.kind is list:
         ok = isinstance(value, list)

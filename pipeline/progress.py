@@ -4,7 +4,9 @@ A stage that may run for more than a few seconds reports its progress through
 :class:`Progress`: on a terminal (stderr a TTY) a bar redrawn in place; otherwise
 (under make, in a batch log) a log line when a tenth more is done or every
 :data:`EVERY` seconds, whichever comes later, so a log shows which stage, which part and
-how far without a line per step.
+how far without a line per step. A stage of several named steps (remesh's classifying,
+cleaning and remeshing) reports through :class:`Steps`, which the library calls as
+``progress(what, done, total, detail)``.
 """
 
 from __future__ import annotations
@@ -62,3 +64,54 @@ class Progress:
             log.info("%s: %.0f%% done after %.0f s%s", self.label, 100 * share, now - self.start,
                      f" ({self.what})" if self.what else "")
             self.last, self.logged = now, share
+
+
+class Steps:
+    """How far a stage of several named steps has got (remesh: classifying parts, cleaning
+    petal parts, remeshing petals; axis: petal axes), as ``steps(what, done, total,
+    detail="")`` calls from the library. On a terminal, a :class:`Progress` bar per step;
+    otherwise (under make, in a log) a line when a step starts and at most every
+    ``every`` seconds after, saying the stage, the input (``where``), the step, how far
+    and (``detail``) which part. Nothing for the first ``quiet`` seconds, so a quick run
+    prints no progress at all. ``close()`` ends the bar (also as a context manager)."""
+
+    def __init__(self, stage: str, where: str, every: float = 5.0, quiet: float = 2.0,
+                 show: bool | None = None):
+        self.stage, self.where, self.every, self.quiet = stage, where, every, quiet
+        self.tty = sys.stderr.isatty() if show is None else show
+        self.start = self.last = time.monotonic()
+        self.what, self.done, self.bar = None, 0, None
+
+    def __enter__(self) -> Steps:
+        return self
+
+    def __exit__(self, *exc) -> bool:
+        self.close()
+        return False
+
+    def __call__(self, what: str, done: int, total: int, detail: str = "") -> None:
+        now = time.monotonic()
+        if now - self.start < self.quiet:
+            self.what = what
+            return
+        if self.tty:
+            if what != self.what or self.bar is None:
+                self.close()
+                self.bar = Progress(total, f"{self.stage}: {what}", show=True, quiet=True)
+                self.done = 0
+            self.bar.what = detail
+            self.bar.update(max(done - self.done, 0))
+            self.done = done
+        elif what != self.what or now - self.last >= self.every:
+            part = f", {detail}" if detail else ""
+            share = f" ({100.0 * done / total:.0f}%)" if total else ""
+            log.info("%s: %s: %s: %d of %d%s%s", self.stage, self.where, what, done, total,
+                     share, part)
+            self.last = now
+        self.what = what
+
+    def close(self) -> None:
+        """End the step's bar, if one is drawn."""
+        if self.bar is not None:
+            self.bar.__exit__(None, None, None)
+            self.bar = None

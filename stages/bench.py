@@ -31,20 +31,25 @@ def _sizes(ctx, param, value: str) -> tuple[int, ...]:
                    "'none' for none) run through remesh, axis, growth and simulate as make "
                    "runs them: simulate's seconds, Newton iterations, frames with an "
                    "intersection (ipctk's exact test).")
+@click.option("--remesh-faces", default=100_000, show_default=True, type=click.IntRange(min=0),
+              help="Time `bloom remesh`'s work (default config) on a synthetic flower of about "
+                   "this many faces: 12 solidified petals pushed into a closed receptacle, in "
+                   "one mesh (0: skip).")
 @click.option("--json", "as_json", is_flag=True, help="Print JSON instead of tables.")
 @click.option("--quick", is_flag=True,
               help="Every part end to end on small buds (about a minute; for tests): at most "
                    "600 vertices and 300 steps, sizes 600,1200, a 6-petal bud of 600 vertices "
                    "for the converged bloom.")
 def command(vertices: int, steps: int, sizes: tuple[int, ...], converge: bool, scenes: str,
-            as_json: bool, quick: bool) -> None:
+            remesh_faces: int, as_json: bool, quick: bool) -> None:
     """Time the simulator on a procedural 6-petal bud: no effect, each effect alone and
     all together (ratios to no effect, best of 3 interleaved runs); then the step cost
     and collisions at several sizes (cost per edge and per vertex should stay flat:
     linear in the vertex count); then, with --converge, the wall time each integrator
     needs for a bloom within 1% of the petal length of a converged reference, on a
     6-petal bud of 2133 vertices (the paper's Fig. 12 lily: 44 s); then the default
-    scenes with contact named by --scenes (--quick: none)."""
+    scenes with contact named by --scenes (--quick: none); last, the remesh stage on a
+    studio-sized model of --remesh-faces faces (--quick: at most 20,000)."""
     from pipeline.errors import BloomError
     from pipeline.studies import accuracy, bench
 
@@ -56,6 +61,7 @@ def command(vertices: int, steps: int, sizes: tuple[int, ...], converge: bool, s
                                  f"{', '.join(bench.CONTACT_SCENES)})", param_hint="--scenes")
     if quick:
         vertices, steps, sizes, names = min(vertices, 600), min(steps, 300), (600, 1200), ()
+        remesh_faces = min(remesh_faces, 20_000)
     try:
         costs = bench.effect_costs(vertices, steps)
         scaling = bench.collision_scaling(sizes)
@@ -69,6 +75,7 @@ def command(vertices: int, steps: int, sizes: tuple[int, ...], converge: bool, s
                              scene, ref.positions, echo=None if as_json else click.echo,
                              quick=quick)}
         contact = bench.contact_scenes(names) if names else []
+        remesh = bench.remesh_cost(remesh_faces) if remesh_faces else None
     except RuntimeError as exc:  # a run that diverged or did not converge
         raise BloomError(f"a benchmark run failed: {exc}", where="bloom bench") from None
     if as_json:
@@ -76,7 +83,7 @@ def command(vertices: int, steps: int, sizes: tuple[int, ...], converge: bool, s
                   "ns_per_edge": r["bare_ns_per_edge"]} for r in scaling]
         click.echo(json.dumps({"step_cost": steps, "effects": costs,
                                "collision_scaling": scaling, "converged_bloom": converged,
-                              "contact_scenes": contact},
+                              "contact_scenes": contact, "remesh": remesh},
                               indent=1))
         return
     click.echo(f"effects on a 6-petal bud of about {vertices} vertices, {steps} steps")
@@ -107,3 +114,10 @@ def command(vertices: int, steps: int, sizes: tuple[int, ...], converge: bool, s
                        f"{row['simulate_seconds']:10.2f} {row['newton_iterations']:10d} "
                        f"{row['intersecting_frames']:5d} of {row['frames']:<4d} "
                        f"{row['opening_deg']:7.1f}")
+    if remesh:
+        click.echo(f"\nremesh (default config) of a studio-sized flower: {remesh['faces_in']} faces, "
+                   f"{remesh['vertices_in']} vertices in one mesh -> {remesh['petals']} petals, "
+                   f"{remesh['vertices_out']} vertices")
+        click.echo(f"{remesh['wall_seconds']:.1f} s wall, {remesh['cpu_seconds']:.1f} s CPU, "
+                   f"peak resident memory {remesh['peak_rss_mb']:.0f} MB (largest worker "
+                   f"{remesh['worker_peak_rss_mb']:.0f} MB)")

@@ -26,7 +26,12 @@ def command(mesh: str | None, config_path, overrides, out, overwrite) -> None:
     (the scale is recorded; the mesh is never rotated). A petal whose triangles have an
     angle under 20 deg (pipeline.mesh.remesh.MIN_ANGLE; sharp rim corners excepted) is remeshed
     at its own mean edge; a petal that cannot be mirrored is kept as it is and listed in
-    the attribute unsymmetrized. Petals that pass through or touch each other are moved
+    the attribute unsymmetrized. A part holding a whole flower (petals, receptacle, stem in
+    one mesh) gives its petal pieces; petals are grouped into flowers (mesh/flower,
+    flower/petal_flower, flower/centre) and scene.flower keeps one. The log gives the
+    petals found and the share of the input's petal area kept; a part that loses petals is
+    a warning naming it. Petals are remeshed in remesh.workers processes; a run of more
+    than a few seconds shows how far it has got. Petals that pass through or touch each other are moved
     apart (remesh.separate; at least effects.collisions.thickness apart; the attribute
     separation says how far), or refused in one line naming their parts.
     """

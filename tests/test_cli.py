@@ -449,6 +449,10 @@ def test_bench_quick_runs_every_part_end_to_end():
     assert data["converged_bloom"]["reference_refinement_change"] < 1e-3
     for row in runs.values():
         assert row["wall_seconds"] > 0 and np.isfinite(row["error"])
+    # the remesh stage on a smaller studio flower: its 12 petals found, one flower
+    remesh = data["remesh"]
+    assert 15_000 < remesh["faces_in"] <= 20_000 and remesh["petals"] == 12
+    assert remesh["flowers"] == 1 and remesh["cpu_seconds"] > 0
 
 
 def test_a_bud_grown_shut_has_no_intersecting_frame_with_contact(chain, tmp_path):

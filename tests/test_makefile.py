@@ -150,7 +150,10 @@ def test_bloom_batch_on_a_local_dask_cluster_matches_make(tree):
                 names = _datasets(a)
                 assert names
                 for n in names:
-                    assert np.array_equal(a[n][()], b[n][()]), (scene, name, n)
+                    x, y = a[n][()], b[n][()]
+                    # NaN where a value is unknown (a lone petal's flower axis) equals itself here
+                    same = np.array_equal(x, y, equal_nan=np.asarray(x).dtype.kind == "f")
+                    assert same, (scene, name, n)
         assert (tree / "batch" / scene / "bloom.usdc").stat().st_size > 0
         assert "steps of h" in (tree / "batch" / scene / "logs" / "simulate.log").read_text()
         mine = (tree / "batch" / scene / "render" / "bloom.mp4")

@@ -167,7 +167,7 @@ def test_bench_json_reports_step_cost_per_edge():
     from stages.cli import cli
 
     r = CliRunner().invoke(cli, ["bench", "--json", "--vertices", "300", "--steps", "20",
-                                 "--sizes", "300,1200", "--no-converge"])
+                                 "--sizes", "300,1200", "--no-converge", "--remesh-faces", "0"])
     assert r.exit_code == 0, r.output
     data = json.loads(r.output)
     sizes = [row["vertices"] for row in data["step_cost"]]
@@ -176,7 +176,7 @@ def test_bench_json_reports_step_cost_per_edge():
         assert row["edges"] > row["vertices"] and 0 < row["ns_per_edge"] < 1e4
         assert row["ms_per_step"] == pytest.approx(row["ns_per_edge"] * row["edges"] / 1e6)
     assert data["effects"][0]["effects"] == "none" and data["effects"][0]["ratio"] == 1.0
-    assert data["converged_bloom"] is None
+    assert data["converged_bloom"] is None and data["remesh"] is None
 
 
 def _rounding_bound(model, X, A=0.0):

@@ -14,16 +14,20 @@ from pipeline.config import Config
 from pipeline.directions import DIRECTIONS
 from pipeline.errors import BloomError
 from pipeline.flower.axis import BASE_REACH, BadPetal, WeakBase, check_axes, find_axes
+from pipeline.progress import Steps
 
 log = logging.getLogger("bloom")
 
 #: what the later stages need of remesh.h5, carried forward
 CARRIED = ("mesh/vertices", "mesh/faces", "mesh/petal", "mesh/part_names", "mesh/part", "mesh/thickness",
-           "input/asset", "bind")
+           "mesh/flower", "flower/petal_flower", "flower/centre", "input/asset", "bind")
+#: more petals than this: one summary line instead of a line per petal
+LINES = 50
 
 
 def run(remesh_h5: str | Path, out: str | Path, cfg: Config, *, overwrite: bool = False) -> None:
-    """Find each petal's base, tip, center plane and cross-section coordinates."""
+    """Find each petal's base, tip, center plane and cross-section coordinates, and each
+    flower's axis from its own petals (``flower/axis``, (K, 6))."""
     out = artifact.check_output(out, "axis", overwrite)
     with artifact.Artifact(remesh_h5, needs="remesh", reader="axis") as src:
         v, f, petal = src["mesh/vertices"], src["mesh/faces"], src["mesh/petal"]
@@ -35,6 +39,8 @@ def run(remesh_h5: str | Path, out: str | Path, cfg: Config, *, overwrite: bool 
             if up not in DIRECTIONS:
                 raise BloomError(f"file_up: {up!r} is not one of {', '.join(DIRECTIONS)}; set "
                                  "scene.up", where=remesh_h5)
+        # each petal's flower (remesh.h5 of before the flowers were found: one flower)
+        flower = src["flower/petal_flower"] if "flower/petal_flower" in src else None
         try:
             # the shell (simulate.model = shell) runs on s and x along the surface and
             # holds a band (the same region at any resolution); the paper's springs on
@@ -44,10 +50,12 @@ def run(remesh_h5: str | Path, out: str | Path, cfg: Config, *, overwrite: bool 
             if region == "auto":
                 region = "band" if shell else "rim"
             fraction = cfg["axis.base_band"] if region == "band" else cfg["axis.base_fraction"]
-            axes = find_axes(v, f, petal, base_mode=cfg["axis.base"], base_fraction=fraction,
-                             base_region=region, surface=shell,
-                             planes=src["mesh/plane"] if "mesh/plane" in src else None,
-                             flower_axis=cfg["axis.flower_axis"], up=np.array(DIRECTIONS[up]))
+            with Steps("axis", str(remesh_h5)) as progress:
+                axes = find_axes(v, f, petal, base_mode=cfg["axis.base"], base_fraction=fraction,
+                                 base_region=region, surface=shell,
+                                 planes=src["mesh/plane"] if "mesh/plane" in src else None,
+                                 flower_axis=cfg["axis.flower_axis"], up=np.array(DIRECTIONS[up]),
+                                 flower=flower, progress=progress)
             check_axes(axes, petal)  # no NaN, x in [-1, 1], s in [0, 1], a base and a tip
         except BadPetal as exc:
             part = _part_name(src, petal, exc.petal)
@@ -64,12 +72,9 @@ def run(remesh_h5: str | Path, out: str | Path, cfg: Config, *, overwrite: bool 
         for p in axes.widened:
             log.warning("petal %d: its base was on a line (it could spin about it): widened to "
                         "%d fixed vertices", p, int(axes.base[petal == p].sum()))
-        for p in range(len(axes.tip)):
-            mine = petal == p
-            log.info("petal %d: %d base vertices, %d on the axis, tip %d, x in [%.3f, %.3f]",
-                     p, int(axes.base[mine].sum()), int(axes.on_axis[mine].sum()),
-                     int(axes.tip[p]), axes.x[mine].min(), axes.x[mine].max())
-        attrs = {**carried_attrs(src), "flower_axis": axes.flower_axis, "up": up}
+        _log_axes(axes, petal, flower)
+        attrs = {**carried_attrs(src), "flower_axis": axes.flower_axis, "up": up,
+                 "flower_count": len(axes.flower_axes)}
         with artifact.writing(out, stage="axis", config_json=cfg.to_json(),
                               inputs=artifact.input_hashes(cfg, remesh_h5), attrs=attrs, previous=src) as h5:
             src.copy_to(h5, CARRIED)
@@ -79,7 +84,34 @@ def run(remesh_h5: str | Path, out: str | Path, cfg: Config, *, overwrite: bool 
             artifact.put(h5, "axis/plane", axes.plane, "(P, 4) center plane: unit normal, offset")
             artifact.put(h5, "axis/x", axes.x, "(V,) cross-section coordinate in [-1, 1]")
             artifact.put(h5, "axis/s", axes.s, "(V,) distance from the base, 0 at base, 1 at tip")
+            artifact.put(h5, "flower/axis", axes.flower_axes,
+                         "(K, 6) each flower's axis: a point, then the unit direction from the "
+                         "receptacle toward the tips (nan: a lone petal's flower)")
     log.info("wrote %s", out)
+
+
+def _log_axes(axes, petal: np.ndarray, flower) -> None:
+    """A line per petal (a summary line when there are more than :data:`LINES`) and per
+    flower."""
+    count = len(axes.tip)
+    held = np.bincount(petal[axes.base], minlength=count)
+    on = np.bincount(petal[axes.on_axis], minlength=count)
+    if count <= LINES:
+        for p in range(count):
+            mine = petal == p
+            log.info("petal %d: %d base vertices, %d on the axis, tip %d, x in [%.3f, %.3f]",
+                     p, int(held[p]), int(on[p]), int(axes.tip[p]), axes.x[mine].min(),
+                     axes.x[mine].max())
+    else:
+        log.info("%d petals: %d to %d base vertices, %d to %d on the axis", count,
+                 int(held.min()), int(held.max()), int(on.min()), int(on.max()))
+    for k, line in enumerate(axes.flower_axes):
+        n = int(np.sum(np.asarray(flower) == k)) if flower is not None else count
+        if len(axes.flower_axes) <= LINES or not np.all(np.isfinite(line)):
+            log.info("flower %d (%d petal(s)): axis %s", k, n,
+                     "not found (a lone petal)" if not np.all(np.isfinite(line)) else
+                     f"through {np.round(line[:3], 3).tolist()} along "
+                     f"{np.round(line[3:], 3).tolist()}")
 
 
 def _part_name(src, petal, p: int) -> str:

@@ -19,7 +19,7 @@ log = logging.getLogger("bloom")
 
 #: what the later stages need of axis.h5, carried forward
 CARRIED = ("mesh/vertices", "mesh/faces", "mesh/petal", "mesh/part_names", "mesh/part", "mesh/thickness",
-           "axis/base", "axis/on_axis",
+           "mesh/flower", "flower/petal_flower", "flower/centre", "flower/axis", "axis/base", "axis/on_axis",
            "axis/tip", "axis/plane", "axis/x", "axis/s", "input/asset", "bind")
 
 

@@ -33,6 +33,14 @@ at most :data:`LINE_COUNT` of them per mean edge of the axis's length), and the 
 runs the petal's length (at least :data:`AXIS_REACH` of its extent). A recorded center
 plane that cannot be one (the plane a flat sheet lies in:
 :func:`symmetry.center_plane_fault`) is found again from the petal first.
+
+Many flowers in one file (``flower``: remesh's ``flower/petal_flower``): each flower's
+axis is found from its own petals' planes, and each petal's base is the end nearer its
+own flower's axis (:attr:`PetalAxes.flower_axes`, (K, 6)).
+
+The module is long because the base, the tip, s and x of a petal are found in one pass
+over it that shares its edge graph and distances, and the checks that refuse an unsound
+axis need those same distances.
 """
 
 from __future__ import annotations
@@ -55,8 +63,10 @@ class PetalAxes:
     plane: np.ndarray  #: (P, 4) unit normal and offset of each center plane
     x: np.ndarray  #: (V,) cross-section coordinate in [-1, 1]
     s: np.ndarray  #: (V,) normalized distance from the base in [0, 1]
-    flower_axis: np.ndarray  #: (6,) point and unit direction of the flower's axis (nan if unknown)
+    flower_axis: np.ndarray  #: (6,) point and unit direction of the flower's axis (nan if unknown);
+    #: with several flowers, that of the flower of most petals
     widened: tuple = ()  #: petals whose base was on a line and got more fixed vertices
+    flower_axes: np.ndarray = None  #: (K, 6) each flower's axis, as flower_axis (nan if unknown)
 
 
 #: a petal's fixed base vertices must stray at least this far (fraction of the petal's
@@ -204,23 +214,34 @@ def check_axes(axes: PetalAxes, petal: np.ndarray) -> None:
     if not np.all(np.isfinite(axes.plane)):
         p = int(np.flatnonzero(~np.all(np.isfinite(axes.plane), axis=1))[0])
         raise BadPetal(p, "its center plane is not finite")
-    for p in range(count):
-        mine = petal == p
-        x, s = axes.x[mine], axes.s[mine]
-        if not (np.all(np.isfinite(x)) and np.all(np.isfinite(s))):
-            raise BadPetal(p, f"its x or s is not finite at {int((~np.isfinite(x + s)).sum())} "
-                           "vertices")
-        if x.size and (x.min() < -1.0 or x.max() > 1.0):
-            raise BadPetal(p, f"x in [{x.min():.3g}, {x.max():.3g}], outside [-1, 1]")
-        if s.size and (s.min() < 0.0 or s.max() > 1.0):
-            raise BadPetal(p, f"s in [{s.min():.3g}, {s.max():.3g}], outside [0, 1]")
-        held = int(axes.base[mine].sum())
-        if held < 3:
-            raise BadPetal(p, f"{held} base vertices (at least 3 hold a petal)",
-                           "axis.base_fraction")
-        tip = int(axes.tip[p])
-        if not (0 <= tip < len(petal)) or petal[tip] != p or axes.base[tip]:
-            raise BadPetal(p, "no tip beyond its base", "axis.base_fraction")
+    # per petal, all at once (a mask per petal costs petals x vertices); then the first
+    # petal that fails, with the first thing it fails
+    finite = np.isfinite(axes.x) & np.isfinite(axes.s)
+    bad_values = np.bincount(petal, weights=(~finite).astype(np.float64), minlength=count)
+    lo = {k: np.full(count, np.inf) for k in "xs"}
+    hi = {k: np.full(count, -np.inf) for k in "xs"}
+    for k, values in (("x", axes.x), ("s", axes.s)):
+        np.minimum.at(lo[k], petal[finite], values[finite])
+        np.maximum.at(hi[k], petal[finite], values[finite])
+    held = np.bincount(petal[axes.base], minlength=count)
+    tip = np.asarray(axes.tip, dtype=np.int64)
+    tip_ok = (tip >= 0) & (tip < len(petal))
+    tip_ok[tip_ok] &= (petal[tip[tip_ok]] == np.flatnonzero(tip_ok)) & ~axes.base[tip[tip_ok]]
+    fails = ((bad_values > 0) | (lo["x"] < -1.0) | (hi["x"] > 1.0) | (lo["s"] < 0.0)
+             | (hi["s"] > 1.0) | (held < 3) | ~tip_ok)
+    if not fails.any():
+        return
+    p = int(np.flatnonzero(fails)[0])
+    if bad_values[p]:
+        raise BadPetal(p, f"its x or s is not finite at {int(bad_values[p])} vertices")
+    if lo["x"][p] < -1.0 or hi["x"][p] > 1.0:
+        raise BadPetal(p, f"x in [{lo['x'][p]:.3g}, {hi['x'][p]:.3g}], outside [-1, 1]")
+    if lo["s"][p] < 0.0 or hi["s"][p] > 1.0:
+        raise BadPetal(p, f"s in [{lo['s'][p]:.3g}, {hi['s'][p]:.3g}], outside [0, 1]")
+    if held[p] < 3:
+        raise BadPetal(p, f"{int(held[p])} base vertices (at least 3 hold a petal)",
+                       "axis.base_fraction")
+    raise BadPetal(p, "no tip beyond its base", "axis.base_fraction")
 
 
 def _plane_fault(points: np.ndarray, plane: np.ndarray) -> str | None:
@@ -290,7 +311,8 @@ def _end_width(points: np.ndarray, proj: np.ndarray, plane: np.ndarray, low_end:
 def find_axes(vertices: np.ndarray, faces: np.ndarray, petal: np.ndarray, *,
               base_mode: str = "auto", base_fraction: float = 0.04, base_region: str = "rim",
               surface: bool = False, planes: np.ndarray | None = None, flower_axis=None,
-              up: np.ndarray | None = None) -> PetalAxes:
+              up: np.ndarray | None = None, flower: np.ndarray | None = None,
+              progress=None) -> PetalAxes:
     """Axes of every petal of a cleaned mesh (see the module docstring).
 
     ``base_mode``: auto, narrow, wide, or a direction (+x ... -z) the base end lies
@@ -302,6 +324,10 @@ def find_axes(vertices: np.ndarray, faces: np.ndarray, petal: np.ndarray, *,
     from the center planes), or the direction of the flower's axis (a vector or a key
     value, see :func:`parse_direction`), pointing from the receptacle toward the tips.
     ``up``: the scene's up direction, which orients a found axis where the petals do not.
+    ``flower``: (P,) the flower of each petal (remesh's ``flower/petal_flower``; None: one
+    flower): each flower's axis is found from its own petals' planes, and each petal's
+    base is the end nearer its own flower's axis. ``progress(what, done, total, detail)``
+    is called per petal.
 
     Raises :class:`BadPetal` (a petal with no sound axis) or :class:`WeakBase`.
     """
@@ -321,30 +347,44 @@ def find_axes(vertices: np.ndarray, faces: np.ndarray, petal: np.ndarray, *,
         given = given / np.linalg.norm(given)
     edges, _, _ = topology.unique_edges(faces)
     boundary = topology.boundary_vertices(faces, nv)
-    graph = topology.edge_graph(v, edges)
 
     sizes = np.bincount(petal, minlength=count)
     if np.any(sizes < 3):
         p = int(np.flatnonzero(sizes < 3)[0])
         raise BadPetal(p, f"{sizes[p]} vertices: no petal to hold (at least 3, and some beyond "
                        "its base)")
+    # each petal's vertices and edges, by one sort (a mask per petal costs petals x vertices)
+    v_order = np.argsort(petal, kind="stable")
+    v_start = np.r_[0, np.cumsum(sizes)]
+    members = [v_order[v_start[p]:v_start[p + 1]] for p in range(count)]
+    edge_petal = petal[edges[:, 0]]
+    e_order = np.argsort(edge_petal, kind="stable")
+    e_start = np.r_[0, np.cumsum(np.bincount(edge_petal, minlength=count))]
     if planes is None:
-        planes = np.array([symmetry.mirror_plane(v[petal == p])[0] for p in range(count)])
+        planes = np.array([symmetry.mirror_plane(v[members[p]])[0] for p in range(count)])
     planes = np.array(planes, dtype=np.float64)
     for p in range(count):  # a plane of no normal (or not finite), or one that cannot be a
         # center plane (the plane a flat sheet lies in): found again from the petal
-        if not _sound_plane(planes[p]) or _plane_fault(v[petal == p], planes[p]) is not None:
-            planes[p] = symmetry.mirror_plane(v[petal == p])[0]
+        if not _sound_plane(planes[p]) or _plane_fault(v[members[p]], planes[p]) is not None:
+            planes[p] = symmetry.mirror_plane(v[members[p]])[0]
             if not _sound_plane(planes[p]):
                 raise BadPetal(p, "no center plane: its vertices do not span a sheet")
         planes[p] = _unit_plane(planes[p])
-    if given is not None:
-        centroid = np.mean([v[petal == p].mean(axis=0) for p in range(count)], axis=0)
-        axis_line = np.r_[_given_axis_point(planes, given, centroid), given]
-    else:
-        axis_line = _axis_from_planes(planes) if base_mode == "auto" else None
-    # with one petal, no line tells its base: the end lowest along a given axis does
-    lowest = given is not None and count == 1
+    flower = np.zeros(count, dtype=np.int64) if flower is None else np.asarray(flower, dtype=np.int64)
+    if flower.shape != (count,):
+        raise ValueError(f"flower: one per petal ({count}), got {flower.shape}")
+    flowers = int(flower.max()) + 1
+    axis_lines, lowest = [], []
+    for k in range(flowers):
+        mine = np.flatnonzero(flower == k)
+        if given is not None:
+            centroid = np.mean([v[members[p]].mean(axis=0) for p in mine], axis=0)
+            axis_lines.append(np.r_[_given_axis_point(planes[mine], given, centroid), given])
+        else:
+            axis_lines.append(_axis_from_planes(planes[mine]) if base_mode == "auto" and mine.size
+                              else None)
+        # with one petal, no line tells its base: the end lowest along a given axis does
+        lowest.append(given is not None and mine.size == 1)
 
     base = np.zeros(nv, dtype=bool)
     widened = []
@@ -353,9 +393,14 @@ def find_axes(vertices: np.ndarray, faces: np.ndarray, petal: np.ndarray, *,
     x = np.zeros(nv)
     s = np.zeros(nv)
     for p in range(count):
-        idx = np.flatnonzero(petal == p)
+        if progress is not None:
+            progress("petal axes", p, count, f"petal {p}")
+        axis_line, lowest_end = axis_lines[flower[p]], lowest[flower[p]]
+        idx = members[p]
         pts = v[idx]
-        sub = graph[idx][:, idx].tocsr()
+        mine_edges = e_order[e_start[p]:e_start[p + 1]]
+        local_edges = np.searchsorted(idx, edges[mine_edges])
+        sub = topology.edge_graph(pts, local_edges)
         pieces = connected_components(sub, directed=False)[0]
         if pieces > 1:  # distances along the mesh would be infinite between the pieces
             raise BadPetal(p, f"in {pieces} pieces (not connected along the mesh): a petal is "
@@ -363,7 +408,7 @@ def find_axes(vertices: np.ndarray, faces: np.ndarray, petal: np.ndarray, *,
         direction, proj = _petal_ends(pts, planes[p])
         if not np.all(np.isfinite(direction)) or np.ptp(proj) <= 0.0:
             raise BadPetal(p, "no length in its center plane: its vertices do not span a sheet")
-        if base_mode == "auto" and lowest:
+        if base_mode == "auto" and lowest_end:
             span = proj.max() - proj.min()
             low_end = pts[proj <= proj.min() + 0.15 * span].mean(axis=0) @ given
             high_end = pts[proj >= proj.max() - 0.15 * span].mean(axis=0) @ given
@@ -410,7 +455,6 @@ def find_axes(vertices: np.ndarray, faces: np.ndarray, petal: np.ndarray, *,
         side = pts @ planes[p][:3] - planes[p][3]
         mine_axis = np.abs(side) <= 1e-6 * span
         side[mine_axis] = 0.0  # on the plane up to rounding: not a crossing
-        local_edges = np.searchsorted(idx, edges[np.isin(edges[:, 0], idx)])
         cross = local_edges[side[local_edges[:, 0]] * side[local_edges[:, 1]] < 0]
         far_first = np.abs(side[cross[:, 0]]) > np.abs(side[cross[:, 1]])  # ties: the first
         mine_axis[np.where(far_first, cross[:, 1], cross[:, 0])] = True
@@ -444,15 +488,24 @@ def find_axes(vertices: np.ndarray, faces: np.ndarray, petal: np.ndarray, *,
         x[idx] = xs
         _check_line(p, pts, sub, local_edges, mine_axis, dist_base, tip_local, xs)
 
-    if axis_line is None:
-        line = np.full(6, np.nan)
-    else:
+    # each petal's base-to-tip chord
+    held = np.maximum(np.bincount(petal[base], minlength=count), 1)
+    base_centre = np.stack([np.bincount(petal[base], weights=v[base, j], minlength=count)
+                            for j in range(3)], 1) / held[:, None]
+    chords = v[tips] - base_centre
+    lines = np.full((flowers, 6), np.nan)
+    for k, axis_line in enumerate(axis_lines):
+        if axis_line is None:
+            continue
+        mine = np.flatnonzero(flower == k)
         line = axis_line.copy()
         if given is None:
-            line[3:] = _oriented(line[3:], v, base, tips, petal, up)
-        elif count == 1:  # a lone petal: the axis passes through its base
-            line[:3] = v[base].mean(axis=0)
-    axes = PetalAxes(base, on_axis, tips, planes, x, s, line, tuple(widened))
+            line[3:] = _oriented(line[3:], chords[mine], up)
+        elif mine.size == 1:  # a lone petal: the axis passes through its base
+            line[:3] = base_centre[mine[0]]
+        lines[k] = line
+    largest = int(np.argmax(np.bincount(flower, minlength=flowers)))
+    axes = PetalAxes(base, on_axis, tips, planes, x, s, lines[largest].copy(), tuple(widened), lines)
     check_axes(axes, petal)
     return axes
 
@@ -486,11 +539,10 @@ def _check_line(p: int, pts: np.ndarray, sub, local_edges: np.ndarray, mine_axis
                        "its midrib", "scene.exclude")
 
 
-def _oriented(direction: np.ndarray, v: np.ndarray, base: np.ndarray, tips: np.ndarray,
-              petal: np.ndarray, up: np.ndarray | None) -> np.ndarray:
+def _oriented(direction: np.ndarray, chords: np.ndarray, up: np.ndarray | None) -> np.ndarray:
     """A found axis direction pointed from the receptacle toward the tips: by the petals
-    when their tips rise along it by a tenth of their base-to-tip chords; else by ``up``."""
-    chords = np.array([v[t] - v[base & (petal == p)].mean(axis=0) for p, t in enumerate(tips)])
+    when their tips rise along it by a tenth of their base-to-tip ``chords (P, 3)``; else
+    by ``up``."""
     rise = float((chords @ direction).sum())
     if abs(rise) >= 0.1 * float(np.linalg.norm(chords, axis=1).sum()):
         return direction if rise > 0 else -direction

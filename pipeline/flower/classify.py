@@ -28,28 +28,42 @@ receptacle; off the axis above the base and within the ring, a stamen; another s
 level with the ring, a petal; a smaller sheet at the base, a sepal; a sheet off the
 ring, a leaf.
 
-A part made of 2 to ``MAX_PIECES`` alike sheets or shells (five petals in one OBJ
-group) is judged piece by piece, and gets its pieces' most common verdict.
+A part made of 2 or more alike sheets or shells (five petals in one OBJ group) is judged
+piece by piece, and gets its pieces' most common verdict. A part of unlike pieces (a
+whole flower in one mesh: petals, receptacle, stem) has each piece over ``CRUMB`` of its
+largest judged on its own; where some are petals and some not, the part is a petal part
+whose ``Verdict.faces`` are its petal pieces'. The pieces of a part are measured in one
+pass (:func:`_measure_pieces`), and a part that is a moved, turned or scaled copy of an
+earlier one (instancing) is measured as that one, moved.
 
-Assumed: one flower per file (a branch of many blossoms has many rings; only the
-largest is found). Where the petals lie flat (a daisy seen edge-on), up along the axis
-is a guess, so a stem and a pistil may swap.
+Many flowers in one file (a bush, a bed, a branch): the sheets and shells are grouped
+into flowers by where their bases gather (:func:`pipeline.mesh.flowers.flowers`), and
+each flower's ring (with its inner whorls: further rings of alike sheets around nearly
+the same axis, at or above the base) is found among its own; where the file names its
+petals, only theirs. A part outside every ring is placed by its nearest flower. Where the
+petals lie flat (a daisy seen edge-on), up along the axis is a guess, so a stem and a
+pistil may swap.
 
 A name containing petal, stem, leaf, sepal, stamen (anther, filament), pistil or
 receptacle (one of them only) decides the kind instead; petals are still told thin or
 thick by shape. Generic names (Circle.003, pCube14, Cylinder01, part_3) leave it to
 shape. Every tolerance is relative to a part's or the flower's size.
+
+The module is long because measuring a part, splitting a part of unlike pieces, finding
+the flowers' rings and placing every other part around them are one judgement: each step
+reads the measures and the frame (axis, base, up) the others make.
 """
 
 from __future__ import annotations
 
 import fnmatch
 import re
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
 from pipeline.mesh import clean, topology
+from pipeline.mesh.similar import similarity
 from pipeline.mesh.thickness import thickness
 
 KINDS = ("petal", "thick petal", "stem", "leaf", "sepal", "stamen", "pistil", "receptacle", "other")
@@ -62,18 +76,29 @@ THIN = 0.2  #: ... when that layer is nearer than this fraction of the width
 OPEN = 1.0  #: an open sheet's boundary is at least this times sqrt(area)
 COMPACT = 0.5  #: third / first principal extent of a blob
 MAJOR = 0.2  #: a connected piece with this fraction of its part's largest piece's area counts
-MAX_PIECES = 64  #: a part of more alike pieces than this is judged whole (time)
+#: ... as one of a part's alike petals; a piece with this fraction of it is judged on its
+#: own in a part that holds a whole flower (petals, receptacle and stem in one mesh)
+CRUMB = 0.01
 ALIKE_AREA = 2.0  #: petals of one ring differ in area by less than this factor ...
 ALIKE_LENGTH = 1.5  #: ... and in length by less than this one
 RING_SPREAD = 0.35  #: std / mean of the petals' distances from the axis
 ROUND = 0.7  #: second / first extent of a part that is a whole ring of petals
 ON_AXIS = 0.05  #: a part is on the axis when its centroid is nearer than its own
 #: half-width or this fraction of the petals' length
+#: another ring of alike sheets in a flower, its axis within this angle of the petals',
+#: at or above their base, is a whorl of petals (a water lily's inner whorls)
+WHORL_DEGREES = 30.0
+#: a flower's ring is sought from at most this many seeds (quantiles of petal area)
+RING_SEEDS = 32
+#: a part is compared with at most this many earlier parts of its mesh structure to find
+#: the one it is a copy of
+COPY_SHAPES = 8
 
 NAMES = {
     "petal": "petal", "stem": "stem", "stalk": "stem", "leaf": "leaf", "leaves": "leaf",
     "sepal": "sepal", "calyx": "sepal", "stamen": "stamen", "anther": "stamen",
     "filament": "stamen", "pistil": "pistil", "stigma": "pistil", "receptacle": "receptacle",
+    "grass": "leaf", "foliage": "leaf", "twig": "stem", "branch": "stem",
 }
 
 
@@ -83,6 +108,9 @@ class Verdict:
 
     kind: str
     reason: str
+    #: (F,) bool over the part's faces (as given): the pieces that are petals, where only
+    #: some of a part's pieces are (a whole flower in one mesh); None: the whole part
+    faces: np.ndarray | None = field(default=None, compare=False, repr=False)
 
     @property
     def is_petal(self) -> bool:
@@ -149,25 +177,138 @@ def _measure(vertices: np.ndarray, faces: np.ndarray) -> _Shape:
     return _Shape(v, centroid, axes, extents, area, length, width, rel, th.layered_fraction, form)
 
 
-def _pieces(vertices: np.ndarray, faces: np.ndarray) -> list[_Shape]:
-    """The part's connected pieces, if it is 2 to ``MAX_PIECES`` alike sheets or shells
-    (five petals in one group) and perhaps a few crumbs; else ``[]`` (judged whole)."""
+def _moved_shape(shape: _Shape, k: float, rot: np.ndarray, t: np.ndarray) -> _Shape:
+    """The measurements of a part's copy ``k x R^T + t`` (the relative ones unchanged)."""
+    return _Shape(k * shape.vertices @ rot.T + t, k * shape.centroid @ rot.T + t,
+                  shape.axes @ rot.T, k * shape.extents, k * k * shape.area, k * shape.length,
+                  k * shape.width, shape.thickness, shape.layered, shape.form)
+
+
+def _piece_labels(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray, int]:
+    """The part's connected pieces after welding (``WELD``): ``(welded faces (F, 3), piece
+    of each face (F,), count)``, pieces numbered by their first face; a face with a
+    repeated corner after welding is in no piece (-1)."""
     f = np.asarray(faces, dtype=np.int64)
     welded = _welded_faces(vertices, f)
-    label = topology.components(welded, len(vertices))[welded[:, 0]]
-    count = int(label.max()) + 1 if len(label) else 0
-    if count < 2:
-        return []
-    tri = vertices[f]
+    good = (welded[:, 0] != welded[:, 1]) & (welded[:, 1] != welded[:, 2]) & (welded[:, 2] != welded[:, 0])
+    label = np.full(len(f), -1, dtype=np.int64)
+    if not good.any():
+        return welded, label, 0
+    comp = topology.components(welded[good], len(vertices))[welded[good][:, 0]]
+    _, first = np.unique(comp, return_index=True)
+    rank = np.empty(comp.max() + 1, dtype=np.int64)
+    rank[comp[np.sort(first)]] = np.arange(first.size)
+    label[good] = rank[comp]
+    return welded, label, int(first.size)
+
+
+def _measure_pieces(vertices: np.ndarray, faces: np.ndarray, label: np.ndarray,
+                    count: int) -> list[_Shape]:
+    """:func:`_measure` of each of a part's pieces (``label``, -1: none), all in one pass:
+    sums by piece and one ray cast (:func:`thickness` with ``own_component``), so a part
+    of thousands of pieces (a tuft of grass) costs what one piece of its size does."""
+    ok = label >= 0
+    lab = label[ok]
+    used, f = np.unique(np.asarray(faces, dtype=np.int64)[ok], return_inverse=True)
+    f = f.reshape(-1, 3)
+    v = np.asarray(vertices, dtype=np.float64)[used]
+    vlab = np.empty(len(v), dtype=np.int64)
+    vlab[f.ravel()] = np.repeat(lab, 3)
+    tri = v[f]
     face_area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
-    area = np.bincount(label, weights=face_area, minlength=count)
-    major = np.flatnonzero(area >= MAJOR * area.max())
-    if not 2 <= major.size <= MAX_PIECES or area[major].min() * ALIKE_AREA < area.max():
-        return []
-    shapes = [_measure(vertices, f[label == c]) for c in major]
-    if any(s.form not in ("sheet", "shell") for s in shapes):
-        return []
+    nface = np.bincount(lab, minlength=count).astype(np.float64)
+    area = np.bincount(lab, weights=face_area, minlength=count)
+    centres = tri.mean(axis=1)
+    weight = np.where(area[lab] > 0, face_area / np.where(area[lab] > 0, area[lab], 1.0),
+                      1.0 / np.maximum(nface[lab], 1.0))
+    centroid = np.stack([np.bincount(lab, weights=weight * centres[:, k], minlength=count)
+                         for k in range(3)], 1)
+    d = centres - centroid[lab]
+    cov = np.empty((count, 3, 3))
+    for a in range(3):
+        for b in range(a, 3):
+            cov[:, a, b] = cov[:, b, a] = np.bincount(lab, weights=weight * d[:, a] * d[:, b],
+                                                      minlength=count)
+    cov += 1e-30 * np.eye(3)
+    _, vecs = np.linalg.eigh(cov)
+    axes = np.transpose(vecs[:, :, ::-1], (0, 2, 1))  # rows, longest first
+    proj = np.einsum("ij,ikj->ik", v - centroid[vlab], axes[vlab])
+    high = np.full((count, 3), -np.inf)
+    low = np.full((count, 3), np.inf)
+    np.maximum.at(high, vlab, proj)
+    np.minimum.at(low, vlab, proj)
+    extents = high - low
+    he, _ = topology.half_edges(f)
+    _, he_edge, edge_count = topology.unique_edges(f)
+    rim = np.flatnonzero(edge_count[he_edge] == 1)
+    rim_length = np.linalg.norm(v[he[rim, 0]] - v[he[rim, 1]], axis=1)
+    boundary_length = np.bincount(lab[rim % len(f)], weights=rim_length, minlength=count)
+    th = thickness(v, f, own_component=True)
+    layered_area = np.bincount(lab, weights=face_area * th.layered, minlength=count)
+    layered = np.where(area > 0, layered_area / np.where(area > 0, area, 1.0), 0.0)
+    relative = np.full(count, np.inf)
+    m = np.flatnonzero(th.layered)
+    if m.size:
+        r = th.face_thickness[m] / th.width[m]
+        order = np.lexsort((r, lab[m]))  # by piece, then by r (ties by face: stable)
+        g = lab[m][order]
+        bounds = np.flatnonzero(np.r_[True, g[1:] != g[:-1], True])
+        for a, b in zip(bounds[:-1], bounds[1:], strict=True):
+            cum = np.cumsum(face_area[m][order[a:b]])
+            relative[g[a]] = r[order[a:b]][np.searchsorted(cum, 0.5 * cum[-1])]
+    order = np.argsort(vlab, kind="stable")
+    points = np.split(v[order], np.cumsum(np.bincount(vlab, minlength=count))[:-1])
+    shapes = []
+    for c in range(count):
+        length = float(max(extents[c, 0], 1e-300))
+        is_shell = layered[c] >= LAYERED and relative[c] <= THIN
+        is_open = boundary_length[c] >= OPEN * np.sqrt(area[c]) and not is_shell
+        width = area[c] / length if is_open else 0.5 * area[c] / length
+        if width < NARROW * length:
+            form = "narrow"
+        elif is_shell:
+            form = "shell"
+        elif is_open:
+            form = "sheet"
+        elif extents[c, 2] >= COMPACT * length:
+            form = "blob"
+        else:
+            form = "solid"
+        rel = 0.0 if form == "sheet" else float(relative[c])
+        shapes.append(_Shape(points[c], centroid[c], axes[c], extents[c], float(area[c]), length,
+                             float(width), rel, float(layered[c]), form))
     return shapes
+
+
+def _part_units(vertices: np.ndarray, faces: np.ndarray) -> tuple[list[_Shape], list, bool]:
+    """How a part is judged: ``(units, face masks, alike)``.
+
+    - one piece (crumbs aside): ``([], [], False)``, the part is judged whole;
+    - 2 or more alike sheets or shells (``MAJOR`` of the largest piece's area or more;
+      five petals in one group) and perhaps a few crumbs: those pieces, judged together
+      (``alike``: the part gets their most common verdict);
+    - else several unlike pieces (a whole flower in one mesh: petals, receptacle,
+      stem): every piece over ``CRUMB`` of the largest, each judged on its own.
+
+    ``face masks`` give each unit's faces, (F,) bool over ``faces``."""
+    v = np.asarray(vertices, dtype=np.float64)
+    welded, label, count = _piece_labels(v, faces)
+    if count < 2:
+        return [], [], False
+    tri = v[np.asarray(faces, dtype=np.int64)]
+    face_area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
+    area = np.bincount(label[label >= 0], weights=face_area[label >= 0], minlength=count)
+    if area.max() <= 0:
+        return [], [], False
+    major = np.flatnonzero(area >= MAJOR * area.max())
+    units = np.flatnonzero(area >= CRUMB * area.max())
+    if units.size < 2:
+        return [], [], False
+    shapes = _measure_pieces(v, welded, label, count)
+    alike = (major.size >= 2 and area[major].min() * ALIKE_AREA >= area.max()
+             and all(shapes[c].form in ("sheet", "shell") for c in major))
+    chosen = major if alike else units
+    return [shapes[c] for c in chosen], [label == c for c in chosen], bool(alike)
 
 
 def _welded_faces(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
@@ -222,6 +363,11 @@ class _Frame:
     length: float  #: median length of a petal
     members: list  #: indices of the units in the ring
     how: str  #: how the ring was found, for the reasons
+    whorl: dict = field(default_factory=dict)  #: member -> why, for petals of an inner whorl
+
+    def base_point(self) -> np.ndarray:
+        """(3,) where the petals' base meets the axis."""
+        return self.origin + self.base * self.axis
 
     def axial(self, p: np.ndarray) -> np.ndarray:
         return (p - self.origin) @ self.axis
@@ -234,15 +380,26 @@ class _Frame:
 def _ring(units: list[_Shape], candidates: list[int]) -> _Frame | None:
     """The largest ring of at least three alike sheets or shells around a common axis.
 
-    Each candidate gathers the ones alike it; a group that does not ring an axis sheds
+    Each seed gathers the candidates alike it; a group that does not ring an axis sheds
     the member farthest from the group's median centroid (a leaf below) and is tried
-    again."""
+    again. Seeds are at most ``RING_SEEDS`` candidates spread over the range of areas,
+    and a group is tried once however many seeds gather it."""
     best = None
-    for c in candidates:
-        a, length = units[c].area, units[c].length
-        group = [k for k in candidates
-                 if abs(np.log(units[k].area / a)) < np.log(ALIKE_AREA) / 2
-                 and abs(np.log(units[k].length / length)) < np.log(ALIKE_LENGTH) / 2]
+    seeds = candidates
+    if len(candidates) > RING_SEEDS:
+        by_area = sorted(candidates, key=lambda k: (units[k].area, k))
+        seeds = [by_area[i] for i in np.linspace(0, len(by_area) - 1, RING_SEEDS).round().astype(int)]
+    log_area = np.log(np.array([units[k].area for k in candidates]))
+    log_length = np.log(np.array([units[k].length for k in candidates]))
+    tried = set()
+    for c in seeds:
+        a, length = np.log(units[c].area), np.log(units[c].length)
+        near = ((np.abs(log_area - a) < np.log(ALIKE_AREA) / 2)
+                & (np.abs(log_length - length) < np.log(ALIKE_LENGTH) / 2))
+        group = [candidates[j] for j in np.flatnonzero(near)]
+        if tuple(group) in tried:
+            continue
+        tried.add(tuple(group))
         frame = None
         while len(group) >= 3 and (frame := _fit_ring(units, group)) is None:
             p = np.array([units[k].centroid for k in group])
@@ -255,10 +412,74 @@ def _ring(units: list[_Shape], candidates: list[int]) -> _Frame | None:
     return best[1] if best else None
 
 
+def _whorls(units: list[_Shape], group: list[int], frame: _Frame) -> None:
+    """Add to ``frame.members`` (in place) the inner whorls of a flower's ``group`` of
+    sheets: further rings of alike sheets around nearly the same axis (within
+    ``WHORL_DEGREES``), at or above the petals' base (a water lily's petals come in
+    whorls of shrinking size; a ring hanging below the base is left to be placed)."""
+    rest = [k for k in group if k not in frame.members]
+    while len(rest) >= 3:
+        whorl = _ring(units, rest)
+        if whorl is None:
+            return
+        level = float(np.median([frame.axial(units[k].centroid) for k in whorl.members])) - frame.base
+        if (abs(float(whorl.axis @ frame.axis)) >= np.cos(np.radians(WHORL_DEGREES))
+                and level >= -0.05 * frame.length):
+            frame.members = list(frame.members) + list(whorl.members)
+            for k in whorl.members:
+                frame.whorl[k] = (f"one of {len(whorl.members)} alike in a whorl around the "
+                                  "flower's axis")
+        rest = [k for k in rest if k not in whorl.members]
+
+
+def _frames(units: list[_Shape], candidates: list[int], several_parts: bool) -> list[_Frame]:
+    """Each flower's frame: the candidates (sheets and shells) grouped into flowers by
+    where their bases gather (:func:`pipeline.mesh.flowers.flowers`), the ring of each
+    flower (:func:`_ring`) with its inner whorls. Where no flower has a ring, the ring of
+    all the candidates, else (a file of several parts) a part that is a whole ring."""
+    from pipeline.mesh.flowers import flowers
+
+    if not candidates:
+        return []
+    points = np.vstack([units[k].vertices for k in candidates])
+    label = np.concatenate([np.full(len(units[k].vertices), j) for j, k in enumerate(candidates)])
+    grouped = flowers(points, label)
+    frames = []
+    for g in range(grouped.count):
+        group = [candidates[j] for j in np.flatnonzero(grouped.flower == g)]
+        frame = _ring(units, group) if len(group) >= 3 else None
+        if frame is not None:
+            _whorls(units, group, frame)
+            frames.append(frame)
+    if frames:
+        return frames
+    frame = _ring(units, candidates) or (_round_part(units, candidates) if several_parts else None)
+    return [frame] if frame is not None else []
+
+
+def _frame_of(units: list[_Shape], frames: list[_Frame]) -> list:
+    """The frame each unit is placed by: its own flower's, else the nearest flower's (by
+    the distance from its centroid to the flower's base, in that flower's petal
+    lengths); None when there is no frame."""
+    if not frames:
+        return [None] * len(units)
+    owner = {k: i for i, fr in enumerate(frames) for k in fr.members}
+    base = np.array([fr.base_point() for fr in frames])
+    length = np.array([fr.length for fr in frames])
+    out = []
+    for u, s in enumerate(units):
+        if u in owner:
+            out.append(frames[owner[u]])
+            continue
+        d = np.linalg.norm(base - s.centroid, axis=1) / np.maximum(length, 1e-300)
+        out.append(frames[int(np.argmin(d))])
+    return out
+
+
 def _fit_ring(units: list[_Shape], group: list[int]) -> _Frame | None:
     p = np.array([units[k].centroid for k in group])
     centre = p.mean(axis=0)
-    _, _, vt = np.linalg.svd(p - centre)
+    _, _, vt = np.linalg.svd(p - centre, full_matrices=False)
     normal = vt[2]
     d = p - centre
     radial_vec = d - np.outer(d @ normal, normal)
@@ -356,19 +577,53 @@ def classify(parts) -> list[Verdict]:
     for the rules and thresholds.
     """
     parts = list(parts)
-    wholes = [_measure(p.vertices, p.faces) for p in parts]
-    # units: parts, or the alike pieces of a part that is several petals
+    hinted = [_name_kind(p.name) for p in parts]
+    # units: parts, or their pieces (alike petals in one group, or a whole flower's parts)
     units: list[_Shape] = []
     owner: list[int] = []
-    for i, (p, whole) in enumerate(zip(parts, wholes, strict=True)):
-        pieces = _pieces(np.asarray(p.vertices, dtype=np.float64), np.asarray(p.faces))
-        for s in pieces or [whole]:
-            units.append(s)
-            owner.append(i)
-    hinted = [_name_kind(p.name) for p in parts]
+    masks: list = []
+    alike: list[bool] = []
+    seen: dict = {}
+    measured: list = []
+    for i, p in enumerate(parts):
+        v, f = np.asarray(p.vertices, dtype=np.float64), np.asarray(p.faces)
+        split = hinted[i] in (None, "petal")  # a name that decides the kind needs no pieces
+        # a part that is a moved, turned or scaled copy of an earlier one (instanced
+        # blossoms) is measured as that one, moved
+        key = (split, len(v), len(f), hash(np.ascontiguousarray(f).tobytes()))
+        copy = None
+        for j in seen.get(key, ()):
+            if np.array_equal(np.asarray(parts[j].faces), f):
+                copy = similarity(np.asarray(parts[j].vertices, dtype=np.float64), v)
+                if copy is not None:
+                    copy = (j, *copy)
+                    break
+        if copy is not None:
+            j, k, rot, t = copy
+            pieces = [_moved_shape(shape, k, rot, t) for shape in measured[j][0]]
+            piece_masks, same = measured[j][1], measured[j][2]
+        else:
+            pieces, piece_masks, same = _part_units(v, f) if split else ([], [], False)
+            if not pieces:
+                pieces, piece_masks = [_measure(v, f)], [None]
+            shapes = seen.setdefault(key, [])
+            if len(shapes) < COPY_SHAPES:
+                shapes.append(i)
+        measured.append((pieces, piece_masks, same))
+        units += pieces
+        masks += piece_masks
+        owner += [i] * len(pieces)
+        alike.append(same)
+    mine_of: dict[int, list[int]] = {}
+    for u, i in enumerate(owner):
+        mine_of.setdefault(i, []).append(u)
     candidates = [u for u, s in enumerate(units)
                   if s.form in ("sheet", "shell") and hinted[owner[u]] in (None, "petal")]
-    frame = _ring(units, candidates) or (_round_part(units, candidates) if len(parts) > 1 else None)
+    # where the file names its petals, its flowers are theirs (a tuft of grass also rings
+    # an axis)
+    named = [u for u in candidates if hinted[owner[u]] == "petal"]
+    frames = _frames(units, named, len(parts) > 1) if named else []
+    frame_of = _frame_of(units, frames or _frames(units, candidates, len(parts) > 1))
 
     verdicts = []
     for i, p in enumerate(parts):
@@ -378,8 +633,7 @@ def classify(parts) -> list[Verdict]:
                                              f"{voxels[1]:.3g}, every face on one lattice): voxel art "
                                              "has no petal surfaces to simulate"))
             continue
-        mine = [u for u in range(len(units)) if owner[u] == i]
-        shape = wholes[i] if len(mine) == 1 else None
+        mine = mine_of[i]
         if hinted[i] is not None:
             kind = hinted[i]
             forms = {units[u].form for u in mine}
@@ -387,13 +641,29 @@ def classify(parts) -> list[Verdict]:
                 kind = "thick petal"
             verdicts.append(Verdict(kind, f"named {p.name!r}; {_describe(units[mine[0]])}"))
             continue
-        if shape is None:  # several alike petals in one part
-            kinds = [_place(units, u, frame) for u in mine]
+        if len(mine) == 1:
+            verdicts.append(Verdict(*_place(units, mine[0], frame_of[mine[0]])))
+            continue
+        kinds = [_place(units, u, frame_of[u]) for u in mine]
+        petal = [k in PETAL_KINDS for k, _ in kinds]
+        if alike[i] or all(petal) or not any(petal):  # several alike petals in one part
             kind = max(set(k for k, _ in kinds), key=lambda k: (sum(1 for q, _ in kinds if q == k), k))
             why = next(r for k, r in kinds if k == kind)
             verdicts.append(Verdict(kind, f"{len(mine)} pieces; {why}"))
-        else:
-            verdicts.append(Verdict(*_place(units, mine[0], frame)))
+            continue
+        # a whole flower in one mesh: its petal pieces are the petals, the rest is kept
+        faces = np.zeros(len(p.faces), dtype=bool)
+        for u, is_petal in zip(mine, petal, strict=True):
+            if is_petal:
+                faces |= masks[u]
+        kind = "thick petal" if any(k == "thick petal" for k, _ in kinds) else "petal"
+        tally = {}
+        for k, _ in kinds:
+            tally[k] = tally.get(k, 0) + 1
+        others = ", ".join(f"{n} {k}" for k, n in sorted(tally.items()) if k not in PETAL_KINDS)
+        why = next(r for (k, r), is_petal in zip(kinds, petal, strict=True) if is_petal)
+        verdicts.append(Verdict(kind, f"a whole flower in one mesh ({len(mine)} pieces): "
+                                      f"{sum(petal)} petals ({why}); {others}", faces))
     return verdicts
 
 
@@ -415,7 +685,12 @@ def _place(units: list[_Shape], u: int, frame: _Frame | None) -> tuple[str, str]
     attach = float(frame.radial(v).min())
     on_axis = centre_radial <= max(0.5 * s.width, ON_AXIS * L)
     if u in frame.members:
-        return petal, f"{what}, {frame.how}, attached {attach / L:.2f} of its length from the axis"
+        return petal, (f"{what}, {frame.whorl.get(u, frame.how)}, attached {attach / L:.2f} of "
+                       "its length from the axis")
+    if (s.form == "shell" and on_axis and s.extents[1] >= ROUND * s.length
+            and s.length < 0.7 * L and abs(centre_axial) < 0.5 * L):
+        return "receptacle", (f"{what}, round, on the flower's axis at the petals' base, "
+                              f"{s.length / L:.2f} of a petal's length")
     if s.form in ("sheet", "shell"):
         level = abs(centre_axial - float(np.median([frame.axial(units[m].centroid) - frame.base
                                                     for m in frame.members])))

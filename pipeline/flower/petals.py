@@ -30,6 +30,7 @@ import numpy as np
 
 from pipeline.errors import BloomError
 from pipeline.mesh import clean, remesh, repair, symmetry, topology
+from pipeline.mesh.similar import similarity
 
 #: how close to the center plane (in mean edges) a vertex is snapped onto it before the
 #: cut, with and without a remesh after (remeshed souki202: 0.05 gives min angle 6.0
@@ -72,6 +73,13 @@ class Petals:
     thickness: np.ndarray = None  #: (V,) mid-surface thickness in output units (0: a sheet)
     parts: list = field(default_factory=list)  #: per input part: {name, kind, reason, role}
     kept_parts: dict = field(default_factory=dict)  #: input index -> (vertices, faces), not petals
+    flower: np.ndarray = None  #: (V,) the flower each vertex's petal belongs to
+    petal_flower: np.ndarray = None  #: (P,) the flower of each petal
+    flower_centre: np.ndarray = None  #: (K, 3) where each flower's petal bases gather (output units)
+    flower_picked: int = -1  #: the flower scene.flower kept (its index among all), -1: all
+    #: part name -> {pieces, petals, area_kept, area_in (input units, one side), lost}
+    found: dict = field(default_factory=dict)
+    kept_sheets: list = field(default_factory=list)  #: the input sheet of each petal (others left out)
 
 
 def _submesh(faces: np.ndarray, idx: np.ndarray) -> np.ndarray:
@@ -112,12 +120,14 @@ def prepare(vertices: np.ndarray, faces: np.ndarray, *, where: str, target_edge:
 
 
 def _build(v, f, petal, report, *, target_edge, petal_vertices, symmetrize, dropped=(),
-           labels=None, part_of=None, thick=None, notes=None, where: str = "") -> Petals:
+           labels=None, part_of=None, thick=None, notes=None, where: str = "",
+           progress=None, workers: int = 1) -> Petals:
     """Steps 3 to 5 (see the module notes) on clean petal sheets ``v, f`` labelled ``petal``.
 
     ``labels[p]`` names petal ``p`` in the notes ("petal 3 (Cylinder04)"); ``part_of[p]`` is
     the input part it came from; ``thick[p]`` is None for a sheet, else ``(points, thickness)``
     of its mid-surface in input units (carried to the remeshed vertices by nearest point).
+    The petals are done in ``workers`` processes (:func:`_each_petal`).
     """
     count = int(petal.max()) + 1
     labels = labels or [f"petal {p}" for p in range(count)]
@@ -127,53 +137,56 @@ def _build(v, f, petal, report, *, target_edge, petal_vertices, symmetrize, drop
     offset = 0
     notes = list(notes or [])
     out_part, out_thick = [], []
-    unsymmetrized, quality, broken = [], [], []
+    unsymmetrized, quality, broken, kept = [], [], [], []
+    groups = _groups(petal, f, count)
+    tasks = [(v[idx], lf, target_edge, petal_vertices, symmetrize, labels[p], scale)
+             for p, (idx, lf) in enumerate(groups)]
+    # a petal that is a copy of another (moved, turned, and scaled unless the target edge
+    # is absolute) is remeshed once: instanced blossoms, a bush of one daisy's copies
+    source = _copies([t[0] for t in tasks], [t[1] for t in tasks], scaled=target_edge <= 0)
+    own = [p for p in range(count) if source[p] is None]
+    done_own = {}
+    for k, (p, done) in enumerate(zip(own, _each_petal([tasks[p] for p in own], workers),
+                                      strict=True)):
+        done_own[p] = done
+        if progress is not None:
+            progress("remeshing petals", k + 1, len(own), labels[p])
+    copies = count - len(own)
+    if copies:
+        notes.append(f"{copies} of {count} petals are copies of others (moved, turned or "
+                      f"scaled): remeshed once for each of {len(own)} shapes")
     for p in range(count):
-        idx = np.flatnonzero(petal == p)
-        pts, lf = v[idx], _submesh(f, idx)
-        plane, err = symmetry.mirror_plane(pts)
-        before.append(err)
-        h = (target_edge * scale if target_edge > 0 else
-             remesh.target_for_vertices(pts, lf, petal_vertices) if petal_vertices > 0 else 0.0)
-        if h == 0.0 and len(pts) < MIN_PETAL_VERTICES:  # a coarse model: too few hinges to bend
-            h = remesh.target_for_vertices(pts, lf, MIN_PETAL_VERTICES)
-            notes.append(f"{labels[p]}: {len(pts)} vertices: remeshed to about {MIN_PETAL_VERTICES} "
-                         "(remesh.petal_vertices sets it)")
-        pts, lf, h, note, mirrored = _petal(pts, lf, plane, h, symmetrize, labels[p], scale)
-        notes += note
-        if symmetrize and not mirrored:
-            unsymmetrized.append(p)
-        face_quality = remesh.face_quality(pts, lf)
-        quality.append(float(face_quality.min()))  # remesh.quality
-        area = 0.5 * np.linalg.norm(topology.face_normals(pts, lf), axis=1)
-        bad = face_quality == 0.0  # inverted or degenerate
-        flat = int(np.sum(bad & (area < FLAT_AREA * np.median(area))))
-        if flat:  # its bending force is singular: the simulator gains energy from it
-            broken.append(f"{labels[p]}: {flat} folded triangle(s) of almost no area")
-        elif bad.any():
-            notes.append(f"{labels[p]}: warning: {int(bad.sum())} triangle(s) folded over "
-                         "their neighbours after remeshing")
-        elif quality[-1] < remesh.MIN_ANGLE:
-            notes.append(f"{labels[p]}: warning: smallest angle {quality[-1]:.1f} deg is still below "
-                         f"{remesh.MIN_ANGLE:g} after remeshing")
-        ratio = remesh.edge_ratio(pts, lf)
-        if ratio < remesh.MIN_EDGE:
-            notes.append(f"{labels[p]}: warning: shortest edge {ratio:.2f} of "
-                         f"the mean is still below {remesh.MIN_EDGE:g} after remeshing")
-        after.append(symmetry.asymmetry(pts, plane) if symmetrize or h else err)
-        targets.append(h)
-        planes.append(plane)
+        if source[p] is None:
+            done = done_own[p]
+        else:
+            done = _moved(done_own[source[p][0]], *source[p][1:])
+        notes += done["notes"]
+        if done["broken"]:
+            broken.append((labels[p], done["broken"]))
+            continue
+        pts, lf = done["vertices"], done["faces"]
+        if symmetrize and not done["mirrored"]:
+            unsymmetrized.append(len(out_v))
+        quality.append(done["worst"])
+        before.append(done["before"])
+        after.append(done["after"])
+        targets.append(done["h"])
+        planes.append(done["plane"])
         out_v.append(pts)
         out_f.append(lf + offset)
-        out_petal.append(np.full(len(pts), p, dtype=np.int64))
+        out_petal.append(np.full(len(pts), len(out_petal), dtype=np.int64))
+        kept.append(p)
         out_part.append(np.full(len(pts), part_of[p] if part_of is not None else 0, dtype=np.int64))
         out_thick.append(_carried_thickness(pts, thick[p] if thick is not None else None, scale))
         offset += len(pts)
-    if broken:
-        raise BloomError(f"{len(broken)} petal(s) still fold after remeshing: " + "; ".join(broken)
+    if broken and not kept:
+        raise BloomError(f"{len(broken)} petal(s) still fold after remeshing: "
+                         + "; ".join(f"{label}: {why}" for label, why in broken)
                          + "; the sheet folds over itself (a mid-surface of a crumpled shell, or "
                          "a self-intersecting petal); repair it in the modelling tool, or leave "
                          "it out with scene.exclude", where=where)
+    for label, why in broken:  # the others are simulated; these are lost petals
+        notes.append(f"{label}: warning: left out: it still folds after remeshing ({why})")
     v, f = np.vstack(out_v), np.vstack(out_f)
     again = 1.0 / clean.mean_edge_length(v, f)
     planes = np.array(planes)
@@ -181,8 +194,160 @@ def _build(v, f, petal, report, *, target_edge, petal_vertices, symmetrize, drop
     return Petals(v * again, f, np.concatenate(out_petal), planes, scale * again,
                   np.asarray(before) * again, np.asarray(after) * again, report,
                   np.asarray(targets) / scale, dropped=list(dropped), notes=notes,
-                  unsymmetrized=unsymmetrized, min_angle=np.asarray(quality),
+                  unsymmetrized=unsymmetrized, min_angle=np.asarray(quality), kept_sheets=kept,
                   part=np.concatenate(out_part), thickness=np.concatenate(out_thick) * again)
+
+
+#: a part or a petal is compared with at most this many earlier ones of its mesh
+#: structure to find the one it is a copy of
+COPY_SHAPES = 8
+
+#: petals are remeshed in worker processes when there are at least this many
+PARALLEL_PETALS = 8
+
+
+def workers_for(setting: int) -> int:
+    """How many processes remesh petals: ``setting`` (``remesh.workers``) if positive,
+    else the CPUs this process may run on, at most 4."""
+    import os
+
+    if setting > 0:
+        return int(setting)
+    try:
+        return max(1, min(4, len(os.sched_getaffinity(0))))
+    except AttributeError:  # not Linux
+        return max(1, min(4, os.cpu_count() or 1))
+
+
+def _each_petal(tasks: list, workers: int):
+    """:func:`_one_petal` of every task, yielded in order: in this process, or (``workers``
+    > 1, at least ``PARALLEL_PETALS`` petals, and a system that forks) in a pool of
+    forked processes. Each petal's result depends on the petal alone, so the output is
+    the same bit for bit either way.
+
+    Forked, not spawned: a spawned worker imports the main module again (``python -m
+    stages`` would run the command again in it) and pays the imports (seconds). What a
+    worker runs (remeshing, numba kernels, k-d trees) starts no thread pool of its own
+    that a fork could leave locked (Embree's, from the ray casts before, is not used)."""
+    import multiprocessing
+
+    if (workers <= 1 or len(tasks) < PARALLEL_PETALS
+            or "fork" not in multiprocessing.get_all_start_methods()):
+        for task in tasks:
+            yield _one_petal(*task)
+        return
+    from concurrent.futures import ProcessPoolExecutor
+
+    context = multiprocessing.get_context("fork")
+    with ProcessPoolExecutor(min(workers, len(tasks)), mp_context=context) as pool:
+        yield from pool.map(_one_task, tasks, chunksize=1)
+
+
+#: a petal is a copy of another when a rigid motion and a uniform scale put one on the
+#: other to within this fraction of its size
+COPY = 1e-6
+
+
+def _copies(points: list, faces: list, scaled: bool) -> list:
+    """For each sheet: None if it is remeshed itself, else ``(k, s, R, t)``: it is sheet
+    ``k`` (an earlier one, remeshed itself) times ``s``, turned by ``R`` and moved by
+    ``t`` (``s`` = 1 unless ``scaled``). Sheets are compared only when their faces are
+    the same array (instanced copies are), by the best similarity transform
+    (:func:`pipeline.mesh.similar.similarity`), reflections refused."""
+    buckets: dict = {}
+    out = []
+    for p, (pts, lf) in enumerate(zip(points, faces, strict=True)):
+        key = (len(pts), len(lf), hash(np.ascontiguousarray(lf).tobytes()))
+        found = None
+        for k in buckets.get(key, ()):
+            if not np.array_equal(faces[k], lf):
+                continue
+            found = similarity(points[k], pts, scaled, COPY)
+            if found is not None:
+                found = (k, *found)
+                break
+        if found is None:
+            shapes = buckets.setdefault(key, [])
+            if len(shapes) < COPY_SHAPES:
+                shapes.append(p)
+        out.append(found)
+    return out
+
+
+def _moved(done: dict, s: float, rot: np.ndarray, t: np.ndarray) -> dict:
+    """A remeshed petal's result (:func:`_one_petal`) for a copy of it: moved as the copy
+    is from the petal (its notes stay with the petal)."""
+    if done["broken"]:
+        return {"notes": [], "broken": done["broken"]}
+    n = rot @ done["plane"][:3]
+    plane = np.r_[n, s * done["plane"][3] + n @ t]
+    return {**done, "vertices": s * done["vertices"] @ rot.T + t, "plane": plane,
+            "h": s * done["h"], "before": s * done["before"], "after": s * done["after"],
+            "notes": []}
+
+
+def _one_task(task):
+    return _one_petal(*task)
+
+
+def _one_petal(pts, lf, target_edge, petal_vertices, symmetrize, label, scale) -> dict:
+    """One petal (mean edge 1 units) through steps 4 and 5: its center plane, the remesh
+    target, :func:`_petal`, and the checks after. Returns a dict: ``vertices``, ``faces``,
+    ``plane``, ``h``, ``before``/``after`` (asymmetry), ``worst`` (smallest angle),
+    ``mirrored``, ``notes``, and ``broken`` (why it is left out, or "")."""
+    notes = []
+    plane, err = symmetry.mirror_plane(pts)
+    h = (target_edge * scale if target_edge > 0 else
+         remesh.target_for_vertices(pts, lf, petal_vertices) if petal_vertices > 0 else 0.0)
+    if h == 0.0 and len(pts) < MIN_PETAL_VERTICES:  # a coarse model: too few hinges to bend
+        h = remesh.target_for_vertices(pts, lf, MIN_PETAL_VERTICES)
+        notes.append(f"{label}: {len(pts)} vertices: remeshed to about {MIN_PETAL_VERTICES} "
+                     "(remesh.petal_vertices sets it)")
+    try:
+        pts, lf, h, note, mirrored = _petal(pts, lf, plane, h, symmetrize, label, scale)
+    except ValueError as exc:  # no sheet the remesher can take, nor the input's
+        return {"notes": notes, "broken": _one_line(exc)}
+    notes += note
+    try:  # what growth needs of a sheet: each edge of one or two faces, one orientation
+        topology.hinges(lf)
+    except ValueError as exc:
+        return {"notes": notes, "broken": _one_line(exc)}
+    face_quality = remesh.face_quality(pts, lf)
+    worst = float(face_quality.min())  # remesh.quality
+    area = 0.5 * np.linalg.norm(topology.face_normals(pts, lf), axis=1)
+    bad = face_quality == 0.0  # inverted or degenerate
+    flat = int(np.sum(bad & (area < FLAT_AREA * np.median(area))))
+    if flat:  # its bending force is singular: the simulator gains energy from it
+        return {"notes": notes, "broken": f"{flat} folded triangle(s) of almost no area"}
+    if bad.any():
+        notes.append(f"{label}: warning: {int(bad.sum())} triangle(s) folded over "
+                     "their neighbours after remeshing")
+    elif worst < remesh.MIN_ANGLE:
+        notes.append(f"{label}: warning: smallest angle {worst:.1f} deg is still below "
+                     f"{remesh.MIN_ANGLE:g} after remeshing")
+    ratio = remesh.edge_ratio(pts, lf)
+    if ratio < remesh.MIN_EDGE:
+        notes.append(f"{label}: warning: shortest edge {ratio:.2f} of "
+                     f"the mean is still below {remesh.MIN_EDGE:g} after remeshing")
+    return {"vertices": pts, "faces": lf, "plane": plane, "h": h, "before": err,
+            "after": symmetry.asymmetry(pts, plane) if symmetrize or h else err, "worst": worst,
+            "mirrored": mirrored, "notes": notes, "broken": ""}
+
+
+def _groups(label: np.ndarray, f: np.ndarray, count: int):
+    """Each group's vertices and faces, for a mesh whose every face lies in one group of
+    ``label (V,)``: ``[(vertex indices (ascending), its faces in local indices)]``, in one
+    pass over the arrays (a mask per group would cost groups x vertices)."""
+    v_order = np.argsort(label, kind="stable")
+    v_bounds = np.r_[0, np.cumsum(np.bincount(label, minlength=count))]
+    face_group = label[f[:, 0]]
+    f_order = np.argsort(face_group, kind="stable")
+    f_bounds = np.r_[0, np.cumsum(np.bincount(face_group, minlength=count))]
+    out = []
+    for p in range(count):
+        idx = v_order[v_bounds[p]:v_bounds[p + 1]]
+        out.append((idx, np.searchsorted(idx, f[f_order[f_bounds[p]:f_bounds[p + 1]]])))
+    return out
 
 
 def _carried_thickness(pts: np.ndarray, thick, scale: float) -> np.ndarray:
@@ -204,11 +369,7 @@ def _one_line(text: str) -> str:
 def _pieces(v: np.ndarray, f: np.ndarray) -> list[tuple[np.ndarray, np.ndarray]]:
     """A clean mesh's connected pieces, each ``(vertices, faces)``, in order of first vertex."""
     label = topology.components(f, len(v))
-    out = []
-    for p in range(int(label.max()) + 1):
-        idx = np.flatnonzero(label == p)
-        out.append((v[idx], _submesh(f, idx)))
-    return out
+    return [(v[idx], lf) for idx, lf in _groups(label, f, int(label.max()) + 1)]
 
 
 def _area(v: np.ndarray, f: np.ndarray) -> float:
@@ -221,19 +382,30 @@ def _is_closed(v: np.ndarray, f: np.ndarray) -> bool:
 
 def _thick_sheets(v, f, pieces):
     """Mid-surfaces of a thick petal part: one per closed piece (several solidified petals in
-    one group), else one of the whole part (two separate open sides). Returns ``[(vertices, faces,
-    thickness)]``; raises ValueError with midsurface's reason."""
+    one group), else one of the whole part (two separate open sides). A piece with no
+    mid-surface is sampled as a height field over its lobes (:func:`_lobe_sheets`).
+    Returns ``([(vertices, faces, thickness)], lost)``, ``lost`` a line per piece that gave
+    no sheet; raises ValueError with midsurface's reason when the part gives none."""
     if len(pieces) == 1 or not any(_is_closed(pv, pf) for pv, pf in pieces):
-        return [_mid(v, f)]
+        return [_mid(v, f)], []
     made, failed = [], []
     for k, (pv, pf) in enumerate(pieces):
         try:
             made.append(_mid(pv, pf))
-        except ValueError as exc:
-            failed.append(f"piece {k + 1} of {len(pieces)}: {exc}")
-    if failed:
+            continue
+        except (ValueError, RuntimeError, np.linalg.LinAlgError) as exc:
+            reason = _one_line(exc)
+        try:  # no clean mid-surface: this piece's own height field
+            lobe = _lobe_sheets(pv, pf)
+        except ValueError:
+            lobe = []
+        if lobe:
+            made += lobe
+        else:
+            failed.append(f"piece {k + 1} of {len(pieces)}: {reason}")
+    if not made:
         raise ValueError("; ".join(failed))
-    return made
+    return made, failed
 
 
 def _mid(v, f):
@@ -249,12 +421,36 @@ def _mid(v, f):
     return sv, sf, t
 
 
+def _sound_sheet(v: np.ndarray, f: np.ndarray) -> bool:
+    """Whether a sheet is what the remesher and the hinges need: every edge of one or two
+    faces, one orientation, a rim that passes each vertex once."""
+    if len(f) == 0:
+        return True
+    try:
+        topology.hinges(f)
+    except ValueError:
+        return False
+    return remesh.pinched_rim(f, len(v)) == 0
+
+
 def _cleaned_sheet(vertices, faces, thickness):
     """A made sheet cleaned (:func:`clean.clean_mesh`) with its per-vertex thickness carried
     to the vertices kept (matched by position: welding merges and reorders)."""
     from scipy.spatial import cKDTree
 
     sv, sf, _ = clean.clean_mesh(vertices, faces)
+    if not _sound_sheet(sv, sf):
+        # welding joined two parts of the made sheet that came within the weld distance (a
+        # lotus petal's mid-surface touching itself: an edge of three faces, a rim through
+        # a vertex twice, a twist no orientation fits); its points are its own, not welded
+        sv, sf, _ = clean.clean_mesh(vertices, faces, weld_tolerance=0.0)
+    if not _sound_sheet(sv, sf):
+        sf, _ = repair.resolve_nonmanifold_edges(sv, sf)
+        sf = sf[repair.manifold_fans(sf, len(sv))]
+        sv, sf, _ = repair.split_fans(sv, sf)
+        used = np.unique(sf)
+        sv, sf = sv[used], np.searchsorted(used, sf)
+        sf, _ = clean.orient_consistently(sf, len(sv))
     _, nearest = cKDTree(vertices).query(sv)
     return sv, sf, np.asarray(thickness)[nearest]
 
@@ -342,25 +538,36 @@ def _unique_faces(faces: np.ndarray) -> np.ndarray:
 
 def prepare_parts(mesh_file, *, where: str, target_edge: float = 0.0, petal_vertices: int = 0,
                   symmetrize: bool = True, closed_parts: str = "refuse", petals_globs=(),
-                  exclude_globs=(), dust: float = DUST) -> Petals:
+                  exclude_globs=(), dust: float = DUST, flower: str = "all",
+                  progress=None, workers: int = 1) -> Petals:
     """The remesh stage on a file's named parts (:func:`pipeline.io.meshfile.read_parts`).
 
     Each part is classified (:func:`pipeline.flower.classify.classify`) and chosen by the
     scene's globs (:func:`~pipeline.flower.classify.select`). A chosen part is cleaned on its
     own, loses its dust (connected pieces under ``dust`` of its area), and gives one sheet
     per connected piece; a thick petal (or a closed or two-layer piece) becomes its
-    mid-surface. The sheets then go through steps 3 to 5 of :func:`prepare`. Parts that
-    are not petals are returned untouched in ``kept_parts``.
+    mid-surface. A part that holds a whole flower (petals, receptacle and stem in one mesh)
+    gives its petal pieces only. The sheets are grouped into flowers
+    (:func:`pipeline.mesh.flowers.flowers`); ``flower`` ("all", a flower's index, or a
+    glob over part names: the flowers those parts' petals are in) keeps some. The sheets
+    then go through steps 3 to 5 of :func:`prepare`. Parts that are not petals are
+    returned untouched in ``kept_parts`` (and a whole flower's other pieces, under its
+    index). ``progress(what, done, total, detail)``, if given, is called as the petals are
+    done; ``workers`` processes remesh them (:func:`workers_for`).
 
     Raises one :class:`BloomError` naming every petal part that cannot be simulated (and,
     when no petal is left, what every part is).
     """
     from pipeline.flower.classify import classify, select
+    from pipeline.mesh.flowers import flowers
 
+    report = progress or (lambda what, done, total, detail="": None)
     parts = list(mesh_file.parts)
     # judged without stacked duplicate faces (a face written twice, either way round, would
     # close a sheet into a "solid"); the parts themselves are kept as read
-    verdicts = classify([_Judged(p.name, p.vertices, _unique_faces(p.faces)) for p in parts])
+    unique = [_unique_faces(p.faces) for p in parts]
+    report("classifying parts", 0, len(parts))
+    verdicts = classify([_Judged(p.name, p.vertices, u) for p, u in zip(parts, unique, strict=True)])
     names = [p.name for p in parts]
     chosen = select(names, verdicts, petals_globs, exclude_globs)
     excluded = [not c and any(fnmatch.fnmatchcase(n, g) for g in exclude_globs)
@@ -368,78 +575,60 @@ def prepare_parts(mesh_file, *, where: str, target_edge: float = 0.0, petal_vert
     total = clean.CleanReport()
     sheets = []  # (vertices, faces, part index, thickness or None)
     problems, failing, dropped, notes, info = [], [], [], [], []
+    found = {}  # part index -> {"pieces": petal pieces, "area": their area (one side), "lost": ...}
+    rest = {}  # part index -> (vertices, faces): a whole flower's pieces that are not petals
+    cleaned_parts, cleaned_faces, outcomes, copies = {}, {}, {}, 0
     for i, (part, verdict) in enumerate(zip(parts, verdicts, strict=True)):
+        report("cleaning petal parts", i, len(parts), f"part {part.name!r}")
         role = "petal" if chosen[i] else "excluded" if excluded[i] else "kept"
         info.append({"name": part.name, "kind": verdict.kind, "reason": _one_line(verdict.reason),
                      "role": role})
         if not chosen[i]:
             continue
-        label = f"{part.name}"
-        v, f, report = clean.clean_mesh(part.vertices, part.faces)
-        for key in ("welded", "degenerate_faces", "duplicate_faces", "opposite_duplicate_faces",
-                    "unreferenced", "flipped_faces"):
-            setattr(total, key, getattr(total, key) + getattr(report, key))
-        if len(f) == 0:
-            problems.append(f"{label}: no triangles left after removing degenerate faces")
+        part_faces = part.faces
+        if verdict.faces is not None and verdict.is_petal and not any(
+                fnmatch.fnmatchcase(part.name, g) for g in petals_globs):
+            # a whole flower in one mesh: its petal pieces are the petals, the rest is kept
+            part_faces = unique[i][verdict.faces]
+            rest[i] = (np.asarray(part.vertices), unique[i][~verdict.faces])
+        # a part that is a moved, turned or scaled copy of one cleaned before (instanced
+        # blossoms) gives that part's sheets, moved
+        key = (verdict.kind, len(part.vertices), len(part_faces),
+               hash(np.ascontiguousarray(part_faces).tobytes()))
+        copy = None
+        for j in cleaned_parts.get(key, ()):
+            if np.array_equal(cleaned_faces[j], part_faces):
+                copy = similarity(np.asarray(parts[j].vertices, dtype=np.float64),
+                                  np.asarray(part.vertices, dtype=np.float64))
+                if copy is not None:
+                    done = _moved_part(outcomes[j], i, *copy)
+                    copies += 1
+                    break
+        if copy is None:
+            done = _part_sheets(part, part_faces, verdict, i, dust=dust, closed_parts=closed_parts)
+            if done.sheets and not done.problem:
+                shapes = cleaned_parts.setdefault(key, [])
+                if len(shapes) < COPY_SHAPES:
+                    shapes.append(i)
+                    cleaned_faces[i] = part_faces
+                    outcomes[i] = done
+            notes += done.notes
+        for name, value in vars(done.counts).items():
+            if name != "notes":
+                setattr(total, name, getattr(total, name) + value)
+        sheets += done.sheets
+        if done.found is not None:
+            found[i] = done.found
+        if done.problem:
+            problems.append(done.problem)
             failing.append(part.name)
-            continue
-        _, _, count = topology.unique_edges(f)
-        if np.any(count > 2):  # a rib or fin on the sheet, sheets welded along a seam
-            bad = int(np.sum(count > 2))
-            f, gone = repair.resolve_nonmanifold_edges(v, f)
-            total.nonmanifold_edges += bad
-            total.nonmanifold_faces += gone
-            notes.append(f"{label}: {bad} non-manifold edges: kept the two faces the surface "
-                         f"goes on through at each, dropped {gone} face(s)")
-        v, f, copies = repair.split_fans(v, f)  # pieces touching at a vertex come apart
-        total.split_vertices += copies
-        pieces = _pieces(v, f)
-        areas = np.array([_area(pv, pf) for pv, pf in pieces])
-        small = areas < dust * areas.sum()
-        if small.any() and not small.all():
-            total.dust_pieces += int(small.sum())
-            total.dust_faces += int(sum(len(pieces[k][1]) for k in np.flatnonzero(small)))
-            notes.append(f"{label}: dropped {int(small.sum())} piece(s) of dust (under {dust:.0%} "
-                         "of its area)")
-            pieces = [pc for pc, s in zip(pieces, small, strict=True) if not s]
-            keep = np.concatenate([pv for pv, _ in pieces])
-            v, f = keep, np.vstack([pf + o for (_, pf), o in
-                                    zip(pieces, np.cumsum([0] + [len(pv) for pv, _ in pieces[:-1]]),
-                                        strict=True)])
-        # told by the cleaned geometry: a closed or two-layer piece, or (a thick petal's two
-        # separate sides) a part of several pieces that is two layers; a stacked duplicate
-        # that made the verdict "thick" is gone by now
-        thick = any(_is_closed(pv, pf) or clean.layered_fraction(pv, pf)[0] > LAYERED
-                    for pv, pf in pieces)
-        if not thick and verdict.kind == "thick petal" and len(pieces) > 1:
-            thick = clean.layered_fraction(v, f)[0] > LAYERED
-        if not thick:
-            sheets += [(pv, pf, i, None) for pv, pf in pieces]
-            continue
-        try:
-            made = _thick_sheets(v, f, pieces)
-        except (ValueError, RuntimeError, np.linalg.LinAlgError) as exc:
-            try:  # no clean mid-surface: a coarse cage, hems, petals joined at a hub
-                made = _lobe_sheets(v, f)
-            except ValueError:
-                made = None
-            if made:
-                total.height_sheets += len(made)
-                notes.append(f"{label}: no mid-surface ({_one_line(exc)}); simulated as "
-                             f"{len(made)} sheet(s) sampled over its lobes")
-                sheets += [(sv, sf, i, (sv, t)) for sv, sf, t in made]
-                continue
-            if closed_parts == "drop" and all(_is_closed(pv, pf) for pv, pf in pieces):
-                dropped.append(f"{part.name} (closed, {len(v)} vertices: {_one_line(exc)})")
-                info[-1]["role"] = "kept"  # carried forward untouched, as a part that is not a petal
-                continue
-            problems.append(f"{label}: cannot become a sheet: {_one_line(exc)}")
-            failing.append(part.name)
-            continue
-        total.midsurfaces += len(made)
-        notes.append(f"{label}: a thick petal: simulated as its mid-surface "
-                     + ", ".join(f"(thickness {np.median(t):.3g})" for _, _, t in made))
-        sheets += [(sv, sf, i, (sv, t)) for sv, sf, t in made]
+        if done.dropped:
+            dropped.append(done.dropped)
+            info[-1]["role"] = "kept"  # carried forward untouched, as a part that is not a petal
+            rest.pop(i, None)
+    if copies:
+        notes.append(f"{copies} petal part(s) are copies of others (moved, turned or scaled): "
+                     "cleaned as those")
     if problems and sheets:
         raise BloomError(f"{len(problems)} petal part(s) cannot be simulated: " + "; ".join(problems)
                          + "; fix them, or leave them out with scene.exclude = ["
@@ -450,23 +639,18 @@ def prepare_parts(mesh_file, *, where: str, target_edge: float = 0.0, petal_vert
         hint = ("; name the petals with scene.petals = [\"glob\"]" if not problems else
                 "; repair the part(s) named and export again, or name the petals with scene.petals")
         raise BloomError("no petals: " + "; ".join(problems + others) + hint, where=where)
-    split_sheets = []
-    for sv, sf, i, t in sheets:  # petals joined in one sheet at a hub (a low-poly star)
-        petals_of = _ring_petals(sv, sf)
-        if petals_of is None:
-            split_sheets.append((sv, sf, i, t))
-            continue
-        total.ring_splits += 1
-        notes.append(f"{names[i]}: one sheet of {len(petals_of)} petals joined at a hub: split into "
-                     "its petals, the hub left out")
-        split_sheets += [(pv, pf, i, t) for pv, pf in petals_of]
-    sheets = split_sheets
-    for k, (sv, sf, i, t) in enumerate(sheets):
-        sv, sf, zipped = repair.zip_slits(sv, sf)  # a sliver dropped in a mid-surface, a seam
-        if zipped:
-            total.zipped_vertices += zipped
-            notes.append(f"{names[i]}: closed a slit in its sheet ({zipped} rim vertex pair(s) merged)")
-            sheets[k] = (sv, sf, i, t)
+    grouped = flowers(np.vstack([sv for sv, _, _, _ in sheets]),
+                      np.concatenate([np.full(len(sv), k) for k, (sv, _, _, _) in enumerate(sheets)]))
+    picked = _pick_flower(flower, grouped, [i for _, _, i, _ in sheets], names, where)
+    if picked is not None:
+        notes.append(f"scene.flower = {flower!r}: flower {picked} of {grouped.count} "
+                     f"({int(np.sum(grouped.flower == picked))} petals)")
+        keep = np.flatnonzero(grouped.flower == picked)
+        sheets = [sheets[k] for k in keep]
+        sheet_flower = np.zeros(len(sheets), dtype=np.int64)
+        centres = grouped.centre[[picked]]
+    else:
+        sheet_flower, centres = grouped.flower, grouped.centre
     offsets = np.cumsum([0] + [len(sv) for sv, _, _, _ in sheets])
     v = np.vstack([sv for sv, _, _, _ in sheets])
     f = np.vstack([sf + o for (_, sf, _, _), o in zip(sheets, offsets, strict=False)])
@@ -476,11 +660,192 @@ def prepare_parts(mesh_file, *, where: str, target_edge: float = 0.0, petal_vert
                     where=where,
                     symmetrize=symmetrize, dropped=dropped, labels=labels,
                     part_of=[i for _, _, i, _ in sheets], thick=[t for _, _, _, t in sheets],
-                    notes=notes)
+                    notes=notes, progress=report, workers=workers)
     result.parts = info
     result.kept_parts = {i: (np.asarray(p.vertices), np.asarray(p.faces))
                          for i, p in enumerate(parts) if info[i]["role"] != "petal"}
+    result.kept_parts.update({i: pf for i, pf in rest.items() if len(pf[1])})
+    result.petal_flower = np.asarray(sheet_flower, dtype=np.int64)[result.kept_sheets]
+    result.flower = result.petal_flower[result.petal]
+    result.flower_centre = np.asarray(centres) * result.scale
+    result.flower_picked = -1 if picked is None else int(picked)
+    result.found = _petals_found(result, found, names, notes, picked is not None)
     return result
+
+
+def _pick_flower(flower: str, grouped, sheet_part: list[int], names: list[str], where: str):
+    """The flower ``scene.flower`` names: None for "all"; an index (0-based, in the order
+    of the flowers' first petals); or a glob over part names: the one flower whose petals
+    come from the parts it matches. Raises BloomError naming the key otherwise."""
+    text = str(flower).strip()
+    if text in ("", "all"):
+        return None
+    if text.lstrip("-").isdigit():
+        k = int(text)
+        if not 0 <= k < grouped.count:
+            raise BloomError(f"scene.flower: {k} is not a flower here: the mesh has {grouped.count} "
+                             f"flower(s), 0 to {grouped.count - 1}", where=where)
+        return k
+    hit = sorted({int(grouped.flower[k]) for k, i in enumerate(sheet_part)
+                  if fnmatch.fnmatchcase(names[i], text)})
+    if len(hit) != 1:
+        have = ", ".join(sorted({names[i] for i in sheet_part})[:8])
+        what = "no petal part" if not hit else f"parts in {len(hit)} flowers ({hit[:8]})"
+        raise BloomError(f"scene.flower: {text!r} matches {what}; give a flower's index (0 to "
+                         f"{grouped.count - 1}) or a petal part's name ({have}...)", where=where)
+    return hit[0]
+
+
+#: a petal part that keeps less than this share of its petal area (one side of a thick
+#: petal) after remeshing has lost petals: a warning names it
+MIN_AREA_KEPT = 0.5
+
+
+def _petals_found(result: Petals, found: dict, names: list[str], notes: list,
+                  picked: bool = False) -> dict:
+    """Per petal part: petal pieces in, petals out, and the share of the input's petal
+    area kept (sheet area over the pieces' area, one side of a thick one); a warning in
+    ``notes`` for a part that lost pieces or kept under ``MIN_AREA_KEPT`` of its area
+    (unless one flower was ``picked``: the others' petals are left out on purpose)."""
+    area = np.zeros(len(names))
+    count = np.zeros(len(names), dtype=np.int64)
+    fn = topology.face_normals(result.vertices, result.faces)
+    face_part = result.part[result.faces[:, 0]]
+    np.add.at(area, face_part, 0.5 * np.linalg.norm(fn, axis=1) / result.scale ** 2)
+    pairs = np.unique(np.stack([result.part, result.petal], axis=1), axis=0)
+    count += np.bincount(pairs[:, 0], minlength=len(names))
+    out = {}
+    for i, rec in sorted(found.items()):
+        share = float(area[i] / rec["area"]) if rec["area"] > 0 else 0.0
+        out[names[i]] = {"pieces": rec["pieces"], "petals": int(count[i]), "area_kept": share,
+                         "area_in": rec["area"], "lost": len(rec["lost"])}
+        if not picked and (rec["lost"] or share < MIN_AREA_KEPT):
+            notes.append(f"{names[i]}: warning: petals lost: {int(count[i])} petal(s) from "
+                         f"{rec['pieces']} petal piece(s), {share:.0%} of its petal area kept")
+    return out
+
+
+@dataclass
+class _PartSheets:
+    """What :func:`_part_sheets` makes of one petal part."""
+
+    sheets: list  #: [(vertices, faces, part index, thickness or None)], raw (before ring splits)
+    counts: clean.CleanReport  #: what was repaired or dropped
+    notes: list
+    found: dict | None  #: {"pieces", "area" (one side), "lost"}, None if it gave no sheet
+    problem: str = ""  #: why it cannot be simulated ("" if it can)
+    dropped: str = ""  #: a closed part left out (remesh.closed_parts = "drop")
+
+
+def _moved_part(done: _PartSheets, i: int, k: float, rot: np.ndarray, t: np.ndarray) -> _PartSheets:
+    """A cleaned part's outcome for a copy of it (part ``i``), moved as the copy is."""
+    sheets = [(k * sv @ rot.T + t, sf, i, None if th is None else (k * th[0] @ rot.T + t, k * th[1]))
+              for sv, sf, _, th in done.sheets]
+    found = None if done.found is None else {**done.found, "area": k * k * done.found["area"]}
+    return _PartSheets(sheets, done.counts, [], found)
+
+
+def _part_sheets(part, part_faces, verdict, i: int, *, dust: float, closed_parts: str) -> _PartSheets:
+    """One petal part cleaned (``part_faces`` of its vertices) and made into sheets, as
+    :func:`prepare_parts` describes; a sheet of petals joined at a hub split into them, and
+    slits zipped."""
+    done = _raw_part_sheets(part, part_faces, verdict, i, dust=dust, closed_parts=closed_parts)
+    sheets = []
+    for sv, sf, _, t in done.sheets:  # petals joined in one sheet at a hub (a low-poly star)
+        petals_of = _ring_petals(sv, sf)
+        if petals_of is None:
+            sheets.append((sv, sf, i, t))
+            continue
+        done.counts.ring_splits += 1
+        done.notes.append(f"{part.name}: one sheet of {len(petals_of)} petals joined at a hub: "
+                          "split into its petals, the hub left out")
+        sheets += [(pv, pf, i, t) for pv, pf in petals_of]
+    for k, (sv, sf, _, t) in enumerate(sheets):
+        sv, sf, zipped = repair.zip_slits(sv, sf)  # a sliver dropped in a mid-surface, a seam
+        if zipped:
+            done.counts.zipped_vertices += zipped
+            done.notes.append(f"{part.name}: closed a slit in its sheet ({zipped} rim vertex "
+                              "pair(s) merged)")
+            sheets[k] = (sv, sf, i, t)
+    done.sheets = sheets
+    return done
+
+
+def _raw_part_sheets(part, part_faces, verdict, i: int, *, dust: float,
+                     closed_parts: str) -> _PartSheets:
+    label = f"{part.name}"
+    total = clean.CleanReport()
+    notes = []
+    v, f, cleaned = clean.clean_mesh(part.vertices, part_faces)
+    for key in ("welded", "degenerate_faces", "duplicate_faces", "opposite_duplicate_faces",
+                "unreferenced", "flipped_faces"):
+        setattr(total, key, getattr(total, key) + getattr(cleaned, key))
+    if len(f) == 0:
+        return _PartSheets([], total, notes, None,
+                           f"{label}: no triangles left after removing degenerate faces")
+    _, _, count = topology.unique_edges(f)
+    if np.any(count > 2):  # a rib or fin on the sheet, sheets welded along a seam
+        bad = int(np.sum(count > 2))
+        f, gone = repair.resolve_nonmanifold_edges(v, f)
+        total.nonmanifold_edges += bad
+        total.nonmanifold_faces += gone
+        notes.append(f"{label}: {bad} non-manifold edges: kept the two faces the surface "
+                     f"goes on through at each, dropped {gone} face(s)")
+    v, f, copies = repair.split_fans(v, f)  # pieces touching at a vertex come apart
+    total.split_vertices += copies
+    pieces = _pieces(v, f)
+    areas = np.array([_area(pv, pf) for pv, pf in pieces])
+    # dust by the largest piece, not the part: a petal of a part of 250 is 0.4% of it
+    small = areas < dust * areas.max()
+    if small.any() and not small.all():
+        total.dust_pieces += int(small.sum())
+        total.dust_faces += int(sum(len(pieces[k][1]) for k in np.flatnonzero(small)))
+        notes.append(f"{label}: dropped {int(small.sum())} piece(s) of dust (under {dust:.0%} "
+                     "of its largest piece's area)")
+        pieces = [pc for pc, s in zip(pieces, small, strict=True) if not s]
+        areas = areas[~small]
+        keep = np.concatenate([pv for pv, _ in pieces])
+        v, f = keep, np.vstack([pf + o for (_, pf), o in
+                                zip(pieces, np.cumsum([0] + [len(pv) for pv, _ in pieces[:-1]]),
+                                    strict=True)])
+    # told by the cleaned geometry: a closed or two-layer piece, or (a thick petal's two
+    # separate sides) a part of several pieces that is two layers; a stacked duplicate
+    # that made the verdict "thick" is gone by now
+    thick = any(_is_closed(pv, pf) or clean.layered_fraction(pv, pf)[0] > LAYERED
+                for pv, pf in pieces)
+    if not thick and verdict.kind == "thick petal" and len(pieces) == 2:
+        # two separate open sides; a part of many petals that cross one another (a rose
+        # bed's) is not two layers of one petal
+        thick = clean.layered_fraction(v, f)[0] > LAYERED
+    # the input's petal area: one side of a thick petal (its mid-surface covers that)
+    found = {"pieces": len(pieces), "area": float(areas.sum()) * (0.5 if thick else 1.0),
+             "lost": []}
+    if not thick:
+        return _PartSheets([(pv, pf, i, None) for pv, pf in pieces], total, notes, found)
+    try:
+        made, lost = _thick_sheets(v, f, pieces)
+        if lost:
+            found["lost"] = lost
+            notes.append(f"{label}: warning: {len(lost)} of {len(pieces)} petal piece(s) gave no "
+                         "sheet, left out: " + "; ".join(lost))
+    except (ValueError, RuntimeError, np.linalg.LinAlgError) as exc:
+        try:  # no clean mid-surface: a coarse cage, hems, petals joined at a hub
+            made = _lobe_sheets(v, f)
+        except ValueError:
+            made = None
+        if made:
+            total.height_sheets += len(made)
+            notes.append(f"{label}: no mid-surface ({_one_line(exc)}); simulated as "
+                         f"{len(made)} sheet(s) sampled over its lobes")
+            return _PartSheets([(sv, sf, i, (sv, t)) for sv, sf, t in made], total, notes, found)
+        if closed_parts == "drop" and all(_is_closed(pv, pf) for pv, pf in pieces):
+            return _PartSheets([], total, notes, None, dropped=(
+                f"{part.name} (closed, {len(v)} vertices: {_one_line(exc)})"))
+        return _PartSheets([], total, notes, None, f"{label}: cannot become a sheet: {_one_line(exc)}")
+    total.midsurfaces += len(made)
+    notes.append(f"{label}: a thick petal: simulated as its mid-surface "
+                 + ", ".join(f"(thickness {np.median(t):.3g})" for _, _, t in made))
+    return _PartSheets([(sv, sf, i, (sv, t)) for sv, sf, t in made], total, notes, found)
 
 
 def _remesh_half(h: float):
@@ -500,10 +865,16 @@ def _remeshed(pts, lf, h):
     misses the bound, remeshed once more from there, kept if that meets it: the
     improvement can clip a needle off the rim (:func:`remesh.improve`), whose short base
     is then a rim edge that the remesh's boundary pass collapses."""
-    pts, lf, _ = remesh.isotropic(pts, lf, h)
+    try:
+        pts, lf, _ = remesh.isotropic(pts, lf, h)
+    except ValueError:  # a sheet the remesher cannot take (its rim touches itself): as it is
+        return pts, lf
     pts, lf, _, _ = remesh.improve(pts, lf)
     if not remesh.meets_bound(pts, lf):
-        again, again_f, _ = remesh.isotropic(pts, lf, h)
+        try:
+            again, again_f, _ = remesh.isotropic(pts, lf, h)
+        except ValueError:
+            return pts, lf
         again, again_f, _, _ = remesh.improve(again, again_f)
         if remesh.meets_bound(again, again_f):
             return again, again_f
@@ -522,16 +893,30 @@ def _shortfall(pts, lf) -> str:
     return " and ".join(why)
 
 
+#: moving vertices is tried on a sheet's own triangles when at most this share of them
+#: (or FEW_BAD_COUNT) miss the quality bound; a sheet bad all over is remeshed
+FEW_BAD, FEW_BAD_COUNT = 0.02, 20
+
+
+def _few_bad(pts, lf) -> bool:
+    bad = int(np.sum(remesh.face_quality(pts, lf) < remesh.MIN_ANGLE))
+    return bad <= max(FEW_BAD_COUNT, FEW_BAD * len(lf))
+
+
 def _fixed_quality(pts, lf, h, what, scale):
     """The sheet itself if it meets :data:`remesh.MIN_ANGLE`, else remeshed at ``h``."""
     why = _shortfall(pts, lf)
     if not why:
         return pts, lf, []
-    # the user's triangles if moving vertices along the surface is enough
-    moved, _, _, _ = remesh.improve(pts, lf, moves_only=True)
-    if remesh.meets_bound(moved, lf):
-        count = int(np.sum(np.any(moved != pts, axis=1)))
-        return moved, lf, [f"{what}: {why}: moved {count} vertices along the surface, triangles kept"]
+    # the user's triangles if moving vertices along the surface is enough (tried only where
+    # few triangles miss the bound: moves do not mend a sheet bad all over, and trying
+    # them on each of its thousands of triangles cost minutes on the lotus)
+    if _few_bad(pts, lf):
+        moved, _, _, _ = remesh.improve(pts, lf, moves_only=True)
+        if remesh.meets_bound(moved, lf):
+            count = int(np.sum(np.any(moved != pts, axis=1)))
+            return moved, lf, [f"{what}: {why}: moved {count} vertices along the surface, "
+                               "triangles kept"]
     pts, lf = _remeshed(pts, lf, h)
     return pts, lf, [f"{what}: {why}: "
                      f"remeshed at edge {h / scale:.4g}"]
@@ -558,11 +943,11 @@ def _petal(pts, lf, plane, h, symmetrize, what, scale):
                 return paired, lf, 0.0, [], True
             # keep the user's (paired) triangles: move vertices in the tangent plane only,
             # then average with the mirror image again (pairs stay pairs)
-            moved, _, _, _ = remesh.improve(paired, lf, moves_only=True)
+            moved = remesh.improve(paired, lf, moves_only=True)[0] if _few_bad(paired, lf) else paired
             changed = np.any(moved != paired, axis=1)
             changed |= changed[partner]
             moved[changed] = symmetry.symmetrize(moved, plane, partner)[changed]
-            if remesh.meets_bound(moved, lf):
+            if changed.any() and remesh.meets_bound(moved, lf):
                 count = int(changed.sum())
                 return moved, lf, 0.0, [f"{what}: {why}: moved {count} vertices along the "
                                         "surface, triangles kept"], True
@@ -593,7 +978,12 @@ def _petal(pts, lf, plane, h, symmetrize, what, scale):
         # the cut met the rim in a notch or a slit the mirrored remesh cannot mend, or cut
         # a curled petal into pieces; the simulator needs a sound sheet more than symmetry
         fixed, fixed_f = _remeshed(pts, lf, target)
-        if not _shortfall(fixed, fixed_f) or missed.startswith("pieces"):
+        # unsymmetrized also when it mends folded triangles the mirrored one kept (a low-poly
+        # cage's mid-surface, clach's petals): they would fold the simulated sheet
+        folded = (len(out_f) > 0 and len(fixed_f) > 0
+                  and np.any(remesh.face_quality(out, out_f) == 0.0)
+                  and not np.any(remesh.face_quality(fixed, fixed_f) == 0.0))
+        if not _shortfall(fixed, fixed_f) or missed.startswith("pieces") or folded:
             return fixed, fixed_f, target, [
                 f"{what}: warning: mirrored, it kept {missed}; remeshed at edge "
                 f"{target / scale:.4g}, unsymmetrized"], False

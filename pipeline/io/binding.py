@@ -60,13 +60,14 @@ def local_frames(vertices: np.ndarray, faces: np.ndarray, face: np.ndarray, bary
 
 
 def bind(points: np.ndarray, vertices: np.ndarray, faces: np.ndarray,
-         allowed: np.ndarray | None = None) -> Binding:
-    """Bind ``points`` to the sheet ``vertices, faces`` (its triangles where ``allowed``)."""
+         allowed: np.ndarray | None = None, normals: np.ndarray | None = None) -> Binding:
+    """Bind ``points`` to the sheet ``vertices, faces`` (its triangles where ``allowed``);
+    ``normals``: the sheet's vertex normals, if the caller has them (computed if not)."""
     face, bary = closest_points(points, vertices, faces, allowed)
     X = np.asarray(vertices, dtype=np.float64)
     F = np.asarray(faces, dtype=np.int64)
     on = np.einsum("ij,ijk->ik", bary, X[F[face]])
-    frames = local_frames(X, F, face, bary)
+    frames = local_frames(X, F, face, bary, normals)
     offset = np.einsum("ikj,ij->ik", frames, np.asarray(points, dtype=np.float64) - on)
     return Binding(face, bary, offset)
 
@@ -101,19 +102,22 @@ def bind_parts(asset, scale: float, vertices: np.ndarray, faces: np.ndarray,
     F = np.asarray(faces, dtype=np.int64)
     face_part = np.asarray(vertex_part)[F[:, 0]] if len(F) else np.zeros(0, dtype=np.int64)
     face_piece = components(F, len(vertices))[F[:, 0]] if len(F) else np.zeros(0, dtype=np.int64)
+    # the sheet's normals once, not once per part (a branch of a thousand blossoms)
+    normals = vertex_normals(np.asarray(vertices, dtype=np.float64), F)
     out = {}
     for i, part in enumerate(asset.parts):
         allowed = face_part == i
         if allowed.any():
             points = np.asarray(part.points) * scale
-            b = bind(points, vertices, F, allowed)
-            _keep_to_own_petal(b, points, part.triangles(), vertices, F, allowed, face_piece)
+            b = bind(points, vertices, F, allowed, normals)
+            _keep_to_own_petal(b, points, part.triangles(), vertices, F, allowed, face_piece,
+                               normals)
             out[i] = b
     return out
 
 
 def _keep_to_own_petal(b: Binding, points, triangles, vertices, faces, allowed,
-                       face_piece) -> None:
+                       face_piece, normals=None) -> None:
     """Where most of a connected piece of the input is bound to one sheet petal, bind
     all of it to that petal (in place): a piece is one petal's surface (both sides of a
     thick one), and its points that lay closer to another petal, where petals overlap
@@ -129,7 +133,7 @@ def _keep_to_own_petal(b: Binding, points, triangles, vertices, faces, allowed,
         if len(values) == 1 or 2 * counts.max() <= len(idx):
             continue
         stray = idx[petal_of[idx] != main]
-        again = bind(points[stray], vertices, faces, allowed & (face_piece == main))
+        again = bind(points[stray], vertices, faces, allowed & (face_piece == main), normals)
         b.face[stray], b.bary[stray], b.offset[stray] = again.face, again.bary, again.offset
 
 

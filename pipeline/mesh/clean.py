@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import itertools
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -60,34 +61,50 @@ def weld(vertices: np.ndarray, faces: np.ndarray, tolerance: float):
 def orient_consistently(faces: np.ndarray, vertex_count: int) -> tuple[np.ndarray, int]:
     """Flip faces so that every edge-manifold component has one orientation.
 
-    Breadth-first over face adjacency from the lowest face of each component; a face is
-    flipped when it runs the same way as its already-placed neighbour along their edge.
-    Returns ``(faces, flipped_count)``; the first face of each component keeps its winding.
+    Each component is spanned by a tree of face adjacencies grown breadth-first from its
+    lowest face; a face is flipped when it runs the same way as its parent in the tree
+    along their edge (whether it is flipped is the parity of such mismatches on its path
+    to the root, found by pointer jumping: a few passes over arrays, however large the
+    mesh). Returns ``(faces, flipped_count)``; the first face of each component keeps its
+    winding.
     """
+    import scipy.sparse as sp
+    from scipy.sparse.csgraph import breadth_first_order, connected_components
+
     faces = faces.copy()
-    he, _, _, _, a, b = topology.interior_pairs(faces)
     nf = len(faces)
-    face_of = np.tile(np.arange(nf), 3)
-    fa, fb = face_of[a], face_of[b]
-    same_dir = he[a, 0] == he[b, 0]  # both faces run the edge the same way: mismatch
-    neighbours = [[] for _ in range(nf)]
-    for x, y, s in zip(fa.tolist(), fb.tolist(), same_dir.tolist(), strict=True):
-        neighbours[x].append((y, s))
-        neighbours[y].append((x, s))
+    if nf == 0:
+        return faces, 0
+    he, _, _, _, a, b = topology.interior_pairs(faces)
+    fa, fb = a % nf, b % nf
+    mismatch = he[a, 0] == he[b, 0]  # both faces run the edge the same way: mismatch
+    link = fa != fb
+    fa, fb, mismatch = fa[link], fb[link], mismatch[link]
+    # a root joined to the first face of every component: one search covers them all
+    _, comp = connected_components(sp.coo_matrix((np.ones(len(fa)), (fa, fb)), shape=(nf, nf)),
+                                   directed=False)
+    _, first = np.unique(comp, return_index=True)
+    root = nf
+    rows = np.r_[fa, fb, np.full(first.size, root)]
+    cols = np.r_[fb, fa, first]
+    graph = sp.coo_matrix((np.ones(rows.size), (rows, cols)), shape=(nf + 1, nf + 1)).tocsr()
+    _, parent = breadth_first_order(graph, root, directed=True, return_predecessors=True)
+    parent = parent[:nf]
+    # the mismatch of each face with its parent (none for the first faces)
+    key = np.minimum(fa, fb) * nf + np.maximum(fa, fb)
+    order = np.argsort(key, kind="stable")
+    child = np.flatnonzero(parent != root)
+    pk = np.minimum(parent[child], child) * nf + np.maximum(parent[child], child)
+    at = order[np.searchsorted(key[order], pk)]
     flip = np.zeros(nf, dtype=bool)
-    seen = np.zeros(nf, dtype=bool)
-    for start in range(nf):
-        if seen[start]:
-            continue
-        seen[start] = True
-        queue = [start]
-        while queue:
-            f = queue.pop()
-            for g, mismatch in neighbours[f]:
-                if not seen[g]:
-                    seen[g] = True
-                    flip[g] = flip[f] ^ mismatch
-                    queue.append(g)
+    flip[child] = mismatch[at]
+    up = np.where(parent == root, np.arange(nf), parent)
+    while True:  # pointer jumping: flip becomes the parity of the whole path to the root
+        done = up[up] == up
+        flip = flip ^ np.where(up != np.arange(nf), flip[up], False)
+        if np.all(done):
+            break
+        up = up[up]
     faces[flip] = faces[flip][:, [0, 2, 1]]
     return faces, int(flip.sum())
 
@@ -148,6 +165,10 @@ def mean_edge_length(vertices: np.ndarray, faces: np.ndarray) -> float:
     return float(np.linalg.norm(vertices[edges[:, 0]] - vertices[edges[:, 1]], axis=1).mean())
 
 
+#: :func:`layered_fraction` looks for the faces behind this many faces at a time
+LAYERED_BLOCK = 512
+
+
 def layered_fraction(vertices: np.ndarray, faces: np.ndarray) -> tuple[float, float]:
     """How much of a sheet is two layers: ``(area fraction, median gap)``.
 
@@ -166,18 +187,29 @@ def layered_fraction(vertices: np.ndarray, faces: np.ndarray) -> tuple[float, fl
     c = v[f].mean(axis=1)
     edge = mean_edge_length(v, f)
     diag = float(np.linalg.norm(v.max(axis=0) - v.min(axis=0)))
-    pairs = cKDTree(c).query_pairs(min(0.1 * diag, 10.0 * edge), output_type="ndarray")
-    if len(pairs) == 0:
-        return 0.0, 0.0
-    i, j = pairs[:, 0], pairs[:, 1]
-    d = c[j] - c[i]
-    along = np.abs(np.einsum("ij,ij->i", d, n[i]))
-    lateral = np.linalg.norm(d - along[:, None] * n[i] * np.sign(np.einsum("ij,ij->i", d, n[i]))[:, None],
-                             axis=1)
-    touching = (f[i][:, :, None] == f[j][:, None, :]).any(axis=(1, 2))
-    behind = (np.einsum("ij,ij->i", n[i], n[j]) < -0.5) & (lateral < 0.5 * along + edge) & ~touching
+    tree = cKDTree(c)
+    radius = min(0.1 * diag, 10.0 * edge)
     layered = np.zeros(len(f), dtype=bool)
-    layered[i[behind]] = True
-    layered[j[behind]] = True
-    gap = float(np.median(along[behind])) if behind.any() else 0.0
-    return float(area[layered].sum() / area.sum()), gap
+    gaps = []
+    # the pairs within the radius, a block of faces at a time: a 100,000-face sheet has
+    # tens of millions of them, too many to hold at once
+    for start in range(0, len(f), LAYERED_BLOCK):
+        block = np.arange(start, min(start + LAYERED_BLOCK, len(f)))
+        found = tree.query_ball_point(c[block], radius)
+        i = np.repeat(block, [len(x) for x in found])
+        j = np.fromiter(itertools.chain.from_iterable(found), dtype=np.int64, count=len(i))
+        keep = j > i  # each pair once, as query_pairs gives it
+        i, j = i[keep], j[keep]
+        if len(i) == 0:
+            continue
+        d = c[j] - c[i]
+        along = np.abs(np.einsum("ij,ij->i", d, n[i]))
+        lateral = np.linalg.norm(d - along[:, None] * n[i] * np.sign(np.einsum("ij,ij->i", d, n[i]))[:, None],
+                                 axis=1)
+        touching = (f[i][:, :, None] == f[j][:, None, :]).any(axis=(1, 2))
+        behind = (np.einsum("ij,ij->i", n[i], n[j]) < -0.5) & (lateral < 0.5 * along + edge) & ~touching
+        layered[i[behind]] = True
+        layered[j[behind]] = True
+        gaps.append(along[behind])
+    gap = np.concatenate(gaps) if gaps else np.zeros(0)
+    return float(area[layered].sum() / area.sum()), float(np.median(gap)) if gap.size else 0.0

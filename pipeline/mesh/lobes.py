@@ -45,7 +45,11 @@ def plane_frame(v: np.ndarray, f: np.ndarray):
     area = 0.5 * np.linalg.norm(topology.face_normals(v, f), axis=1)
     centroid = v[f].mean(axis=1)
     centre = (centroid * area[:, None]).sum(axis=0) / max(area.sum(), np.finfo(float).tiny)
-    _, _, axes = np.linalg.svd((centroid - centre) * np.sqrt(area)[:, None], full_matrices=True)
+    spread = (centroid - centre) * np.sqrt(area)[:, None]
+    # the thin SVD: its U is (F, 3), not (F, F) (100,000 faces made a 74 GiB U); rows of
+    # zeros, which change nothing, make up three when there are fewer faces
+    spread = np.vstack([spread, np.zeros((max(0, 3 - len(spread)), 3))])
+    _, _, axes = np.linalg.svd(spread, full_matrices=False)
     return centre, axes, area, centroid
 
 

@@ -39,6 +39,15 @@ CORNER = 2.0
 #: dynamic integrators gain energy.
 MIN_EDGE = 0.25
 RIM_TURN = 10.0  #: degrees: :func:`improve` may remove a rim vertex where the rim turns less
+#: :func:`isotropic` first halves every edge (midpoints) while the mean edge is over
+#: COARSE times the target, at most MAX_UPSAMPLE times
+COARSE, MAX_UPSAMPLE = 2.0, 8
+
+
+def clean_mean_edge(vertices: np.ndarray, faces: np.ndarray) -> float:
+    """The mean length of a mesh's edges (each once)."""
+    edges, _, _ = topology.unique_edges(faces)
+    return float(np.linalg.norm(vertices[edges[:, 0]] - vertices[edges[:, 1]], axis=1).mean())
 
 
 def triangle_angles(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
@@ -150,6 +159,15 @@ def boundary_loops(faces: np.ndarray) -> list[np.ndarray]:
             a = nxt[a]
         loops.append(np.asarray(loop, dtype=np.int64))
     return loops
+
+
+def pinched_rim(faces: np.ndarray, vertex_count: int) -> int:
+    """How many vertices the rim passes through more than once (two boundary edges leave
+    them the same way round): where a sheet's outline touches itself."""
+    he, _ = topology.half_edges(faces)
+    _, he_edge, count = topology.unique_edges(faces)
+    out = np.bincount(he[count[he_edge] == 1, 0], minlength=vertex_count)
+    return int(np.sum(out > 1))
 
 
 def corner_vertices(vertices: np.ndarray, faces: np.ndarray, angle_deg: float = 50.0) -> np.ndarray:
@@ -322,8 +340,10 @@ def delaunay_flips(vertices: np.ndarray, faces: np.ndarray, passes: int = 20) ->
         o, o2 = opposite[a], opposite[b]
         total = _angle_at(vertices, o, i, j) + _angle_at(vertices, o2, i, j)
         todo = np.flatnonzero((total > np.pi + 1e-9) & (o != o2))
+        if todo.size == 0:
+            break
         todo = todo[np.argsort(-total[todo], kind="stable")]
-        existing = {tuple(e) for e in np.sort(he, axis=1).tolist()}
+        existing = set(map(tuple, np.sort(he, axis=1).tolist()))
         used, flipped = set(), 0
         for k in todo.tolist():
             t1, t2 = int(a[k] % nf), int(b[k] % nf)
@@ -355,12 +375,31 @@ def isotropic(vertices: np.ndarray, faces: np.ndarray, h: float, *,
     """
     import gpytoolbox
 
-    v, f, fixed = resample_boundary(vertices, faces, h, fixed)
+    pinched = pinched_rim(faces, len(vertices))
+    if pinched:  # gpytoolbox's remesher runs out of memory on such a rim (a lotus mid-surface)
+        raise ValueError(f"its rim touches itself at {pinched} vertex(es): not a sheet the "
+                         "remesher can take")
+    v, f = np.asarray(vertices, dtype=np.float64), np.asarray(faces, dtype=np.int64)
+    fixed = np.zeros(len(v), dtype=bool) if fixed is None else np.asarray(fixed, dtype=bool)
+    for _ in range(MAX_UPSAMPLE):  # far coarser than h: the remesher's splits alone leave slivers
+        if clean_mean_edge(v, f) <= COARSE * h:
+            break
+        # midpoints (the surface unchanged; the input's vertices first, in order): the
+        # remesher moves only vertices inside the sheet, and a petal of a few triangles
+        # has none (the daisy bush's 6-triangle petals: 255 of 378 triangles under the
+        # bound after it, and minutes in improve)
+        v, f = gpytoolbox.subdivide(v, f, iters=1)
+        v, f = np.asarray(v, dtype=np.float64), np.asarray(f, dtype=np.int64)
+        fixed = np.r_[fixed, np.zeros(len(v) - len(fixed), dtype=bool)]
+    v, f, fixed = resample_boundary(v, f, h, fixed)
     for rounds in range(3):
         feature = np.flatnonzero(fixed)
         # the remesher returns feature vertices first, in order, then the others
-        v, f = gpytoolbox.remesh_botsch(v, f.astype(np.int32), iterations, float(h), True,
-                                        feature=feature.astype(np.int32))
+        try:
+            v, f = gpytoolbox.remesh_botsch(v, f.astype(np.int32), iterations, float(h), True,
+                                            feature=feature.astype(np.int32))
+        except (MemoryError, RuntimeError) as exc:
+            raise ValueError(f"the remesher failed ({type(exc).__name__}: {exc})") from None
         v, f = np.asarray(v, dtype=np.float64), np.asarray(f, dtype=np.int64)
         fixed = np.zeros(len(v), dtype=bool)
         fixed[:len(feature)] = True
@@ -373,19 +412,39 @@ def isotropic(vertices: np.ndarray, faces: np.ndarray, h: float, *,
     return np.ascontiguousarray(v), delaunay_flips(v, f), fixed
 
 
-def _worst(v: np.ndarray, faces: np.ndarray, sharp: np.ndarray, normals: np.ndarray | None = None) -> float:
-    """Smallest angle of ``faces`` away from ``sharp`` vertices; -1 if one of them turned
-    against ``normals`` (its normal before a change) or has no area."""
+def _worst(v: np.ndarray, faces: np.ndarray, sharp: np.ndarray) -> float:
+    """Smallest angle of ``faces`` away from ``sharp`` vertices; -1 if one of them has
+    no area (compiled: :func:`pipeline.mesh.placing.worst_angles`)."""
+    from pipeline.mesh.placing import worst_angles
+
     if len(faces) == 0:
         return 180.0
-    n = topology.face_normals(v, faces)
-    if normals is not None and np.any(np.einsum("ij,ij->i", n, normals) <= 0.0):
-        return -1.0
-    if not np.all(np.any(n != 0.0, axis=1)):
-        return -1.0
-    angles = triangle_angles(v, faces)
-    angles[sharp[faces]] = 180.0
-    return float(angles.min())
+    return float(worst_angles(v, np.ascontiguousarray(faces, dtype=np.int64), sharp, -1,
+                              v[:1], False)[0])
+
+
+def _worst_moved(v: np.ndarray, faces: np.ndarray, sharp: np.ndarray, i: int,
+                 places: np.ndarray) -> np.ndarray:
+    """(C,) :func:`_worst` of ``faces`` (each has vertex ``i``) with ``i`` moved to each of
+    ``places (C, 3)``; -1 also where a face turned against its normal before the move."""
+    from pipeline.mesh.placing import worst_angles
+
+    return worst_angles(v, np.ascontiguousarray(faces, dtype=np.int64), sharp, int(i),
+                        np.ascontiguousarray(places, dtype=np.float64), True)
+
+
+class _Incident:
+    """The faces at each vertex, in face order (``incident[i]`` is a list), kept as two
+    arrays: one sort of the faces' corners instead of a Python list per vertex."""
+
+    def __init__(self, faces: np.ndarray, vertex_count: int):
+        corner = faces.ravel()
+        order = np.argsort(corner, kind="stable")
+        self.face = order // 3
+        self.start = np.r_[0, np.cumsum(np.bincount(corner, minlength=vertex_count))]
+
+    def __getitem__(self, i: int) -> list:
+        return self.face[self.start[i]:self.start[i + 1]].tolist()
 
 
 class _Improver:
@@ -395,21 +454,23 @@ class _Improver:
         self.v, self.f, self.fixed, self.slide = v, f, fixed, slide
 
     def refresh(self, flip: bool = True) -> None:
+        """Everything derived from the faces, recomputed over arrays (no loop over the
+        faces in Python: this runs after every change tried)."""
         if flip:
             self.f = delaunay_flips(self.v, self.f)
+        n = len(self.v)
         edges, _, count = topology.unique_edges(self.f)
-        self.rim_edges = {tuple(e) for e in edges[count == 1].tolist()}
-        self.boundary = topology.boundary_vertices(self.f, len(self.v))
-        self.sharp = sharp_corners(self.v, self.f)
-        rim = np.zeros(len(self.v))
+        rim_edges = edges[count == 1]
+        self.rim_edges = set(map(tuple, rim_edges.tolist()))
+        self.boundary = np.zeros(n, dtype=bool)
+        self.boundary[rim_edges.ravel()] = True
+        rim = np.zeros(n)
         np.add.at(rim, self.f.ravel(), triangle_angles(self.v, self.f).ravel())
+        self.sharp = self.boundary & (rim < CORNER * MIN_ANGLE)  # sharp_corners
         # a rim vertex where the rim runs straight on (within RIM_TURN) may go: the
         # outline moves by a sliver at most
         self.straight = self.boundary & ~self.fixed & (np.abs(rim - 180.0) < RIM_TURN)
-        self.incident = [[] for _ in range(len(self.v))]
-        for i, tri in enumerate(self.f.tolist()):
-            for a in tri:
-                self.incident[a].append(i)
+        self.incident = _Incident(self.f, n)
 
     def region(self, vertices) -> np.ndarray:
         return self.f[sorted({t for i in vertices for t in self.incident[i]})]
@@ -436,46 +497,52 @@ class _Improver:
         self.refresh(flip=False)
         return False
 
-    def candidates(self, i: int, ring: np.ndarray) -> list[np.ndarray]:
+    def candidates(self, i: int, ring: np.ndarray) -> np.ndarray:
+        """(C, 3) places to try for vertex ``i``, in the order they are tried."""
         v = self.v
         if self.boundary[i]:
             if not self.slide[i]:
-                return []
+                return np.zeros((0, 3))
             # along the rim only, towards either rim neighbour: a seam vertex stays exactly on
             # the plane (its coordinate across the plane is 0 at both ends of the step)
             others = sorted({int(x) for x in ring.ravel()} - {i})
             along = [j for j in others if (min(i, j), max(i, j)) in self.rim_edges]
-            return [v[i] + t * (v[j] - v[i]) for j in along for t in (0.1, 0.2, 0.3, 0.4)]
+            return np.array([v[i] + t * (v[j] - v[i]) for j in along
+                             for t in (0.1, 0.2, 0.3, 0.4)]).reshape(-1, 3)
         normal = topology.face_normals(v, ring).sum(axis=0)
         normal /= max(np.linalg.norm(normal), 1e-300)
-        others = sorted({int(x) for x in ring.ravel()} - {i})
-        targets = [v[others].mean(axis=0)]
-        for tri in ring.tolist():  # the apex that makes each face equilateral over its far edge
-            a, b = (x for x in tri[tri.index(i) + 1:] + tri[:tri.index(i)])
-            e = v[b] - v[a]
-            side = np.cross(normal, e)
-            targets.append(0.5 * (v[a] + v[b]) + np.sqrt(3.0) / 2.0 * side / max(
-                np.linalg.norm(side), 1e-300) * np.linalg.norm(e))
-        out = []
-        for target in targets:
-            d = target - v[i]
-            d -= normal * (normal @ d)  # in the tangent plane
-            out += [v[i] + t * d for t in (1.0, 0.5, 0.25)]
-        return out
+        others = np.unique(ring)
+        others = others[others != i]
+        # the apex that makes each face equilateral over its far edge
+        at = np.argmax(ring == i, axis=1)
+        rows = np.arange(len(ring))
+        a, b = ring[rows, (at + 1) % 3], ring[rows, (at + 2) % 3]
+        e = v[b] - v[a]
+        side = np.cross(normal, e)
+        apex = 0.5 * (v[a] + v[b]) + np.sqrt(3.0) / 2.0 * side / np.maximum(
+            np.linalg.norm(side, axis=1), 1e-300)[:, None] * np.linalg.norm(e, axis=1)[:, None]
+        targets = np.vstack([v[others].mean(axis=0), apex])
+        d = targets - v[i]
+        d -= normal * (d @ normal)[:, None]  # in the tangent plane
+        return (v[i] + d[:, None, :] * np.array([1.0, 0.5, 0.25])[None, :, None]).reshape(-1, 3)
 
     def relocate(self, i: int) -> bool:
+        """Move vertex ``i`` to the candidate place that most raises the smallest angle of
+        its faces (all candidates scored in one batch), if any does."""
         if self.fixed[i]:
             return False
         ring = self.f[self.incident[i]]
-        normals = topology.face_normals(self.v, ring)
-        best, best_pos = _worst(self.v, ring, self.sharp), None
-        keep = self.v[i].copy()
-        for pos in self.candidates(i, ring):
-            self.v[i] = pos
-            score = _worst(self.v, ring, self.sharp, normals)
+        places = self.candidates(i, ring)
+        if len(places) == 0:
+            return False
+        best = _worst(self.v, ring, self.sharp)
+        scores = _worst_moved(self.v, ring, self.sharp, i, places)
+        best_pos = None
+        for k, score in enumerate(scores.tolist()):
             if score > best + 1e-9:
-                best, best_pos = score, pos
-        self.v[i] = keep if best_pos is None else best_pos
+                best, best_pos = score, places[k]
+        if best_pos is not None:
+            self.v[i] = best_pos
         return best_pos is not None
 
     def collapse(self, a: int, b: int) -> bool:

@@ -27,46 +27,73 @@ class Thickness(NamedTuple):
     layered_fraction: float  #: fraction of the area that is layered
 
 
-def _component_width(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    """(F,) second principal extent (max - min along the second PCA axis) per component."""
-    label = topology.components(faces, len(vertices))
-    width = np.zeros(int(label.max()) + 1 if len(label) else 0)
+def _component_width(vertices: np.ndarray, faces: np.ndarray,
+                     label: np.ndarray | None = None) -> np.ndarray:
+    """(F,) second principal extent (max - min along the second PCA axis) per component.
+
+    One pass over all components at once (sums by component, a batched 3 x 3 eigen
+    solve), so a part of thousands of pieces costs what one piece of that size does."""
+    label = topology.components(faces, len(vertices)) if label is None else label
+    count = int(label.max()) + 1 if len(label) else 0
     used = np.zeros(len(vertices), dtype=bool)
     used[faces.ravel()] = True
-    for c in range(width.size):
-        pts = vertices[(label == c) & used]
-        if len(pts) < 3:
-            continue
-        centred = pts - pts.mean(axis=0)
-        _, _, axes = np.linalg.svd(centred, full_matrices=False)
-        extent = np.ptp(centred @ axes.T, axis=0)
-        width[c] = extent[1] if extent.size > 1 else 0.0
+    idx = np.flatnonzero(used)
+    lab = label[idx]
+    pts = vertices[idx]
+    n = np.bincount(lab, minlength=count).astype(np.float64)
+    mean = np.stack([np.bincount(lab, weights=pts[:, k], minlength=count) for k in range(3)], 1)
+    mean /= np.maximum(n, 1.0)[:, None]
+    centred = pts - mean[lab]
+    cov = np.empty((count, 3, 3))
+    for a in range(3):
+        for b in range(a, 3):
+            cov[:, a, b] = cov[:, b, a] = np.bincount(lab, weights=centred[:, a] * centred[:, b],
+                                                      minlength=count)
+    _, vecs = np.linalg.eigh(cov)
+    second = vecs[:, :, 1][lab]  # eigh sorts ascending: the middle one is the second axis
+    along = np.einsum("ij,ij->i", centred, second)
+    high = np.full(count, -np.inf)
+    low = np.full(count, np.inf)
+    np.maximum.at(high, lab, along)
+    np.minimum.at(low, lab, along)
+    width = np.where(n >= 3, high - low, 0.0)
     return width[label[faces[:, 0]]]
 
 
-def _inward(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+def _inward(vertices: np.ndarray, faces: np.ndarray, label: np.ndarray | None = None) -> np.ndarray:
     """(F,) +1 where the inside of the face's closed component is along its normal, -1
-    where against it, 0 for faces of open (or non-manifold) components."""
+    where against it, 0 for faces of open (or non-manifold) components. The signed
+    volumes of all components are summed in one pass."""
     from pipeline.mesh import clean
 
     oriented, _ = clean.orient_consistently(faces, len(vertices))
     flipped = np.any(oriented != faces, axis=1)
-    label = topology.components(faces, len(vertices))[faces[:, 0]]
-    _, he_edge, count = topology.unique_edges(faces)
-    open_edge = (count[he_edge] != 2).reshape(3, -1).any(axis=0)
-    inward = np.zeros(len(faces), dtype=np.int64)
-    for c in np.unique(label):
-        mine = label == c
-        if open_edge[mine].any():
-            continue
-        p = vertices[oriented[mine]]
-        p = p - p.reshape(-1, 3).mean(axis=0)
-        volume = np.einsum("ij,ij->i", p[:, 0], np.cross(p[:, 1], p[:, 2])).sum()
-        inward[mine] = -1 if volume > 0 else 1
+    vlabel = topology.components(faces, len(vertices)) if label is None else label
+    face_label = vlabel[faces[:, 0]]
+    count = int(face_label.max()) + 1 if len(face_label) else 0
+    _, he_edge, edge_count = topology.unique_edges(faces)
+    open_edge = (edge_count[he_edge] != 2).reshape(3, -1).any(axis=0)
+    is_open = np.bincount(face_label, weights=open_edge, minlength=count) > 0
+    # about each component's mean corner, for precision (a closed surface's volume does
+    # not depend on the origin)
+    corners = vertices[oriented]
+    centre = np.stack([np.bincount(face_label, weights=corners[:, :, k].sum(axis=1),
+                                   minlength=count) for k in range(3)], 1)
+    centre /= np.maximum(3.0 * np.bincount(face_label, minlength=count), 1.0)[:, None]
+    p = corners - centre[face_label][:, None, :]
+    volume = np.bincount(face_label, weights=np.einsum("ij,ij->i", p[:, 0], np.cross(p[:, 1], p[:, 2])),
+                         minlength=count)
+    inward = np.where(is_open, 0, np.where(volume > 0, -1, 1))[face_label]
     return np.where(flipped, -inward, inward)
 
 
-def thickness(vertices: np.ndarray, faces: np.ndarray) -> Thickness:
+#: rounds of casting again, from just past the hit, a ray that hit another component
+#: (``own_component``): petals pushed through each other, a petal's base buried in the
+#: receptacle
+RECASTS = 4
+
+
+def thickness(vertices: np.ndarray, faces: np.ndarray, *, own_component: bool = False) -> Thickness:
     """Distance from every face to the roughly parallel surface behind it.
 
     A ray leaves each face's centroid along its normal, both ways; the nearest first hit
@@ -83,6 +110,10 @@ def thickness(vertices: np.ndarray, faces: np.ndarray) -> Thickness:
     vertices : (V, 3) float
     faces : (F, 3) int
         One connected component or a few; winding need not be consistent.
+    own_component : bool
+        Measure each connected component as if alone: a ray that first hits another
+        component goes on through it (cast again from just past the hit, up to
+        ``RECASTS`` times). For the pieces of a part measured in one pass.
 
     Returns
     -------
@@ -119,13 +150,27 @@ def thickness(vertices: np.ndarray, faces: np.ndarray) -> Thickness:
     n = fn / np.where(ok, area2, 1.0)[:, None]
     centroid = v[f].mean(axis=1)
     eps = 1e-9 * diag
-    inward = _inward(v, f)
+    vlabel = topology.components(f, len(v))
+    inward = _inward(v, f, vlabel)
     origins = np.concatenate([centroid + eps * n, centroid - eps * n])
     dirs = np.concatenate([n, -n])
     ts, ids, _ = gpytoolbox.ray_mesh_intersect(origins, dirs, v, f)
     ts = np.asarray(ts, dtype=np.float64).reshape(-1)
     ids = np.asarray(ids, dtype=np.int64).reshape(-1)
     own = np.tile(np.arange(nf), 2)
+    if own_component:
+        comp = vlabel[f[:, 0]]
+        for _ in range(RECASTS):
+            foreign = np.flatnonzero((ids >= 0) & (comp[np.maximum(ids, 0)] != comp[own]))
+            if foreign.size == 0:
+                break
+            start = origins[foreign] + (ts[foreign] + eps)[:, None] * dirs[foreign]
+            t2, i2, _ = gpytoolbox.ray_mesh_intersect(start, dirs[foreign], v, f)
+            t2 = np.asarray(t2, dtype=np.float64).reshape(-1)
+            i2 = np.asarray(i2, dtype=np.int64).reshape(-1)
+            ts[foreign] = np.where(i2 >= 0, ts[foreign] + eps + t2, np.inf)
+            ids[foreign] = i2
+        ids = np.where((ids >= 0) & (comp[np.maximum(ids, 0)] != comp[own]), -1, ids)
     hit = (ids >= 0) & (ids != own) & np.isfinite(ts) & np.tile(ok, 2)
     cos = np.zeros(2 * nf)
     cos[hit] = np.abs(np.einsum("ij,ij->i", n[own[hit]], n[ids[hit]]))
@@ -144,7 +189,7 @@ def thickness(vertices: np.ndarray, faces: np.ndarray) -> Thickness:
     opposite = np.where(found, opposite, -1)
     direction = np.where(found, direction, 0)
 
-    width = _component_width(v, f)
+    width = _component_width(v, f, vlabel)
     layered = found & (face_thickness < THIN * width)
     area = 0.5 * area2
     total = float(area.sum())

@@ -32,7 +32,12 @@ def unique_edges(faces: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]
     """
     he, _ = half_edges(faces)
     key = np.sort(he, axis=1)
-    edges, he_edge, count = np.unique(key, axis=0, return_inverse=True, return_counts=True)
+    # one int64 per edge (i n + j sorts as (i, j) does): np.unique on rows sorts a
+    # structured view, several times slower on 100,000 faces
+    n = int(key.max()) + 1 if key.size else 1
+    code = key[:, 0] * n + key[:, 1]
+    uniq, he_edge, count = np.unique(code, return_inverse=True, return_counts=True)
+    edges = np.stack([uniq // n, uniq % n], axis=1)
     return edges, he_edge.reshape(-1), count
 
 

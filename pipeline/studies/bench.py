@@ -1,8 +1,10 @@
-"""Benchmarks: what each effect costs, as ratios to the bare simulation in one run, and
-how the collision effect scales with the vertex count."""
+"""Benchmarks: what each effect costs, as ratios to the bare simulation in one run, how
+the collision effect scales with the vertex count, and what the remesh stage costs on a
+studio-sized model."""
 
 from __future__ import annotations
 
+import resource
 import tempfile
 import time
 from pathlib import Path
@@ -12,6 +14,8 @@ import numpy as np
 
 from pipeline.chain import run_scene
 from pipeline.errors import BloomError
+from pipeline.flower.petals import prepare_parts, workers_for
+from pipeline.io.meshfile import MeshFile, Part
 from pipeline.mesh import procedural, topology
 from pipeline.sim.build import Prepared
 from pipeline.sim.effects import Params
@@ -103,3 +107,75 @@ def contact_scenes(names=("lily",), workdir=None, overrides=()) -> list[dict]:
                     "opening_deg": float(d["opening_angle"][-1]),
                     "final_kinetic_energy": float(d["kinetic_energy"][-1])})
     return rows
+
+
+def solidified(vertices: np.ndarray, faces: np.ndarray, thickness: float):
+    """A sheet made a closed shell as Blender's Solidify makes it: two sides at
+    +-thickness/2 along the vertex normals, joined along the rim by a strip of quads."""
+    n = topology.vertex_normals(vertices, faces)
+    nv = len(vertices)
+    v = np.concatenate([vertices + 0.5 * thickness * n, vertices - 0.5 * thickness * n])
+    he, _ = topology.half_edges(faces)
+    _, he_edge, count = topology.unique_edges(faces)
+    a, b = he[count[he_edge] == 1].T
+    strip = np.concatenate([np.stack([b, a, a + nv], 1), np.stack([b, a + nv, b + nv], 1)])
+    return v, np.concatenate([faces, faces[:, [0, 2, 1]] + nv, strip])
+
+
+def studio_flower(faces: int = 100_000, petals: int = 12, seed: int = 0):
+    """A flower as a studio exports it, for timing the remesh stage: one mesh of about
+    ``faces`` triangles holding ``petals`` solidified (closed, thin) petals of an open
+    lily in two whorls and a closed receptacle they are pushed into (as the lotus and
+    the water lily are). Returns ``(vertices, faces)``; the same seed gives the same mesh."""
+    import trimesh
+
+    receptacle = trimesh.creation.icosphere(subdivisions=4, radius=0.12)
+    per_petal = (faces - len(receptacle.faces)) // petals
+    # a solidified sheet of n vertices has about 4.4 n faces (two sides and the rim strip)
+    v, f, label = procedural.open_flower(petals, vertices=int(petals * per_petal / 4.4), seed=seed)
+    verts, tris, offset = [], [], 0
+    rng = np.random.default_rng(seed)
+    for p in range(petals):
+        idx = np.flatnonzero(label == p)
+        keep = np.isin(f[:, 0], idx)
+        pv = v[idx]
+        # twisted a little about its own length, each its own way, as real petals are: no
+        # petal is mirror-symmetric, so each goes through the remesh (not the shortcut
+        # for a mesh whose vertices pair up across its plane)
+        c = pv.mean(axis=0)
+        _, _, axes = np.linalg.svd(pv - c, full_matrices=False)
+        along, across = (pv - c) @ axes[0], (pv - c) @ axes[1]
+        pv = pv + np.outer(rng.uniform(0.2, 0.4) * along * across, axes[2])
+        sv, sf = solidified(pv, np.searchsorted(idx, f[keep]), 0.01)
+        verts.append(sv)
+        tris.append(sf + offset)
+        offset += len(sv)
+    verts.append(np.asarray(receptacle.vertices) + [0.0, 0.0, -0.05])
+    tris.append(np.asarray(receptacle.faces) + offset)
+    return np.concatenate(verts), np.concatenate(tris)
+
+
+def remesh_cost(faces: int = 100_000, seed: int = 0) -> dict:
+    """The remesh stage's library work (:func:`pipeline.flower.petals.prepare_parts`, default
+    config, petals in :func:`pipeline.flower.petals.workers_for` processes) on
+    :func:`studio_flower`: wall and CPU seconds (CPU: this process's and its finished
+    workers', which other jobs on the machine do not inflate), the peak resident memory
+    of this process and of its largest worker, and what came out."""
+    v, f = studio_flower(faces, seed=seed)
+    mesh_file = MeshFile([Part("flower", v, f)], None, None)
+    t0, c0 = time.perf_counter(), _cpu()
+    result = prepare_parts(mesh_file, where="studio_flower", workers=workers_for(0))
+    wall, cpu = time.perf_counter() - t0, _cpu() - c0
+    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0  # kB on Linux
+    worker_peak = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024.0
+    return {"faces_in": len(f), "vertices_in": len(v), "petals": len(result.plane),
+            "flowers": len(result.flower_centre), "vertices_out": len(result.vertices),
+            "wall_seconds": wall, "cpu_seconds": cpu, "peak_rss_mb": peak,
+            "worker_peak_rss_mb": worker_peak}
+
+
+def _cpu() -> float:
+    """CPU seconds of this process and of its children that have ended."""
+    own = resource.getrusage(resource.RUSAGE_SELF)
+    kids = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return own.ru_utime + own.ru_stime + kids.ru_utime + kids.ru_stime

@@ -57,6 +57,10 @@ of the last two equilibria, or the tangent).
 ``advance`` has the signature of the dynamic integrators, so :func:`run.run` records
 one equilibrium (or, with inertia, one state of the motion) per frame; without inertia
 velocities stay zero.
+
+The module is long because the path following is one loop whose steps (prediction,
+increments, halving, the rescue's smaller increments, implicit Euler motion and Newton
+again, breaking springs, inertia) share the solver's state and its counters.
 """
 
 from __future__ import annotations

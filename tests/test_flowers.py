@@ -1,0 +1,250 @@
+"""Many flowers in one file: petals grouped into flowers by where their bases gather
+(pipeline.mesh.flowers), a whole flower in one mesh split into its petals, each
+flower's own axis (pipeline.flower.axis.find_axes), and scene.flower."""
+
+from __future__ import annotations
+
+import h5py
+import numpy as np
+import pytest
+import trimesh
+from click.testing import CliRunner
+
+from pipeline.flower.axis import find_axes
+from pipeline.flower.classify import classify
+from pipeline.flower.petals import prepare_parts
+from pipeline.io.meshfile import MeshFile, Part
+from pipeline.mesh import clean, procedural
+from pipeline.mesh.flowers import flowers
+from stages.cli import cli
+from tests.test_real_input import write_parts
+
+
+def _rotation(axis: np.ndarray) -> np.ndarray:
+    """A rotation taking +z to ``axis``."""
+    z = np.array([0.0, 0.0, 1.0])
+    a = axis / np.linalg.norm(axis)
+    v, c = np.cross(z, a), float(z @ a)
+    if np.linalg.norm(v) < 1e-12:
+        return np.eye(3) if c > 0 else np.diag([1.0, -1.0, -1.0])
+    k = np.array([[0, -v[2], v[1]], [v[2], 0, -v[0]], [-v[1], v[0], 0]])
+    return np.eye(3) + k + k @ k / (1.0 + c)
+
+
+#: three open lilies: where each stands and which way it faces
+BUSH = ((np.array([0.0, 0.0, 0.0]), np.array([0.0, 0.0, 1.0])),
+        (np.array([2.6, 0.4, 0.3]), np.array([0.3, 0.1, 1.0])),
+        (np.array([1.1, 2.4, -0.2]), np.array([-0.2, 0.4, 1.0])))
+
+
+def bush(petals: int = 6, vertices: int = 900):
+    """Three open lilies (petals ~1 long) a little over two petal lengths apart, each
+    tilted its own way: ``(vertices, faces, petal, flower of each petal)``."""
+    vs, fs, ps, fl, offset = [], [], [], [], 0
+    for k, (where, up) in enumerate(BUSH):
+        v, f, p = procedural.open_flower(petals, vertices, seed=k)
+        vs.append(v @ _rotation(up).T + where)
+        fs.append(f + offset)
+        ps.append(p + k * petals)
+        fl += [k] * petals
+        offset += len(v)
+    return np.vstack(vs), np.vstack(fs), np.concatenate(ps), np.array(fl)
+
+
+def test_petals_are_grouped_by_their_flower():
+    v, _, petal, truth = bush()
+    got = flowers(v, petal)
+    assert got.count == 3
+    assert np.array_equal(got.flower, truth)  # numbered by first petal: same as built
+    for k, (where, _) in enumerate(BUSH):
+        assert np.linalg.norm(got.centre[k] - where) < 0.3  # bases gather at the receptacle
+    # each petal's base end is the one at its flower's centre, not its tip
+    assert np.all(np.linalg.norm(got.base - got.centre[got.flower], axis=1)
+                  < np.linalg.norm(got.tip - got.centre[got.flower], axis=1))
+
+
+def test_flowers_do_not_depend_on_order_or_scale():
+    v, _, petal, truth = bush()
+    rng = np.random.default_rng(3)
+    order = rng.permutation(len(v))  # points shuffled, petals renumbered backwards
+    count = petal.max() + 1
+    got = flowers(1000.0 * v[order] - 7.0, count - 1 - petal[order])
+    assert got.count == 3
+    mapped = got.flower[count - 1 - np.arange(count)]  # back to the original numbering
+    for k in range(3):
+        assert len(set(mapped[truth == k].tolist())) == 1
+    assert len(set(mapped.tolist())) == 3
+
+
+def test_flowers_whose_tips_touch_stay_apart():
+    """Two lilies whose petal tips overlap: grouped by their bases, not by touching."""
+    a, fa, pa = procedural.open_flower(6, 900, seed=0)
+    b, fb, pb = procedural.open_flower(6, 900, seed=1)
+    reach = np.linalg.norm(a[:, :2], axis=1).max()
+    b = b + [1.7 * reach, 0.0, 0.0]  # tips of the two reach into each other
+    got = flowers(np.vstack([a, b]), np.concatenate([pa, pb + 6]))
+    assert got.count == 2
+    assert np.array_equal(got.flower, [0] * 6 + [1] * 6)
+
+
+def test_no_petals_no_flowers():
+    got = flowers(np.zeros((0, 3)), np.zeros(0, dtype=np.int64))
+    assert got.count == 0 and got.flower.shape == (0,)
+
+
+def test_each_flower_gets_its_own_axis():
+    v, f, petal, truth = bush()
+    v = v / clean.mean_edge_length(v, f)
+    axes = find_axes(v, f, petal, flower=truth)
+    assert axes.flower_axes.shape == (3, 6)
+    for k, (_, up) in enumerate(BUSH):
+        d = axes.flower_axes[k, 3:]
+        assert d @ (up / np.linalg.norm(up)) > np.cos(np.radians(5.0)), (k, d)
+    # every base is at its own flower's axis, its tip away from it
+    for p in range(len(axes.tip)):
+        line = axes.flower_axes[truth[p]]
+        r = v[(petal == p)] - line[:3]
+        dist = np.linalg.norm(r - np.outer(r @ line[3:], line[3:]), axis=1)
+        base = axes.base[petal == p]
+        assert dist[base].mean() < dist.mean() < dist[axes.tip[p] - np.flatnonzero(petal == p)[0]]
+    # one flower for all (the axis stage before flowers): one line fits none of them
+    one = find_axes(v, f, petal)
+    assert one.flower_axes.shape == (1, 6)
+
+
+def _whole_flower(petals=5):
+    """One mesh holding a bud's petals, a closed receptacle and a stem below (a whole
+    flower exported as one object)."""
+    v, f, petal = procedural.bud(petals, 600, 0)
+    length = float(np.ptp(v[:, 2]))
+    ball = trimesh.creation.icosphere(2, radius=0.08 * length)
+    stem = trimesh.creation.cylinder(radius=0.03 * length, height=length, sections=16)
+    parts = [(v, f), (ball.vertices + [0, 0, v[:, 2].min()], ball.faces),
+             (stem.vertices + [0, 0, v[:, 2].min() - 0.5 * length], stem.faces)]
+    verts, faces, offset = [], [], 0
+    for pv, pf in parts:
+        verts.append(pv)
+        faces.append(np.asarray(pf) + offset)
+        offset += len(pv)
+    return np.vstack(verts), np.vstack(faces), len(f)
+
+
+def test_a_whole_flower_in_one_mesh_is_split_into_its_petals():
+    v, f, petal_faces = _whole_flower()
+    (verdict,) = classify([Part("flower", v, f)])
+    assert verdict.is_petal and verdict.faces is not None
+    assert np.array_equal(verdict.faces, np.arange(len(f)) < petal_faces)  # petals only
+    assert "a whole flower in one mesh" in verdict.reason
+    result = prepare_parts(MeshFile([Part("flower", v, f)], None, None), where="flower.obj")
+    assert len(result.plane) == 5
+    assert result.found["flower"]["petals"] == 5 and result.found["flower"]["area_kept"] > 0.9
+    kept_v, kept_f = result.kept_parts[0]  # the receptacle and stem are kept, not simulated
+    assert len(kept_f) == len(f) - petal_faces
+
+
+def _bush_obj(tmp_path):
+    v, f, petal, _ = bush(petals=5, vertices=600)
+    parts = []
+    for k in range(3):  # a part per flower, as a bush exported per object
+        idx = np.flatnonzero((petal >= 5 * k) & (petal < 5 * k + 5))
+        keep = np.isin(f[:, 0], idx)
+        parts.append((f"Flower.{k:03d}", v[idx], np.searchsorted(idx, f[keep])))
+    return write_parts(tmp_path / "bush.obj", parts)
+
+
+def test_remesh_records_the_flowers_and_axis_finds_each_axis(tmp_path):
+    mesh = _bush_obj(tmp_path)
+    r = CliRunner().invoke(cli, ["remesh", str(mesh), "--out", str(tmp_path / "r.h5")])
+    assert r.exit_code == 0, r.output
+    assert "3 flower(s)" in r.output and "15 petal(s) found" in r.output
+    with h5py.File(tmp_path / "r.h5") as h:
+        flower, petal = h["mesh/flower"][()], h["mesh/petal"][()]
+        per_petal = h["flower/petal_flower"][()]
+        assert np.array_equal(per_petal, np.repeat([0, 1, 2], 5))
+        assert np.array_equal(flower, per_petal[petal])
+        assert h["flower/centre"].shape == (3, 3) and h.attrs["flower_count"] == 3
+        assert h.attrs["flower_picked"] == -1
+    r = CliRunner().invoke(cli, ["axis", str(tmp_path / "r.h5"), "--out", str(tmp_path / "a.h5")])
+    assert r.exit_code == 0, r.output
+    with h5py.File(tmp_path / "a.h5") as h:
+        axis = h["flower/axis"][()]
+        assert axis.shape == (3, 6) and np.all(np.isfinite(axis))
+        for k, (_, up) in enumerate(BUSH):
+            assert axis[k, 3:] @ (up / np.linalg.norm(up)) > np.cos(np.radians(5.0))
+        assert np.array_equal(h["mesh/flower"][()], flower)  # carried forward
+    r = CliRunner().invoke(cli, ["growth", str(tmp_path / "a.h5"), "--out", str(tmp_path / "g.h5")])
+    assert r.exit_code == 0, r.output
+    with h5py.File(tmp_path / "g.h5") as h:
+        assert h["flower/axis"].shape == (3, 6) and "flower/petal_flower" in h
+
+
+@pytest.mark.parametrize("pick, flower", [("1", 1), ("Flower.002", 2), ("Flower.00[0]", 0)])
+def test_scene_flower_picks_one_flower(tmp_path, pick, flower):
+    mesh = _bush_obj(tmp_path)
+    r = CliRunner().invoke(cli, ["remesh", str(mesh), "--out", str(tmp_path / "r.h5"),
+                                 "--set", f"scene.flower={pick}"])
+    assert r.exit_code == 0, r.output
+    with h5py.File(tmp_path / "r.h5") as h:
+        assert h.attrs["petal_count"] == 5 and h.attrs["flower_picked"] == flower
+        assert np.all(h["mesh/flower"][()] == 0)
+        names = [n.decode() if isinstance(n, bytes) else n for n in h["mesh/part_names"][()]]
+        assert {names[i] for i in np.unique(h["mesh/part"][()])} == {f"Flower.{flower:03d}"}
+
+
+@pytest.mark.parametrize("pick, words", [("3", "0 to 2"), ("Nothing*", "no petal part"),
+                                         ("Flower.*", "3 flowers")])
+def test_a_bad_scene_flower_is_one_line_naming_the_key(tmp_path, pick, words):
+    mesh = _bush_obj(tmp_path)
+    out = tmp_path / "r.h5"
+    r = CliRunner().invoke(cli, ["remesh", str(mesh), "--out", str(out), "--set",
+                                 f"scene.flower={pick}"])
+    assert r.exit_code != 0 and not out.exists()
+    line = r.output.strip().splitlines()[-1]
+    assert "scene.flower" in line and words in line and "Traceback" not in r.output
+
+
+def test_copied_petals_are_remeshed_once_and_moved():
+    """A petal that is a moved, turned and scaled copy of another is remeshed once; the
+    copy's sheet is the original's moved the same way. A mirror image is not a copy."""
+    from pipeline.flower.petals import _copies
+
+    v, f, petal = procedural.open_flower(5, 700, seed=2)
+    idx = np.flatnonzero(petal == 0)
+    pts, lf = v[idx], np.searchsorted(idx, f[np.isin(f[:, 0], idx)])
+    rot = _rotation(np.array([0.3, -0.5, 1.0]))
+    copy = 1.7 * pts @ rot.T + [3.0, 1.0, -2.0]
+    mirror = pts * [-1.0, 1.0, 1.0]
+    found = _copies([pts, copy, mirror, pts + 1e-3], [lf, lf, lf, lf], scaled=True)
+    assert found[0] is None and found[2] is None  # the first, and a mirror image
+    k, s, r, t = found[1]
+    assert k == 0 and s == pytest.approx(1.7) and np.allclose(r, rot)
+    assert found[3][0] == 0 and found[3][1] == pytest.approx(1.0)  # moved only
+    assert _copies([pts, copy], [lf, lf], scaled=False)[1] is None  # an absolute target edge
+    # end to end: three copies of one lily, turned and scaled, as three parts
+    parts = []
+    for k, (where, up) in enumerate(BUSH):
+        parts.append(Part(f"Lily.{k}", (1.0 + 0.2 * k) * v @ _rotation(up).T + where, f))
+    result = prepare_parts(MeshFile(parts, None, None), where="bush", target_edge=0.0,
+                           petal_vertices=150)
+    assert len(result.plane) == 15 and len(result.flower_centre) == 3
+    assert any("10 of 15 petals are copies" in n for n in result.notes)
+    first = result.vertices[result.petal == 0]
+    for k in (1, 2):
+        other = result.vertices[result.petal == 5 * k]
+        assert len(other) == len(first)
+        size = np.linalg.norm(np.ptp(other, axis=0))
+        # the same sheet, moved: pairwise distances scale by one factor
+        d0 = np.linalg.norm(first[1:] - first[0], axis=1)
+        dk = np.linalg.norm(other[1:] - other[0], axis=1)
+        assert np.allclose(dk / d0, (1.0 + 0.2 * k), rtol=1e-6, atol=1e-9 * size)
+
+
+def test_scene_flower_takes_an_index_as_a_number_in_the_file(tmp_path):
+    from pipeline.config import load_config
+
+    scene = tmp_path / "bush.toml"
+    scene.write_text('[scene]\nmesh = "bush.obj"\nflower = 2\n')
+    assert load_config(scene)["scene.flower"] == "2"
+    scene.write_text('[scene]\nmesh = "bush.obj"\nflower = 2.5\n')
+    with pytest.raises(Exception, match="scene.flower"):
+        load_config(scene)

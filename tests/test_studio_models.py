@@ -1,0 +1,102 @@
+"""Flowers as studios export them (issue 29): a whole flower in one mesh, many flowers in
+one file, 50,000 to 100,000 faces. The five models in ../shared/external-meshes (skipped
+when absent) through remesh, axis and growth with the default config; petals found,
+flowers found, the share of petal area kept. Slow: each is one to two minutes here, so
+these are marked ``studio`` and left out of the default run (``make test-studio``)."""
+
+from __future__ import annotations
+
+import json
+
+import h5py
+import numpy as np
+import pytest
+
+from tests.test_real_input import EXTERNAL, needs_shared, run
+
+#: model -> (least petals found, flowers, least share of the input's petal area kept)
+MODELS = {
+    "fabrication123_waterlily.glb": (40, 1, 0.9),
+    "resonate_lotus.glb": (16, 1, 0.9),
+    "manmeet_tulip.glb": (6, 1, 0.9),
+    "mitagki_daisybush.glb": (160, 10, 0.85),
+    "mitagki_roses.glb": (250, 5, 0.9),
+}
+
+
+def _scene(tmp_path, name):
+    """A config file holding only the mesh: the default config."""
+    scene = tmp_path / "scene.toml"
+    scene.write_text(f'[scene]\nmesh = "{EXTERNAL / name}"\n')
+    return scene
+
+
+#: models whose crossed petals main's remesh.separate (default on) refuses to move apart
+#: ("a vertex of petal 7 would move 10.8% of its length (at most 10%)"; the rose bed's
+#: petal 74, 38.2%): they go through remesh, axis and growth with remesh.separate = false
+SEPARATION_REFUSES = {"resonate_lotus.glb", "mitagki_roses.glb"}
+
+
+@pytest.mark.slow
+@pytest.mark.studio
+@needs_shared
+@pytest.mark.parametrize("name", [
+    pytest.param(n, marks=pytest.mark.xfail(strict=True, reason="remesh.separate refuses its "
+                                            "crossed petals")) if n in SEPARATION_REFUSES else n
+    for n in sorted(MODELS)])
+def test_studio_model_through_remesh_axis_growth(tmp_path, name):
+    least, flowers, area = MODELS[name]
+    scene = _scene(tmp_path, name)
+    code, out = run("remesh", "--config", scene, "--out", tmp_path / "r.h5")
+    assert code == 0 and "Traceback" not in out, out
+    assert "petal(s) found" in out and "of the input's petal area kept" in out
+    with h5py.File(tmp_path / "r.h5") as h:
+        petals = int(h.attrs["petal_count"])
+        assert least <= petals
+        assert h.attrs["flower_count"] == flowers
+        per_petal = h["flower/petal_flower"][()]
+        assert np.array_equal(np.bincount(per_petal), np.full(flowers, petals // flowers))
+        assert np.array_equal(h["mesh/flower"][()], per_petal[h["mesh/petal"][()]])
+        found = json.loads(h.attrs["petals_found"])
+        kept = sum(r["area_in"] * r["area_kept"] for r in found.values()) / sum(
+            r["area_in"] for r in found.values())
+        assert kept >= area, found
+    for stage, src, dst in (("axis", "r.h5", "a.h5"), ("growth", "a.h5", "g.h5")):
+        code, out = run(stage, tmp_path / src, "--config", scene, "--out", tmp_path / dst)
+        assert code == 0 and "Traceback" not in out, out
+    with h5py.File(tmp_path / "g.h5") as h:
+        axis = h["flower/axis"][()]
+        assert axis.shape == (flowers, 6) and np.all(np.isfinite(axis))
+        assert np.isfinite(h["growth/alpha"][()]).all()
+
+
+@pytest.mark.slow
+@pytest.mark.studio
+@needs_shared
+def test_the_water_lily_keeps_its_petals_and_its_receptacle_is_kept_apart(tmp_path):
+    """One mesh of 47 pieces: 44 petals in whorls, a receptacle, a centre piece and a
+    stem. The petals are simulated, the other pieces are kept under input/parts."""
+    code, out = run("remesh", EXTERNAL / "fabrication123_waterlily.glb", "--out", tmp_path / "r.h5")
+    assert code == 0, out
+    assert "a whole flower in one mesh (47 pieces): 44 petals" in out
+    with h5py.File(tmp_path / "r.h5") as h:
+        assert h.attrs["petal_count"] == 44
+        kept = h["input/parts/0/faces"][()]
+        assert 0 < len(kept) < 4616 - 44 * 64 + 1  # the receptacle, centre and stem: not petals
+        assert json.loads(h.attrs["petals_found"])["node_id33"]["area_kept"] > 0.9
+
+
+@pytest.mark.slow
+@pytest.mark.studio
+@needs_shared
+def test_one_daisy_of_the_bush_by_index_and_by_part(tmp_path):
+    """scene.flower picks one flower of the ten: by its index, or by a petal part's name."""
+    mesh = EXTERNAL / "mitagki_daisybush.glb"
+    for pick in ("3", "Object_20"):
+        code, out = run("remesh", mesh, "--out", tmp_path / "r.h5", "--set", f"scene.flower={pick}",
+                        "--overwrite")
+        assert code == 0, out
+        with h5py.File(tmp_path / "r.h5") as h:
+            assert h.attrs["petal_count"] == 16 and h.attrs["flower_picked"] == 3
+            names = list(h["mesh/part_names"].asstr()[()])
+            assert {names[i] for i in np.unique(h["mesh/part"][()])} == {"Object_20"}
