@@ -89,6 +89,12 @@ SCHEMA: dict[str, Any] = {
                       "simulate: all, a flower's index (0, 1, ...: in the order of their first "
                       "petals, as the remesh log lists them) or a glob over part names (the one "
                       "flower whose petals those parts hold)", whole_numbers=True),
+        "stagger": Key(int, 0, "a file of many flowers: the spread of their start frames (each "
+                       "flower holds its bud, then blooms as the run does, then holds; the "
+                       "render and the export run that many frames longer); 0: all together",
+                       low=0),
+        "stagger_seed": Key(int, 0, "seed of the flowers' start frames within scene.stagger "
+                            "(the same seed, the same starts)", low=0),
         "up": Key(str, "auto", "the scene's up direction (+x ... -z): orients the flower's axis "
                   "where its petals do not (a flat open flower); recorded in the artifacts. auto: "
                   "the file's own (glTF: +y), else +z", choices=("auto", *DIRECTIONS)),

@@ -248,3 +248,59 @@ def test_scene_flower_takes_an_index_as_a_number_in_the_file(tmp_path):
     scene.write_text('[scene]\nmesh = "bush.obj"\nflower = 2.5\n')
     with pytest.raises(Exception, match="scene.flower"):
         load_config(scene)
+
+
+def test_start_frames_are_seeded_and_the_first_starts_at_once():
+    from pipeline.flower.stagger import start_frames
+
+    a = start_frames(10, 30, seed=3)
+    assert np.array_equal(a, start_frames(10, 30, seed=3))
+    assert a.min() == 0 and a.max() <= 30 and len(set(a.tolist())) > 1
+    assert not np.array_equal(a, start_frames(10, 30, seed=4))
+    assert not start_frames(1, 30, 0).any() and not start_frames(5, 0, 0).any()
+
+
+def test_a_staggered_flower_is_the_run_shifted_holding_its_bud_and_its_end():
+    from pipeline.flower.stagger import staggered
+
+    run = np.arange(4, dtype=float)[:, None, None] * np.ones((4, 3, 3))  # frame t: all t
+    out = staggered(run, np.array([0, 1, 1]), np.array([0, 2]))
+    assert out.shape == (6, 3, 3)
+    assert out[:, 0, 0].tolist() == [0, 1, 2, 3, 3, 3]  # on time, then holds its end
+    assert out[:, 1, 0].tolist() == [0, 0, 0, 1, 2, 3]  # holds its bud 2 frames
+
+
+def test_many_flowers_come_back_staggered_in_one_usd(tmp_path):
+    from pxr import Usd
+
+    mesh = _bush_obj(tmp_path)
+    short = ["--set", "simulate.steps=400", "--set", "simulate.frames=5",
+             "--set", "growth.start=bud", "--set", "effects.collisions.enabled=false"]
+    paths = {k: tmp_path / f"{k}.h5" for k in ("r", "a", "g", "s")}
+    for stage, src, out, extra in (("remesh", mesh, "r", []), ("axis", paths["r"], "a", []),
+                                   ("growth", paths["a"], "g", []),
+                                   ("simulate", paths["g"], "s", short)):
+        r = CliRunner().invoke(cli, ["-q", stage, str(src), "--out", str(paths[out]), *extra])
+        assert r.exit_code == 0, r.output
+    usd = tmp_path / "bloom.usda"
+    r = CliRunner().invoke(cli, ["export", str(paths["s"]), "--out", str(usd), "--set",
+                                 "scene.stagger=6", "--set", "scene.stagger_seed=1",
+                                 "--set", "export.mesh=sheet"])
+    assert r.exit_code == 0, r.output
+    from pipeline.flower.stagger import staggered, start_frames
+    from pipeline.io.export import read_usd_points
+
+    starts = start_frames(3, 6, 1)
+    stage = Usd.Stage.Open(str(usd))
+    assert stage.GetEndTimeCode() == 4 + starts.max()  # the run's 5 frames, then the latest
+    with h5py.File(paths["s"]) as h:
+        run, petal = h["frames/positions"][()], h["mesh/petal"][()]
+        scale = h.attrs["scale"]
+    flower = petal // 5
+    order = np.argsort(petal, kind="stable")  # the USD's meshes: one per petal, in order
+    want = staggered(run / scale, flower, starts)
+    for t in (0, int(starts.max()), 4 + int(starts.max())):
+        got = read_usd_points(usd, float(t))
+        np.testing.assert_allclose(got, want[t][order], rtol=1e-6, atol=1e-6 * np.abs(want).max())
+    late = int(np.argmax(starts))  # at its start frame the latest flower still holds its bud
+    np.testing.assert_array_equal(want[starts[late]][flower == late], (run[0] / scale)[flower == late])

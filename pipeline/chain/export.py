@@ -14,6 +14,7 @@ from pipeline import artifact
 from pipeline.chain import up_direction
 from pipeline.config import Config
 from pipeline.errors import BloomError
+from pipeline.flower import stagger
 from pipeline.io import binding, export, userasset
 from pipeline.mesh.topology import vertex_normals
 
@@ -36,9 +37,15 @@ def run(sim_h5: str | Path, out: str | Path, cfg: Config, *, overwrite: bool = F
     with artifact.Artifact(sim_h5, needs="simulate", reader="export") as src:
         scale = float(src.attrs["scale"])
         sheet = src["frames/positions"]
+        numbers = src["frames/frame"][()] if "frames/frame" in src else np.arange(len(sheet))
+        starts = stagger.of_run(src, cfg)
+        if starts is not None:  # many flowers, each from its own start frame
+            sheet = stagger.staggered(sheet, stagger.vertex_flowers(src), starts)
+            numbers = np.r_[numbers, numbers[-1] + 1 + np.arange(len(sheet) - len(numbers))]
+            log.info("scene.stagger = %d: %d flowers start at frames %s", cfg["scene.stagger"],
+                     len(starts), ", ".join(map(str, starts)))
         positions = sheet / scale
         faces, petal = src["mesh/faces"], src["mesh/petal"]
-        numbers = src["frames/frame"] if "frames/frame" in src else np.arange(len(positions))
         fps = cfg["render.fps"]  # the scene's, as simulated, unless given here
         if "render.fps" not in cfg.given:
             fps = src.config().get("render", {}).get("fps", fps)

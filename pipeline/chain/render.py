@@ -15,6 +15,7 @@ from pipeline.chain import up_direction
 from pipeline.config import Config
 from pipeline.directions import DIRECTIONS
 from pipeline.expr import evaluate_curve
+from pipeline.flower import stagger
 from pipeline.io import binding, export, userasset
 from pipeline.progress import Progress
 from pipeline.review import render
@@ -44,7 +45,11 @@ def run(artifact_h5: str | Path, out: str | Path, cfg: Config, *, overwrite: boo
                 pos = src["frames/positions"]
                 times = src["frames/time"]
                 labels = [f"t = {t:,.0f}" for t in times]
-                if "diagnostics/opening_angle" in src:
+                starts = stagger.of_run(src, cfg)
+                if starts is not None:  # many flowers, each from its own start frame
+                    pos = stagger.staggered(pos, stagger.vertex_flowers(src), starts)
+                    labels = [f"frame {j}" for j in range(len(pos))]
+                elif "diagnostics/opening_angle" in src:
                     angle = src["diagnostics/opening_angle"]
                     labels = [f"{lab}   opening {a:+.1f} deg" for lab, a in zip(labels, angle, strict=True)]
                 layers, up = _bloom_layers(src, cfg, rc, pos)

@@ -38,7 +38,7 @@ log = logging.getLogger("bloom")
 #: what the later stages need of growth.h5, carried forward
 CARRIED = ("mesh/faces", "mesh/petal", "mesh/part_names", "mesh/part", "axis/base",
            "axis/on_axis", "axis/x", "axis/s", "axis/tip", "axis/plane", "growth/hinges",
-           "input/asset", "bind")
+           "input/asset", "bind", "flower/petal_flower")
 
 
 def run(growth_h5: str | Path, out: str | Path, cfg: Config, *, overwrite: bool = False,
