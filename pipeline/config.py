@@ -116,7 +116,7 @@ SCHEMA: dict[str, Any] = {
         "separate": Key(bool, True, "move petal sheets that pass through or touch each other "
                         "apart before anything else (each pair to the side most of its overlap "
                         "is on, at least effects.collisions.thickness apart, every vertex by at "
-                        "most 10% of its petal's length; the log and remesh.h5's separation "
+                        "most 15% of its petal's length; the log and remesh.h5's separation "
                         "attribute say how far); false keeps them as the input has them"),
     },
     "axis": {

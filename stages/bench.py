@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import click
 
@@ -35,13 +36,17 @@ def _sizes(ctx, param, value: str) -> tuple[int, ...]:
               help="Time `bloom remesh`'s work (default config) on a synthetic flower of about "
                    "this many faces: 12 solidified petals pushed into a closed receptacle, in "
                    "one mesh (0: skip).")
+@click.option("--model", "models", multiple=True, type=click.Path(exists=True, dir_okay=False),
+              help="A real flower model (repeatable), with a scene of scene.mesh only, through "
+                   "remesh, axis, growth and simulate: simulate's seconds with the bud search "
+                   "of an open model included, and the study's verdict (bloom study models).")
 @click.option("--json", "as_json", is_flag=True, help="Print JSON instead of tables.")
 @click.option("--quick", is_flag=True,
               help="Every part end to end on small buds (about a minute; for tests): at most "
                    "600 vertices and 300 steps, sizes 600,1200, a 6-petal bud of 600 vertices "
                    "for the converged bloom.")
 def command(vertices: int, steps: int, sizes: tuple[int, ...], converge: bool, scenes: str,
-            remesh_faces: int, as_json: bool, quick: bool) -> None:
+            remesh_faces: int, models: tuple[str, ...], as_json: bool, quick: bool) -> None:
     """Time the simulator on a procedural 6-petal bud: no effect, each effect alone and
     all together (ratios to no effect, best of 3 interleaved runs); then the step cost
     and collisions at several sizes (cost per edge and per vertex should stay flat:
@@ -49,7 +54,8 @@ def command(vertices: int, steps: int, sizes: tuple[int, ...], converge: bool, s
     needs for a bloom within 1% of the petal length of a converged reference, on a
     6-petal bud of 2133 vertices (the paper's Fig. 12 lily: 44 s); then the default
     scenes with contact named by --scenes (--quick: none); last, the remesh stage on a
-    studio-sized model of --remesh-faces faces (--quick: at most 20,000)."""
+    studio-sized model of --remesh-faces faces (--quick: at most 20,000); and each real
+    flower model given by --model."""
     from pipeline.errors import BloomError
     from pipeline.studies import accuracy, bench
 
@@ -76,6 +82,7 @@ def command(vertices: int, steps: int, sizes: tuple[int, ...], converge: bool, s
                              quick=quick)}
         contact = bench.contact_scenes(names) if names else []
         remesh = bench.remesh_cost(remesh_faces) if remesh_faces else None
+        real = bench.real_models([Path(m) for m in models])
     except RuntimeError as exc:  # a run that diverged or did not converge
         raise BloomError(f"a benchmark run failed: {exc}", where="bloom bench") from None
     if as_json:
@@ -83,7 +90,8 @@ def command(vertices: int, steps: int, sizes: tuple[int, ...], converge: bool, s
                   "ns_per_edge": r["bare_ns_per_edge"]} for r in scaling]
         click.echo(json.dumps({"step_cost": steps, "effects": costs,
                                "collision_scaling": scaling, "converged_bloom": converged,
-                              "contact_scenes": contact, "remesh": remesh},
+                              "contact_scenes": contact, "remesh": remesh,
+                               "models": real},
                               indent=1))
         return
     click.echo(f"effects on a 6-petal bud of about {vertices} vertices, {steps} steps")
@@ -121,3 +129,10 @@ def command(vertices: int, steps: int, sizes: tuple[int, ...], converge: bool, s
         click.echo(f"{remesh['wall_seconds']:.1f} s wall, {remesh['cpu_seconds']:.1f} s CPU, "
                    f"peak resident memory {remesh['peak_rss_mb']:.0f} MB (largest worker "
                    f"{remesh['worker_peak_rss_mb']:.0f} MB)")
+    if real:
+        click.echo("\nreal flowers, scene.mesh only (simulate: the bud search included)")
+        click.echo(f"{'model':26s} {'vertices':>8s} {'start':>5s} {'effects':>10s} "
+                   f"{'simulate s':>10s}  verdict")
+        for row in real:
+            click.echo(f"{row['model']:26s} {row['vertices']:8d} {row['start']:>5s} "
+                       f"{row['effects']:>10s} {row['seconds']:10.1f}  {row['verdict']}")

@@ -21,7 +21,7 @@ from pipeline.mesh.nearest import nearest_among
 from pipeline.mesh.topology import face_normals, unique_edges, vertex_normals
 
 #: no vertex moves further than this fraction of its petal's length
-MAX_MOVE = 0.1
+MAX_MOVE = 0.15
 #: rounds of push and check before giving up
 MAX_ITERATIONS = 40
 #: a vertex on the wrong side, or too close, is pushed to this many gaps from the other petal

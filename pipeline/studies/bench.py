@@ -4,6 +4,7 @@ studio-sized model."""
 
 from __future__ import annotations
 
+import dataclasses
 import resource
 import tempfile
 import time
@@ -22,6 +23,7 @@ from pipeline.sim.effects import Params
 from pipeline.sim.explicit.semi_implicit import SemiImplicit
 from pipeline.sim.model import Control, State
 from pipeline.sim.terms.contact import frame_intersections
+from pipeline.studies import models
 
 #: the ``effects`` section of a scene at its defaults, connecting rims up to 3 edges away
 PARAMS = Params.defaults().but(connections={"max_distance": 3.0})
@@ -179,3 +181,15 @@ def _cpu() -> float:
     own = resource.getrusage(resource.RUSAGE_SELF)
     kids = resource.getrusage(resource.RUSAGE_CHILDREN)
     return own.ru_utime + own.ru_stime + kids.ru_utime + kids.ru_stime
+
+
+def real_models(meshes, workdir=None) -> list[dict]:
+    """Each real flower model through the simulation stages with a scene of ``scene.mesh``
+    only (:func:`pipeline.studies.models.run_model`): its row of the models study, whose
+    ``seconds`` is simulate's with an open model's bud search included."""
+    rows = []
+    with tempfile.TemporaryDirectory(dir=workdir) as tmp:
+        for mesh in meshes:
+            row = models.run_model(Path(mesh), Path(tmp) / Path(mesh).stem, timeout=3600.0)
+            rows.append(dataclasses.asdict(row))
+    return rows
