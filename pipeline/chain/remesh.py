@@ -62,7 +62,8 @@ def run(mesh: str | Path | None, out: str | Path, cfg: Config, *, overwrite: boo
                                flower=cfg["scene.flower"], progress=progress,
                                workers=workers_for(cfg["remesh.workers"]))
     report = result.report
-    separation = _separated(result, cfg, mesh_path, mesh_file)
+    with Steps("remesh", str(mesh_path)) as progress:
+        separation = _separated(result, cfg, mesh_path, mesh_file, progress)
     asset, bindings = _bound_asset(mesh_path, mesh_file, result)
     _log_parts(result, mesh_path)
     log.info("%s: %d vertices, %d faces, %d petal(s); welded %d, dropped %d degenerate and "
@@ -187,7 +188,7 @@ def _listed(values: np.ndarray, digits: int) -> str:
     return f"{len(values)} petals from {values.min():.{digits}g} to {values.max():.{digits}g}"
 
 
-def _separated(result, cfg, mesh_path, mesh_file) -> dict:
+def _separated(result, cfg, mesh_path, mesh_file, progress=None) -> dict:
     """The sheets moved apart where they pass through or touch each other (remesh.separate,
     before the user's parts are bound to them: those come back as they were, and follow
     the separated sheet); logged, and returned for the artifact."""
@@ -197,7 +198,7 @@ def _separated(result, cfg, mesh_path, mesh_file) -> dict:
 
     gap = cfg["effects.collisions.thickness"]
     done = separate_sheets(result, gap=gap, names=[p.name for p in mesh_file.parts],
-                           where=str(mesh_path))
+                           where=str(mesh_path), progress=progress)
     if done["crossed"] or done["close"]:
         log.info("%s: separated petals: %s; moved %d of %d vertices, the largest move %.2f%% "
                  "of a petal's length, RMS %.3f%%, in %d round(s); the nearest petals are now "

@@ -13,7 +13,7 @@ from pipeline.mesh.separate import SeparationError, separate
 KEY = "remesh.separate"
 
 
-def separate_sheets(sheets, *, gap: float, names: list[str], where: str) -> dict:
+def separate_sheets(sheets, *, gap: float, names: list[str], where: str, progress=None) -> dict:
     """Move the petal sheets of ``sheets`` (a :class:`pipeline.flower.petals.Petals`, mean
     edge 1) apart in place, so that no two pass through each other and none are nearer
     than ``gap`` (mesh units); refresh ``asymmetry_after`` of the petals that moved.
@@ -40,7 +40,7 @@ def separate_sheets(sheets, *, gap: float, names: list[str], where: str) -> dict
         return ", ".join(f"{a}-{b}" for a, b in found) + f" ({which})"
 
     try:
-        done = separate(sheets.vertices, sheets.faces, petal, gap)
+        done = separate(sheets.vertices, sheets.faces, petal, gap, progress=progress)
     except SeparationError as exc:
         raise BloomError(
             f"petals {pairs(exc.pairs)} pass through or touch each other and cannot "

@@ -63,7 +63,8 @@ class SeparationError(ValueError):
 
 
 def separate(vertices: np.ndarray, faces: np.ndarray, petal: np.ndarray, gap: float, *,
-             max_move: float = MAX_MOVE, max_iterations: int = MAX_ITERATIONS) -> Separation:
+             max_move: float = MAX_MOVE, max_iterations: int = MAX_ITERATIONS,
+             progress=None) -> Separation:
     """Move petals that pass through or touch each other apart, by as little as it takes.
 
     Parameters
@@ -145,6 +146,9 @@ def separate(vertices: np.ndarray, faces: np.ndarray, petal: np.ndarray, gap: fl
         crossing = _crossings(X, F, E, petal)
         near = _near(mesh, X, petal, gap, crossing)
         close = [c for c in near if c[2] < gap]
+        if progress is not None:  # (a round on a studio model takes seconds)
+            progress("separating petals", it, max_iterations,
+                     f"round {it + 1}: {len(close)} close contact(s)")
         if crossed0 is None:
             crossed0 = _pair_list(crossing, E, F, petal)
             close0 = sorted({(a, b) for a, b, _, _ in close} - set(crossed0))
