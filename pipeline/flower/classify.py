@@ -160,21 +160,26 @@ def _measure(vertices: np.ndarray, faces: np.ndarray) -> _Shape:
     boundary = count[he_edge] == 1
     boundary_length = float(np.linalg.norm(v[edges[boundary, 0]] - v[edges[boundary, 1]], axis=1).sum())
     th = thickness(v, f)
-    is_shell = th.layered_fraction >= LAYERED and th.relative_thickness <= THIN
+    width, form = _form(extents, area, length, boundary_length, th.layered_fraction,
+                        th.relative_thickness)
+    rel = 0.0 if form == "sheet" else float(th.relative_thickness)
+    return _Shape(v, centroid, axes, extents, area, length, width, rel, th.layered_fraction, form)
+
+
+def _form(extents, area: float, length: float, boundary_length: float, layered: float,
+          relative: float) -> tuple[float, str]:
+    """``(width, form)`` of a piece from its measures: narrow, shell (two layers close
+    together: a thick petal), sheet (open: rim long for its area), blob or solid."""
+    is_shell = layered >= LAYERED and relative <= THIN
     is_open = boundary_length >= OPEN * np.sqrt(area) and not is_shell
     width = area / length if is_open else 0.5 * area / length
     if width < NARROW * length:
-        form = "narrow"
-    elif is_shell:
-        form = "shell"
-    elif is_open:
-        form = "sheet"
-    elif extents[2] >= COMPACT * length:
-        form = "blob"
-    else:
-        form = "solid"
-    rel = 0.0 if form == "sheet" else float(th.relative_thickness)
-    return _Shape(v, centroid, axes, extents, area, length, width, rel, th.layered_fraction, form)
+        return width, "narrow"
+    if is_shell:
+        return width, "shell"
+    if is_open:
+        return width, "sheet"
+    return width, "blob" if extents[2] >= COMPACT * length else "solid"
 
 
 def _moved_shape(shape: _Shape, k: float, rot: np.ndarray, t: np.ndarray) -> _Shape:
@@ -261,19 +266,8 @@ def _measure_pieces(vertices: np.ndarray, faces: np.ndarray, label: np.ndarray,
     shapes = []
     for c in range(count):
         length = float(max(extents[c, 0], 1e-300))
-        is_shell = layered[c] >= LAYERED and relative[c] <= THIN
-        is_open = boundary_length[c] >= OPEN * np.sqrt(area[c]) and not is_shell
-        width = area[c] / length if is_open else 0.5 * area[c] / length
-        if width < NARROW * length:
-            form = "narrow"
-        elif is_shell:
-            form = "shell"
-        elif is_open:
-            form = "sheet"
-        elif extents[c, 2] >= COMPACT * length:
-            form = "blob"
-        else:
-            form = "solid"
+        width, form = _form(extents[c], area[c], length, boundary_length[c], layered[c],
+                            relative[c])
         rel = 0.0 if form == "sheet" else float(relative[c])
         shapes.append(_Shape(points[c], centroid[c], axes[c], extents[c], float(area[c]), length,
                              float(width), rel, float(layered[c]), form))

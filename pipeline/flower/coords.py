@@ -17,13 +17,9 @@ from pipeline.mesh.geodesic import curve_load, heat_distance, heat_distances
 from pipeline.mesh.remesh import boundary_loops, corner_vertices
 
 
-def edge_cross_section(graph, axis, rim, side, s) -> np.ndarray:
-    """The paper's cross-section coordinate: the distance along edges (``graph``, the
-    petal's edge lengths) from the axis vertices ``axis``, signed by ``side`` (the
-    signed distance to the center plane) and over the rim's (``rim``) at the same s on
-    the same side: 0 on the axis, -1 and +1 on the two rims."""
-    g = dijkstra(graph, indices=np.flatnonzero(axis), min_only=True)
-    sign = np.where(axis, 0.0, np.sign(side))
+def _over_the_rim(g, sign, rim, s) -> np.ndarray:
+    """``x``: each vertex's distance ``g`` from the axis over the rim's at the same ``s``
+    on its side (``sign``: -1, +1, or 0 on the axis), clipped to [0, 1] and signed."""
     xs = np.zeros(len(s))
     for sg in (-1.0, 1.0):
         ring = rim & (sign == sg)
@@ -35,6 +31,15 @@ def edge_cross_section(graph, axis, rim, side, s) -> np.ndarray:
         xs[here] = sg * np.clip(g[here] / np.maximum(width, 1e-12), 0.0, 1.0)
         xs[ring] = sg
     return xs
+
+
+def edge_cross_section(graph, axis, rim, side, s) -> np.ndarray:
+    """The paper's cross-section coordinate: the distance along edges (``graph``, the
+    petal's edge lengths) from the axis vertices ``axis``, signed by ``side`` (the
+    signed distance to the center plane) and over the rim's (``rim``) at the same s on
+    the same side: 0 on the axis, -1 and +1 on the two rims."""
+    g = dijkstra(graph, indices=np.flatnonzero(axis), min_only=True)
+    return _over_the_rim(g, np.where(axis, 0.0, np.sign(side)), rim, s)
 
 
 def base_distance(pts, faces, end, base) -> np.ndarray:
@@ -131,15 +136,4 @@ def cross_section(pts, faces, rim, side, s) -> np.ndarray:
     if not load.sum() > 0.0:  # the plane misses the petal: from the vertex nearest it
         load = (np.abs(side) == np.abs(side).min()).astype(np.float64)
     g = np.maximum(heat_distances(pts, faces, [load])[0], 0.0)
-    sign = np.sign(side)
-    xs = np.zeros(len(pts))
-    for sg in (-1.0, 1.0):
-        ring = rim & (sign == sg)
-        here = sign == sg
-        if not ring.any() or not here.any():
-            continue
-        order = np.argsort(s[ring], kind="stable")
-        width = np.interp(s[here], s[ring][order], g[ring][order])
-        xs[here] = sg * np.clip(g[here] / np.maximum(width, 1e-12), 0.0, 1.0)
-        xs[ring] = sg
-    return xs
+    return _over_the_rim(g, np.sign(side), rim, s)
