@@ -13,6 +13,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
+import qdldl
 import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components, dijkstra
 from scipy.spatial import cKDTree
@@ -413,7 +414,13 @@ def _records(X, F, petal, normals, rim, a, b, reach) -> dict:
     tri = X[F[fb]]
     longest = float(np.linalg.norm(tri - tri[:, [1, 2, 0]], axis=2).max())
     tree = cKDTree(X[used])
-    near = tree.query_ball_point(X[va], reach + longest)
+    # the closest point on b lies in a triangle with a corner within d0 + longest (d0:
+    # the nearest vertex of b), and no nearer than d0 - longest: those vertices of a that
+    # can be within reach, against the triangles that can hold their closest point
+    d0, _ = tree.query(X[va])
+    va = va[d0 - longest <= reach]
+    d0 = d0[d0 - longest <= reach]
+    near = tree.query_ball_point(X[va], (d0 + longest) * (1 + 1e-9))
     count = np.fromiter((len(x) for x in near), dtype=np.int64, count=len(near))
     hits = sp.csr_matrix((np.ones(int(count.sum()), dtype=np.int8),
                           np.fromiter((k for x in near for k in x), dtype=np.int64,
@@ -484,9 +491,9 @@ def _solve(X, graph, rows, petal, spread) -> np.ndarray:
     val = np.concatenate([np.asarray(r[1], dtype=np.float64).ravel() for r in rows])
     J = sp.csr_matrix((val, (row_of, col)), shape=(len(rows), 3 * n))
     need = np.array([r[2] for r in rows], dtype=np.float64)
-    from scipy.sparse.linalg import spsolve
-
-    d = spsolve((A + WEIGHT * (J.T @ J)).tocsc(), WEIGHT * (J.T @ need))
+    # symmetric positive definite: LDL^T with AMD (qdldl) keeps the fill low; SuperLU's
+    # column orderings filled a studio model's system many times over (17-68 s a round)
+    d = qdldl.Solver((A + WEIGHT * (J.T @ J)).tocsc()).solve(WEIGHT * (J.T @ need))
     D = np.zeros_like(X)
     D[free] = d.reshape(-1, 3)
     return D
