@@ -53,3 +53,13 @@ def min_distance(contact, X, reach: float) -> float:
     found = ipctk.NormalCollisions()
     found.build(contact.mesh, X, reach)
     return math.sqrt(found.compute_minimum_distance(contact.mesh, X)) if len(found) else math.inf
+
+
+def prepare(vertices, faces, *, where: str, **options):
+    """A lone mesh through the remesh stage's library call
+    (:func:`pipeline.flower.petals.prepare_parts`), as a file of one part."""
+    from pipeline.flower.petals import prepare_parts
+    from pipeline.io.meshfile import MeshFile, Part
+
+    part = Part("mesh", np.asarray(vertices, dtype=np.float64), np.asarray(faces, dtype=np.int64))
+    return prepare_parts(MeshFile([part], None, None), where=where, **options)

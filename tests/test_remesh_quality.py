@@ -7,11 +7,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from pipeline.flower.petals import prepare, prepare_parts
+from pipeline.flower.petals import prepare_parts
 from pipeline.io.meshfile import read_mesh, read_parts
 from pipeline.mesh import procedural, remesh, symmetry
 from pipeline.studies import stability
-from tests.conftest import SHARED
+from tests.conftest import SHARED, prepare
 
 EXTERNAL = SHARED / "external-meshes"
 needs_shared = pytest.mark.skipif(not EXTERNAL.exists(), reason="../shared/external-meshes absent")

@@ -1,20 +1,17 @@
 """From a user's mesh to clean, isotropic, symmetric petal sheets at mean edge 1.
 
-The remesh stage's work, as a library function the tests call directly:
+The remesh stage's work, :func:`prepare_parts`, on a file's named parts:
 
-1. clean (weld, drop degenerate and duplicate faces, orient) and refuse what cannot
-   be simulated: non-manifold edges, closed surfaces (thick petals, a receptacle:
-   refused, or dropped when the scene says so), two-layer slabs;
-2. split petals: one connected component is one petal;
+1. classify the parts (petal sheets, thick petals, whole flowers in one mesh, flowers of
+   a file of many; receptacles, stems, leaves and stamens kept in place) and clean each
+   petal part on its own (weld, drop dust and degenerate faces, orient; a thick petal
+   replaced by its mid-surface); every part that cannot be simulated is named in one
+   error;
+2. split each petal part into its petals;
 3. scale so the mean edge is 1;
 4. per petal: find the center plane; remesh to the target edge (boundary included);
    make the petal mirror-symmetric about its plane;
 5. scale again so the result's mean edge is exactly 1.
-
-:func:`prepare` takes one mesh; :func:`prepare_parts` (the stage's) takes a file's named
-parts: it classifies them, cleans each petal part on its own (dust dropped, a thick
-petal replaced by its mid-surface), reports every part that cannot be simulated in one
-error, and then runs steps 3 to 5 on the petal sheets.
 
 The module is long because a user's file is judged part by part before any sheet is
 remeshed: the judging (closed, thick, lobed, a ring of petals) and the remeshing share
@@ -80,43 +77,6 @@ class Petals:
     #: part name -> {pieces, petals, area_kept, area_in (input units, one side), lost}
     found: dict = field(default_factory=dict)
     kept_sheets: list = field(default_factory=list)  #: the input sheet of each petal (others left out)
-
-
-def _submesh(faces: np.ndarray, idx: np.ndarray) -> np.ndarray:
-    keep = np.isin(faces[:, 0], idx)
-    return np.searchsorted(idx, faces[keep])
-
-
-def prepare(vertices: np.ndarray, faces: np.ndarray, *, where: str, target_edge: float = 0.0,
-            petal_vertices: int = 0, symmetrize: bool = True,
-            closed_parts: str = "refuse") -> Petals:
-    """Clean, split, remesh and symmetrize (see the module notes).
-
-    Raises :class:`BloomError` (naming ``where``, the input file) for meshes that are
-    not petal sheets, saying how to fix the input.
-    """
-    v, f, report = clean.clean_mesh(vertices, faces)
-    if len(f) == 0:
-        raise BloomError("no triangles left after removing degenerate faces", where=where)
-    _, _, count = topology.unique_edges(f)
-    if np.any(count > 2):
-        raise BloomError(f"{int(np.sum(count > 2))} non-manifold edges (an edge shared by 3+ "
-                         "faces); repair the mesh (e.g. merge by distance, delete loose "
-                         "duplicate faces) and export again", where=where)
-    v, f, dropped = _open_parts(v, f, closed_parts, where)
-    petal = topology.components(f, len(v))
-    for p in range(int(petal.max()) + 1):
-        idx = np.flatnonzero(petal == p)
-        fraction, gap = clean.layered_fraction(v[idx], _submesh(f, idx))
-        if fraction > LAYERED:
-            raise BloomError(f"petal {p} is two layers ({fraction:.0%} of it has a second, "
-                             f"opposite-facing layer {gap:.3g} units behind it): a thick "
-                             "petal cut open is not a sheet; delete one side (or the "
-                             "Solidify/Extrude) and export the single surface", where=where)
-
-    return _build(v, f, petal, report, target_edge=target_edge, petal_vertices=petal_vertices,
-                  where=where,
-                  symmetrize=symmetrize, dropped=dropped)
 
 
 def _build(v, f, petal, report, *, target_edge, petal_vertices, symmetrize, dropped=(),
@@ -993,27 +953,3 @@ def _petal(pts, lf, plane, h, symmetrize, what, scale):
     return out, out_f, target, [f"{what}: {why or 'not mirror-paired'}: cut along its center "
                                 f"plane, remeshed at edge "
                                 f"{target / scale:.4g} and mirrored"], True
-
-
-def _open_parts(v: np.ndarray, f: np.ndarray, closed_parts: str, where: str):
-    """Drop or refuse closed components. Returns ``(vertices, faces, dropped)``."""
-    part = topology.components(f, len(v))
-    boundary = topology.boundary_vertices(f, len(v))
-    closed = [p for p in range(int(part.max()) + 1) if not boundary[part == p].any()]
-    if not closed:
-        return v, f, []
-    count = int(part.max()) + 1
-    sizes = ", ".join(f"part {p} ({int((part == p).sum())} vertices)" for p in closed[:4])
-    more = "" if len(closed) <= 4 else f" and {len(closed) - 4} more"
-    if closed_parts == "refuse" or len(closed) == count:
-        hint = ("; or set remesh.closed_parts = \"drop\" to leave them out"
-                if len(closed) < count else "")
-        what = ("the mesh is a closed surface (a thick or solidified petal), not a sheet"
-                if count == 1 else f"{len(closed)} of {count} parts are closed surfaces "
-                f"(thick petals, a receptacle or a stem?): {sizes}{more}")
-        raise BloomError(f"{what}; export each petal as a single open surface (e.g. without "
-                         f"Solidify, or one side of it){hint}", where=where)
-    keep = ~np.isin(part, closed)
-    faces_kept = f[keep[f[:, 0]]]
-    remap = np.cumsum(keep) - 1
-    return v[keep], remap[faces_kept], [f"closed {sizes}{more}"]
