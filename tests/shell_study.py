@@ -13,6 +13,7 @@ speed of the shell against the springs:
 
 from __future__ import annotations
 
+import functools
 import math
 
 import numpy as np
@@ -51,17 +52,19 @@ def _poisson(lo, hi, h: float, rng, fixed: np.ndarray, inside=None) -> np.ndarra
         d, _ = cKDTree(fixed).query(cand)
         cand = cand[d >= r]
     pairs = cKDTree(cand).query_pairs(r, output_type="ndarray")
-    nbr = [[] for _ in range(len(cand))]
-    for a, b in pairs:
-        nbr[a].append(b)
-        nbr[b].append(a)
+    # each candidate's neighbours (CSR): the greedy pass below takes a candidate unless a
+    # taken one is within r, in the candidates' order
+    both = np.concatenate([pairs, pairs[:, ::-1]]) if len(pairs) else np.zeros((0, 2), int)
+    both = both[np.argsort(both[:, 0], kind="stable")]
+    start = np.searchsorted(both[:, 0], np.arange(len(cand) + 1))
+    nbr = both[:, 1]
     taken = np.zeros(len(cand), dtype=bool)
     blocked = np.zeros(len(cand), dtype=bool)
     for k in range(len(cand)):
         if blocked[k]:
             continue
         taken[k] = True
-        blocked[nbr[k]] = True
+        blocked[nbr[start[k]:start[k + 1]]] = True
     return np.vstack([fixed, cand[taken]])
 
 
@@ -79,6 +82,20 @@ def _triangulate(points: np.ndarray, keep=None) -> np.ndarray:
     return np.ascontiguousarray(f[ok])
 
 
+def _kept(make):
+    """``make`` remembered by its arguments (the tests ask for the same meshes again);
+    each call gets its own copies."""
+    made = functools.lru_cache(maxsize=64)(make)
+
+    @functools.wraps(make)
+    def mesh(*args, **kwargs):
+        p, f = made(*args, **kwargs)
+        return p.copy(), f.copy()
+
+    return mesh
+
+
+@_kept
 def rectangle(width: float, height: float, h: float, kind: str, seed: int = 0):
     """``(points (V, 2), faces (F, 3))`` of the rectangle [0, width] x [0, height]."""
     if kind == "regular":
@@ -91,6 +108,7 @@ def rectangle(width: float, height: float, h: float, kind: str, seed: int = 0):
     return p, _triangulate(p)
 
 
+@_kept
 def disc(radius: float, h: float, kind: str, seed: int = 0):
     """``(points (V, 2), faces (F, 3))`` of the disc of ``radius`` about the origin: its
     rim sampled every ~h, its inside a lattice (regular) or Poisson-disc (irregular)."""

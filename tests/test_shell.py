@@ -335,6 +335,32 @@ def test_same_deformation_same_energy_at_any_resolution():
     assert abs(energies[1] / energies[0] - 1.0) < 0.01
 
 
+def test_the_contact_barrier_presses_the_same_at_any_resolution():
+    """The barrier acts per pair, about one per vertex area (mean edge 1 in mesh units):
+    its stiffness over that area, in units of the petal (times L^4), is the same on a
+    coarse and a fine mesh of the same sheet; at the reference petal size it is the
+    springs' K_s equivalent."""
+    from types import SimpleNamespace
+
+    from pipeline.mesh import topology
+
+    pressure = []
+    for h in (0.1, 0.05):
+        p, f = study.rectangle(1.5, 1.0, h, "regular")
+        rest = study.flat(p)
+        edges, _, _ = topology.unique_edges(f)
+        rest = rest / np.linalg.norm(rest[edges[:, 1]] - rest[edges[:, 0]], axis=1).mean()
+        lengths = np.linalg.norm(rest[edges[:, 1]] - rest[edges[:, 0]], axis=1)
+        model = SimpleNamespace(edge_indices=edges, edge_rest_length=lengths,
+                                edge_growth=np.zeros(len(edges)), vertex_count=len(rest))
+        data = sh.ShellData.build(rest, f, model, stretch_modulus=27.3, thickness=0.013)
+        pressure.append(sh.contact_stiffness(data) * data.size ** 4)
+        ks, _ = data.equivalent()
+        at_reference = sh.contact_stiffness(data) * (data.size / sh.REFERENCE_SIZE) ** 2
+        assert np.isclose(at_reference, ks)
+    assert np.isclose(pressure[0], pressure[1], rtol=1e-12)
+
+
 def test_moduli_map_the_paper_springs_and_thickness():
     """The paper's (K_s, K_b) at a petal size of 15.37 mesh units (the default petal)
     are the defaults of the config; a face of twice the reference thickness is twice

@@ -81,6 +81,7 @@ from pipeline.sim.solver.system import System
 from pipeline.sim.terms.connections import Springs
 from pipeline.sim.terms.contact import Contact
 from pipeline.sim.terms.inertia import Inertia
+from pipeline.sim.terms.shell import contact_stiffness
 
 log = logging.getLogger("bloom")
 
@@ -202,9 +203,11 @@ class QuasiStatic:
         resumed from a checkpoint, whose contact is restored)."""
         if effects.collisions is not None:
             c = effects.collisions
+            stiffness = float(model.edge_stiffness.max())
+            if getattr(model, "shell", None) is not None:  # (in petal units: contact_stiffness)
+                stiffness = contact_stiffness(model.shell)
             self.newton.contact = Contact.build(state.positions, c.faces, c.vertex_petal,
-                                                gap=c.thickness,
-                                                stiffness=float(model.edge_stiffness.max()))
+                                                gap=c.thickness, stiffness=stiffness)
             if check:
                 self.newton.contact.check_start(state.positions)
         if effects.connections is not None:

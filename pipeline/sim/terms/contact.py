@@ -16,7 +16,9 @@ collision detection (:meth:`Contact.max_step`), so no iterate ever comes closer 
   acts is as wide again, so petals feel each other from ``2 gap`` on.
 - ``kappa`` makes the barrier as stiff, at the middle of its band, as the stiffest
   stretch spring of the model: a pressing force of the order of the elastic forces
-  stops within the band (it scales with the problem, as the springs do).
+  stops within the band (it scales with the problem, as the springs do). A shell's is
+  in units of the petal instead (:func:`pipeline.sim.terms.shell.contact_stiffness`:
+  the same pressure against distance at any resolution).
 - The Hessian is ipctk's, projected to positive semi-definite per contact (it adds no
   negative curvature of its own; the elastic Hessian stays exact).
 - ipctk sums on one thread (its parallel sums would depend on the scheduling, and the

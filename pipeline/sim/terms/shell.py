@@ -91,6 +91,26 @@ def moduli(size: float, stretch_modulus: float, thickness: float, poisson: float
     return y, y * tt * tt * k
 
 
+#: the petal size (mesh units) at which the moduli's defaults were matched to the paper's
+#: springs: the default petal, assets/petal.obj at 317 vertices and mean edge 1
+REFERENCE_SIZE = 15.3677
+
+
+def contact_stiffness(data: ShellData) -> float:
+    """The contact barrier's stiffness for a shell (its curvature at the middle of its
+    band, mesh units; :meth:`pipeline.sim.terms.contact.Contact.build`): the same pressure
+    against distance, in units of the petal, at any resolution. The barrier acts per
+    pair of primitives, about one pair per vertex area, and the pipeline's meshes have
+    mean edge 1: so its pressure is its stiffness over a fixed area, and a stiffness
+    that follows the sheet's own (``Y``, ~ 1/L^2 in mesh units, as the springs'
+    ``K_s``) would make the barrier (L / L_ref)^2 times stiffer in petal units on a
+    mesh of petal size ``L``: 16 times from 1x to 16x the vertices. Scaled by
+    ``(REFERENCE_SIZE / L)^2``: at the reference petal it is the springs' ``K_s``
+    equivalent (as before)."""
+    ks = float(np.sqrt(3.0) / 2.0 * data.face_stretch.max())
+    return ks * (REFERENCE_SIZE / data.size) ** 2
+
+
 def paper_equivalent(size: float, stretch_stiffness: float = 0.1,
                      bending_stiffness: float = 0.0005) -> tuple[float, float]:
     """``(stretch_modulus, thickness)`` of the sheet the paper's spring network is, on a
