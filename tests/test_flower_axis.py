@@ -16,7 +16,7 @@ from pipeline.directions import parse_direction
 from pipeline.errors import BloomError
 from pipeline.flower import axis
 from pipeline.flower.axis import BadPetal, PetalAxes, check_axes, find_axes
-from pipeline.mesh import clean, procedural
+from pipeline.mesh import clean, procedural, symmetry
 from stages.cli import cli
 
 pytestmark = pytest.mark.filterwarnings("error::RuntimeWarning")
@@ -174,6 +174,29 @@ def test_a_center_plane_of_no_normal_is_found_again(lone):
     ref = sound(find_axes(v, f, p), p)
     for plane in (np.zeros((1, 4)), np.full((1, 4), np.nan)):
         same(ref, sound(find_axes(v, f, p, planes=plane), p))
+
+
+def test_a_center_plane_across_the_flowers_axis_is_put_through_it(bud):
+    """A petal's plane found across its length (normal along the axis the others meet
+    in; an irregular mesh of a cupped petal can look more symmetric there) is replaced
+    by the plane through the axis and its centroid: the bud's axes are then those of
+    its own planes (to rounding), and the other petals' planes are kept to the bit."""
+    v, f, p = bud
+    planes = np.array([symmetry.mirror_plane(v[p == k])[0] for k in range(6)])
+    ref = sound(find_axes(v, f, p, planes=planes), p)
+    wrong = planes.copy()
+    c = v[p == 1].mean(axis=0)
+    wrong[1] = [0.1, 0.13, 0.99, 0.0]
+    wrong[1, :3] /= np.linalg.norm(wrong[1, :3])
+    wrong[1, 3] = wrong[1, :3] @ c
+    fixed = axis._planes_about_axis(v, p, wrong)
+    assert np.array_equal(np.delete(fixed, 1, axis=0), np.delete(planes, 1, axis=0))
+    assert abs(fixed[1, :3] @ planes[1, :3]) > 0.999
+    got = sound(find_axes(v, f, p, planes=wrong), p)
+    assert np.array_equal(got.tip, ref.tip) and np.array_equal(got.base, ref.base)
+    assert np.abs(got.x - ref.x).max() < 0.05
+    # a bud whose planes all meet the axis: untouched
+    assert axis._planes_about_axis(v, p, planes) is planes
 
 
 def test_check_axes_refuses_each_unsound_output(bud):

@@ -26,6 +26,9 @@ Per petal (a connected component):
   (the shell's) s and x are along the surface (:mod:`pipeline.flower.coords`): they
   converge as the mesh is refined; along edges they stay a few percent off.
 
+It is long because it is one pass per petal (plane, ends, base, tip, s, x) whose parts
+share the petal's arrays, with the checks that refuse a petal beside them.
+
 Every petal's axis is checked sane, or the petal is refused (:class:`BadPetal`, naming
 the key ``scene.exclude``): x reaches both -1 and +1, the on-axis vertices form a line
 (none more than :data:`LINE_DEPTH` edges from a vertex off the axis, :func:`axis_depth`;
@@ -195,6 +198,43 @@ def flower_axis(planes: np.ndarray) -> np.ndarray | None:
 
 
 _axis_from_planes = flower_axis  # find_axes's own argument is named flower_axis
+
+#: a petal's center plane whose normal leans toward the flower's axis by more than this
+#: (cosine) is no plane through the axis (:func:`_planes_about_axis`)
+ACROSS_AXIS = 0.5
+
+
+def _planes_about_axis(v: np.ndarray, petal: np.ndarray, planes: np.ndarray,
+                       ids: np.ndarray | None = None) -> np.ndarray:
+    """With three or more petals, a petal whose center plane's normal leans toward the
+    axis the other petals' planes meet in (``|n . axis| > ACROSS_AXIS``) gets the plane
+    through that axis and its centroid instead: a mirror plane found across a cupped
+    petal's length, which an irregular triangulation can make look the more symmetric
+    (a Poisson-disc bud6 petal at 200 vertices: normal 0.99 along the axis), would give
+    the petal another base, tip and growth. The others keep theirs (so a bud whose
+    planes all meet keeps its planes to the bit). ``ids``: the petal of each row of
+    ``planes`` (default: row k is petal k), for one flower's petals of many."""
+    line = flower_axis(planes)
+    if line is None:
+        return planes
+    bad = np.abs(planes[:, :3] @ line[3:]) > ACROSS_AXIS
+    if not bad.any() or 2 * bad.sum() >= len(planes):
+        return planes
+    line = flower_axis(planes[~bad])
+    if line is None:
+        return planes
+    out = planes.copy()
+    for p in np.flatnonzero(bad):
+        c = v[petal == (p if ids is None else ids[p])].mean(axis=0)
+        n = np.cross(line[3:], c - line[:3])
+        size = np.linalg.norm(n)
+        if not size > 1e-9 * max(1.0, float(np.abs(c).max())):  # (a petal on the axis)
+            continue
+        n = n / size
+        n = n * np.sign(n[np.argmax(np.abs(n))])
+        out[p] = np.r_[n, n @ c]
+    return out
+
 
 class BadPetal(ValueError):
     """A petal that has no sound axis: refused (one line naming the petal and, where one
@@ -377,6 +417,8 @@ def find_axes(vertices: np.ndarray, faces: np.ndarray, petal: np.ndarray, *,
     axis_lines, lowest = [], []
     for k in range(flowers):
         mine = np.flatnonzero(flower == k)
+        if given is None and base_mode == "auto" and mine.size >= 3:
+            planes[mine] = _planes_about_axis(v, petal, planes[mine], ids=mine)
         if given is not None:
             centroid = np.mean([v[members[p]].mean(axis=0) for p in mine], axis=0)
             axis_lines.append(np.r_[_given_axis_point(planes[mine], given, centroid), given])
