@@ -48,6 +48,7 @@ def test_plane_frame_of_a_few_faces_still_has_three_axes():
 
 
 @pytest.mark.slow
+@pytest.mark.studio  # (a minute and a half: make test-studio; bloom bench times the same)
 def test_remesh_of_a_100k_face_flower_takes_memory_linear_in_its_faces():
     """The remesh stage's work (default config) on a 100,000-face flower in one mesh
     (12 solidified petals pushed into a receptacle): every petal found, and numpy's peak

@@ -15,7 +15,7 @@ from numba import njit
 
 from pipeline.mesh import topology
 from pipeline.mesh.hinge import _edge_vector
-from pipeline.sim.terms.spring import _spring, _spring_block
+from pipeline.sim.terms.spring import _pull, _spring, _spring_block
 from pipeline.sim.terms.term import Term
 
 
@@ -73,13 +73,7 @@ def connection_forces(X, pairs, rest, k, limit, alive, broken_step, step, F):
         tension, en = _spring(length, rest[c], k)
         energy += en
         if length > 0.0:
-            f = tension / length
-            F[i, 0] += f * dx
-            F[i, 1] += f * dy
-            F[i, 2] += f * dz
-            F[j, 0] -= f * dx
-            F[j, 1] -= f * dy
-            F[j, 2] -= f * dz
+            _pull(F, i, j, tension / length, dx, dy, dz)
     return energy
 
 

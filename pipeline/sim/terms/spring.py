@@ -29,3 +29,15 @@ def _spring_block(length, rest, k):
     across = k * (1.0 - rest / length)
     along = k - across
     return along, across
+
+
+@njit(cache=True, inline="always")
+def _pull(F, i, j, c, dx, dy, dz):
+    """Add a spring's force ``c (dx, dy, dz)`` (``c``: its tension over its length,
+    ``(dx, dy, dz)`` from ``i`` to ``j``) to ``i``, and the opposite to ``j``."""
+    F[i, 0] += c * dx
+    F[i, 1] += c * dy
+    F[i, 2] += c * dz
+    F[j, 0] -= c * dx
+    F[j, 1] -= c * dy
+    F[j, 2] -= c * dz

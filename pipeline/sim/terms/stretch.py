@@ -12,7 +12,7 @@ from numba import njit
 
 from pipeline.mesh.hinge import _edge_vector, _vertex
 from pipeline.sim.blocks import blocks_matrix
-from pipeline.sim.terms.spring import _spring, _spring_block
+from pipeline.sim.terms.spring import _pull, _spring, _spring_block
 from pipeline.sim.terms.term import Term
 
 
@@ -27,13 +27,7 @@ def _stretch_range(X, edges, rest0, growth, stiffness, A, F, lo, hi):
         tension, en = _spring(length, rest0[e] * (1.0 + A * growth[e]), stiffness[e])
         energy += en
         if length > 0.0:
-            c = tension / length
-            F[i, 0] += c * dx
-            F[i, 1] += c * dy
-            F[i, 2] += c * dz
-            F[j, 0] -= c * dx
-            F[j, 1] -= c * dy
-            F[j, 2] -= c * dz
+            _pull(F, i, j, tension / length, dx, dy, dz)
     return energy
 
 
