@@ -6,6 +6,8 @@ from typing import NamedTuple
 
 import numpy as np
 
+from pipeline.mesh import topology
+
 #: a petal's two ends are the points within this fraction of its length of either end
 #: of its principal axis
 END = 0.15
@@ -33,16 +35,8 @@ class Flowers(NamedTuple):
 
 def _principal(points: np.ndarray, label: np.ndarray, count: int):
     """Per label: centroid (P, 3) and unit principal direction (P, 3), in one pass."""
-    n = np.bincount(label, minlength=count).astype(np.float64)
-    mean = np.stack([np.bincount(label, weights=points[:, k], minlength=count) for k in range(3)], 1)
-    mean /= np.maximum(n, 1.0)[:, None]
-    d = points - mean[label]
-    cov = np.empty((count, 3, 3))
-    for a in range(3):
-        for b in range(a, 3):
-            cov[:, a, b] = cov[:, b, a] = np.bincount(label, weights=d[:, a] * d[:, b], minlength=count)
-    _, vecs = np.linalg.eigh(cov)
-    return mean, vecs[:, :, 2]
+    _, mean, _, _, axes = topology.grouped_moments(points, label, count)
+    return mean, axes[:, :, 2]
 
 
 def flowers(points: np.ndarray, label: np.ndarray, link: float = LINK) -> Flowers:

@@ -418,8 +418,8 @@ def _records(X, F, petal, normals, rim, a, b, reach) -> dict:
     # the nearest vertex of b), and no nearer than d0 - longest: those vertices of a that
     # can be within reach, against the triangles that can hold their closest point
     d0, _ = tree.query(X[va])
-    va = va[d0 - longest <= reach]
-    d0 = d0[d0 - longest <= reach]
+    can = d0 - longest <= reach
+    va, d0 = va[can], d0[can]
     near = tree.query_ball_point(X[va], (d0 + longest) * (1 + 1e-9))
     count = np.fromiter((len(x) for x in near), dtype=np.int64, count=len(near))
     hits = sp.csr_matrix((np.ones(int(count.sum()), dtype=np.int8),

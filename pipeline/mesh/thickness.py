@@ -40,16 +40,7 @@ def _component_width(vertices: np.ndarray, faces: np.ndarray,
     idx = np.flatnonzero(used)
     lab = label[idx]
     pts = vertices[idx]
-    n = np.bincount(lab, minlength=count).astype(np.float64)
-    mean = np.stack([np.bincount(lab, weights=pts[:, k], minlength=count) for k in range(3)], 1)
-    mean /= np.maximum(n, 1.0)[:, None]
-    centred = pts - mean[lab]
-    cov = np.empty((count, 3, 3))
-    for a in range(3):
-        for b in range(a, 3):
-            cov[:, a, b] = cov[:, b, a] = np.bincount(lab, weights=centred[:, a] * centred[:, b],
-                                                      minlength=count)
-    _, vecs = np.linalg.eigh(cov)
+    n, _, centred, _, vecs = topology.grouped_moments(pts, lab, count)
     second = vecs[:, :, 1][lab]  # eigh sorts ascending: the middle one is the second axis
     along = np.einsum("ij,ij->i", centred, second)
     high = np.full(count, -np.inf)

@@ -140,3 +140,21 @@ def stack(meshes) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     faces = np.vstack([f.reshape(-1, 3) + o for (_, f), o in zip(meshes, offsets, strict=True)])
     return (np.vstack([v.reshape(-1, 3) for v, _ in meshes]), faces,
             np.repeat(np.arange(len(meshes), dtype=np.int64), counts))
+
+
+def grouped_moments(points: np.ndarray, label: np.ndarray, count: int):
+    """Per label, in one pass over the points: ``(n (count,), mean (count, 3), centred
+    (N, 3), cov (count, 3, 3), axes (count, 3, 3))``: how many points, their centroid,
+    each point less its label's centroid, the scatter matrix and its eigenvectors (columns,
+    by ascending eigenvalue)."""
+    n = np.bincount(label, minlength=count).astype(np.float64)
+    mean = np.stack([np.bincount(label, weights=points[:, k], minlength=count) for k in range(3)], 1)
+    mean /= np.maximum(n, 1.0)[:, None]
+    centred = points - mean[label]
+    cov = np.empty((count, 3, 3))
+    for a in range(3):
+        for b in range(a, 3):
+            cov[:, a, b] = cov[:, b, a] = np.bincount(label, weights=centred[:, a] * centred[:, b],
+                                                      minlength=count)
+    _, axes = np.linalg.eigh(cov)
+    return n, mean, centred, cov, axes

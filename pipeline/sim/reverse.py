@@ -235,11 +235,11 @@ def open_start(cfg, model: Model, positions, rest_angle, params: Params, build_e
                          FOLD)
         else:
             lift = closing_lift(positions, s, x, base, up, size)
-        lift = contact_free(lift, positions, build_effects(positions))
+        at_model = build_effects(positions)  # (the settle's; contact_free only reads it)
+        lift = contact_free(lift, positions, at_model)
         bud, solver = find_bud(model, positions, build_effects(positions + lift),
                                stages=cfg["simulate.stages"], tolerance=cfg["simulate.tolerance"],
-                               lift=lift, settle_effects=build_effects(positions),
-                               petal=np.asarray(petal))
+                               lift=lift, settle_effects=at_model, petal=np.asarray(petal))
     except NotConverged as exc:
         raise BloomError(f"growth.close: finding the bud, the quasi-static solver found {exc} "
                          f"(petal {int(petal[exc.vertex])}); remedy: a smaller growth.close, or "

@@ -32,6 +32,7 @@ from pipeline.config import load_config
 from pipeline.io.meshfile import read_mesh
 from pipeline.mesh import procedural
 from pipeline.mesh.remesh import boundary_loops
+from pipeline.mesh.topology import stack
 
 #: vertices per petal of the three densities the issue asks for (1x, 4x, 16x)
 COUNTS = (300, 1200, 4800)
@@ -73,17 +74,13 @@ def irregular_mesh(path, count: int, seed: int = 1):
     asset's surface (:func:`asset_pattern`), Delaunay-triangulated in its flat pattern; the
     rim sampled along the asset's own rim (its corners kept)."""
     flat, V, F, petal = asset_pattern(path)
-    out_v, out_f = [], []
-    offset = 0
+    sheets = []
     for p in range(int(petal.max()) + 1):
         idx = np.flatnonzero(petal == p)
-        mine = F[np.all(petal[F] == p, axis=1)]
-        local = np.searchsorted(idx, mine)
-        pts, tri = _irregular_petal(flat[idx], V[idx], local, count, seed + p)
-        out_v.append(pts)
-        out_f.append(tri + offset)
-        offset += len(pts)
-    return np.vstack(out_v), np.vstack(out_f)
+        local = np.searchsorted(idx, F[np.all(petal[F] == p, axis=1)])
+        sheets.append(_irregular_petal(flat[idx], V[idx], local, count, seed + p))
+    vertices, faces, _ = stack(sheets)
+    return vertices, faces
 
 
 def _irregular_petal(flat, V, F, count, seed):
