@@ -11,7 +11,6 @@ from pipeline.sim import effects as fx
 from pipeline.sim.model import Control, Model, State
 from pipeline.sim.run import run
 from pipeline.sim.solver.quasistatic import QuasiStatic
-from pipeline.sim.terms import contact as contact_module
 from pipeline.sim.terms.contact import Contact, _ipctk, barrier_curvature, frame_intersections
 from tests.conftest import min_distance
 
@@ -106,22 +105,13 @@ def test_barrier_gradient_and_hessian_match_finite_differences():
     assert np.linalg.eigvalsh(H).min() < -1e-6 * np.abs(H).max()  # (the exact one is not)
 
 
-def test_ccd_in_threads_is_the_ccd_on_one(monkeypatch):
-    """The CCD's narrow phase runs in threads (a minimum over the candidates): the step
-    it allows is the same to the bit as on one thread, cut moves included."""
+def test_ipctk_runs_on_one_thread():
+    """ipctk's threads are not reproducible (its broad phase and CCD in two threads gave a
+    14-petal flower's bud search 807 to 819 Newton iterations on four runs): contact puts
+    it on one thread."""
     X, faces, petal = _sheets_in_the_band()
-    c = Contact.build(X, faces, petal, gap=GAP, stiffness=0.1)
-    rng = np.random.default_rng(5)
-    moves = [X + np.where((petal == 1)[:, None], rng.normal(0.0, 0.002, X.shape)
-                          + [0.0, 0.0, 0.02 - 0.01 * k], 0.0) for k in range(8)]
-
-    def steps(threads):
-        monkeypatch.setattr(contact_module, "THREADS", threads)
-        return [c.max_step(X, X1) for X1 in moves]
-
-    one, two = steps(1), steps(2)
-    assert one == two
-    assert min(one) < 0.5 and max(one) == 1.0  # (some moves cut, some whole)
+    Contact.build(X, faces, petal, gap=GAP, stiffness=0.1)
+    assert _ipctk().get_num_threads() == 1
 
 
 def test_the_active_set_is_the_same_whatever_order_the_broad_phase_finds():

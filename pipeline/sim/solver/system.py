@@ -198,8 +198,8 @@ class System:
                 if group.solver.factor(self.blocks.data, shift, coupling):
                     break
                 # (a coupling entry outside the pattern: the pattern grows by its pairs)
-                pairs = np.concatenate([group.pairs, np.c_[coupling[0] // 3, coupling[1] // 3]])
-                group.pairs = np.unique(np.sort(pairs, axis=1), axis=0)
+                group.pairs = _union(group.pairs, coupling[0] // 3, coupling[1] // 3,
+                                     len(group.vertices))
                 group.solver = None
         except ValueError:  # a zero pivot: singular
             group.solver, group.positive = None, False
@@ -257,3 +257,13 @@ class System:
                 g.solver.restore(item["factors"])
         self.groups = [self._group(tuple(int(k) for k in key)) for key in saved["current"]]
         self._joined = None if saved["joined"] is None else np.asarray(saved["joined"])
+
+
+def _union(pairs: np.ndarray, a: np.ndarray, b: np.ndarray, n: int) -> np.ndarray:
+    """``(k, 2)`` the vertex pairs ``pairs`` and ``(a, b)`` (local vertices under ``n``),
+    each once, its smaller vertex first, in ascending order (as ``np.unique(..., axis=0)``
+    would give them, by a key per pair)."""
+    lo = np.concatenate([pairs[:, 0], np.minimum(a, b)])
+    hi = np.concatenate([pairs[:, 1], np.maximum(a, b)])
+    key = np.unique(lo * n + hi)
+    return np.c_[key // n, key % n]
