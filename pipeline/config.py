@@ -117,7 +117,9 @@ SCHEMA: dict[str, Any] = {
                         "apart before anything else (each pair to the side most of its overlap "
                         "is on, at least effects.collisions.thickness apart, every vertex by at "
                         "most 15% of its petal's length; the log and remesh.h5's separation "
-                        "attribute say how far); false keeps them as the input has them"),
+                        "attribute say how far; a pair too far into each other is left as "
+                        "modelled, named, with no contact between the two); false keeps them "
+                        "as the input has them"),
     },
     "axis": {
         "base": Key(str, "auto", "which end of a petal is its base: auto (nearest the flower's "

@@ -186,6 +186,31 @@ def test_sheets_crossed_through_their_middles_are_refused_naming_them():
     assert err.value.pairs == [(0, 1)] and "petals 0-1 cannot be separated" in str(err.value)
 
 
+def test_a_pair_too_far_through_each_other_is_left_as_modelled_and_the_rest_separated():
+    """The same crossed sheets, and a third sheet lying through the first near its edge
+    (a shallow crossing). With ``leave`` the hopeless pair is put back as it was and left
+    through each other, one contact patch; the third is moved apart from the first. The
+    frames' check does not count the pair left, and still sees any other crossing."""
+    pa, ta = sheet(-4, 4, -4, 4)
+    pc, tc = sheet(-1, 1, -1, 1, 0.5)
+    v = np.vstack([np.c_[pa, np.zeros(len(pa))], np.c_[np.zeros(len(pa)), pa[:, 0], pa[:, 1]],
+                   np.c_[pc[:, 0] + 3.0, pc[:, 1], 0.05 * pc[:, 0] + 0.01]])
+    v[len(pa):2 * len(pa), 1] += 0.1
+    f = np.vstack([ta, ta + len(pa), tc + 2 * len(pa)])
+    p = np.r_[np.zeros(len(pa), int), np.ones(len(pa), int), np.full(len(pc), 2)]
+    out = separate(v, f, p, GAP, leave=True)
+    assert out.left == [(0, 1)] and "would move" in out.reason
+    assert out.crossed == [(0, 1), (0, 2)]
+    assert np.array_equal(out.vertices[p == 1], v[p == 1])  # (back as it was)
+    assert np.array_equal(out.patch, np.where(p == 1, 0, p))
+    assert frame_intersections([v], f) == [True]
+    assert frame_intersections([out.vertices], f) == [True]  # (0 and 1 still cross)
+    assert frame_intersections([out.vertices], f, p, out.patch) == [False]
+    assert frame_intersections([v], f, p, out.patch) == [True]  # (0 and 2 crossed)
+    contact = Contact.build(out.vertices, f, out.patch, gap=GAP, stiffness=1.0)
+    assert min_distance(contact, out.vertices, 4 * GAP) >= GAP  # (the others kept apart)
+
+
 @pytest.mark.slow
 def test_the_dense_crossed_12_petal_bud_is_separated():
     """The bud of 12 petals as bent, before it is untangled (crossing=True): 11 pairs cross."""
@@ -249,19 +274,33 @@ def test_remesh_separate_false_keeps_them_crossed(tmp_path):
             assert frame_intersections([X], F) == [crossed]
 
 
-def test_remesh_refuses_petals_it_cannot_separate_in_one_line(tmp_path):
-    """Two petals at right angles, one through the other all along its midrib: refused in
-    one line naming the file, the pair and its parts, and the key; nothing written."""
+def test_petals_remesh_cannot_separate_are_left_as_modelled_and_bloom(tmp_path):
+    """Two petals at right angles, one through the other all along its midrib: remesh
+    says so in one warning naming the file, the pair and its parts, and the key, leaves
+    them as modelled and records one contact patch for both; the chain runs on to a
+    bloom, whose verdict does not count the crossing it was given, and says so."""
     pts, tri = procedural.flat_petal(procedural.Outline(), 0.08, np.random.default_rng(0))
     u, s = pts[:, 0], pts[:, 1]
     v = 10.0 * np.vstack([np.c_[u, s, 0.0 * u], np.c_[0.0 * u + 0.013, s + 0.02, u]])
     f, p = np.vstack([tri, tri + len(pts)]), np.repeat([0, 1], len(pts))
     mesh = tmp_path / "cross.obj"
     _write(mesh, v, f, p, ["Blade.A", "Blade.B"])
-    out = tmp_path / "remesh.h5"
-    r = CliRunner().invoke(cli, ["-q", "remesh", str(mesh), "--out", str(out), "--set",
-                                 'scene.petals=["Blade.*"]'])
-    assert r.exit_code != 0 and list(tmp_path.iterdir()) == [mesh]
-    lines = r.output.strip().splitlines()
-    assert len(lines) == 1 and "Traceback" not in r.output, r.output
-    assert all(w in lines[0] for w in (str(mesh), "0-1", "Blade.A", "Blade.B", "remesh.separate"))
+    files = [tmp_path / f"{k}.h5" for k in ("remesh", "axis", "growth", "sim")]
+    args = ["--set", 'scene.petals=["Blade.*"]']
+    r = CliRunner().invoke(cli, ["remesh", str(mesh), "--out", str(files[0])] + args)
+    assert r.exit_code == 0, r.output
+    said = [line for line in r.output.splitlines() if "left as modelled" in line]
+    assert len(said) == 1 and "Traceback" not in r.output, r.output
+    assert all(w in said[0] for w in (str(mesh), "0-1", "Blade.A", "Blade.B", "remesh.separate"))
+    with h5py.File(files[0]) as h:
+        assert json.loads(h.attrs["separation"])["left"] == [[0, 1]]
+        assert np.array_equal(h["mesh/patch"][()], np.zeros_like(h["mesh/petal"][()]))
+    for stage, src, dst in zip(("axis", "growth", "simulate"), files[:3], files[1:], strict=True):
+        r = CliRunner().invoke(cli, [stage, str(src), "--out", str(dst), "--set",
+                                     "simulate.frames=5"] + args)
+        assert r.exit_code == 0, r.output
+    assert "not between petals left through each other as modelled: 0-1" in r.output
+    with h5py.File(files[3]) as h:
+        assert not h["diagnostics/intersecting"][()].any()
+        X, F = h["frames/positions"][()], h["mesh/faces"][()]
+    assert frame_intersections(X, F) == [True] * 5  # (the crossing as modelled)

@@ -19,7 +19,8 @@ from pipeline.progress import Steps
 log = logging.getLogger("bloom")
 
 #: what the later stages need of remesh.h5, carried forward
-CARRIED = ("mesh/vertices", "mesh/faces", "mesh/petal", "mesh/part_names", "mesh/part", "mesh/thickness",
+CARRIED = ("mesh/vertices", "mesh/faces", "mesh/petal", "mesh/patch", "mesh/part_names",
+           "mesh/part", "mesh/thickness",
            "mesh/flower", "flower/petal_flower", "flower/centre", "input/asset", "bind")
 #: more petals than this: one summary line instead of a line per petal
 LINES = 50

@@ -36,7 +36,7 @@ from pipeline.sim.solver.newton import NotConverged
 log = logging.getLogger("bloom")
 
 #: what the later stages need of growth.h5, carried forward
-CARRIED = ("mesh/faces", "mesh/petal", "mesh/part_names", "mesh/part", "axis/base",
+CARRIED = ("mesh/faces", "mesh/petal", "mesh/patch", "mesh/part_names", "mesh/part", "axis/base",
            "axis/on_axis", "axis/x", "axis/s", "axis/tip", "axis/plane", "growth/hinges",
            "input/asset", "bind", "flower/petal_flower")
 
@@ -163,7 +163,7 @@ def run(growth_h5: str | Path, out: str | Path, cfg: Config, *, overwrite: bool 
         sound = report.soundness(positions, prep.faces,
                                  diag.get("opening_angle_per_petal", np.zeros((len(positions), 0))),
                                  distance_to_model=attrs.get("distance_to_model"),
-                                 petal_names=names)
+                                 petal_names=names, petal=petal, patch=prep.patch)
         diag["intersecting"] = np.asarray(sound["intersecting"], dtype=bool)
         attrs["summary"] = report.summary_line(sound)
         for p in sound["not_opened"]:
@@ -220,6 +220,10 @@ def decide_effects(cfg: Config, prep: Prepared) -> list[str]:
         pairs = petals_within_reach(prep.vertices, prep.petal,
                                     petal_lengths(prep.vertices, prep.petal, prep.base))
         count = int(prep.petal.max()) + 1
+        if prep.patch is not None:  # (petals left through each other as modelled: no contact)
+            first = np.zeros(count, dtype=np.int64)
+            first[prep.petal] = prep.patch
+            pairs = [(a, b) for a, b in pairs if first[a] != first[b]]
         if pairs:
             names.append("collisions")
             log.info("effects.collisions.enabled = auto: on (%d pair(s) of %d petals can meet)",

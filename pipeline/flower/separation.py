@@ -4,6 +4,8 @@ parts, the figures for the log and the artifact, a refusal in one line."""
 
 from __future__ import annotations
 
+import logging
+
 import numpy as np
 
 from pipeline.errors import BloomError
@@ -11,6 +13,7 @@ from pipeline.mesh import symmetry
 from pipeline.mesh.separate import SeparationError, separate
 
 KEY = "remesh.separate"
+log = logging.getLogger("bloom")
 
 
 def separate_sheets(sheets, *, gap: float, names: list[str], where: str, progress=None) -> dict:
@@ -23,8 +26,11 @@ def separate_sheets(sheets, *, gap: float, names: list[str], where: str, progres
     each other and too close before, named, the vertices moved, the largest and RMS move in
     petal lengths, the rounds, the gap and the distance of the nearest petals after.
 
-    Raises :class:`BloomError` naming ``where`` (the input file), the parts and the key
-    when the petals cannot be moved apart."""
+    Petals too far into each other to move apart within the bounds are left as modelled,
+    named in a warning: ``left``, and ``patch`` (V,) each vertex's contact patch (its
+    petal's, or one shared by petals left through each other: contact between them is
+    off). Raises :class:`BloomError` naming ``where`` (the input file), the parts and the
+    key when a move would fold a petal over itself."""
     petal = sheets.petal
     part_of = np.zeros(int(petal.max()) + 1, dtype=np.int64)
     part_of[petal] = sheets.part
@@ -40,13 +46,17 @@ def separate_sheets(sheets, *, gap: float, names: list[str], where: str, progres
         return ", ".join(f"{a}-{b}" for a, b in found) + f" ({which})"
 
     try:
-        done = separate(sheets.vertices, sheets.faces, petal, gap, progress=progress)
+        done = separate(sheets.vertices, sheets.faces, petal, gap, progress=progress, leave=True)
     except SeparationError as exc:
         raise BloomError(
             f"petals {pairs(exc.pairs)} pass through or touch each other and cannot "
             f"be separated: {exc.reason}; fix them in the input mesh, or set {KEY} = false and "
             "effects.collisions.enabled = false (the run then lets them pass through each "
             "other)", where=where) from None
+    if done.left:
+        log.warning("%s: petals %s pass through each other too far to move apart (%s): they "
+                    "are left as modelled, and contact between them is off (the others keep "
+                    "it; %s)", where, pairs(done.left), done.reason, KEY)
     moved = np.unique(petal[np.any(done.vertices != sheets.vertices, axis=1)])
     sheets.vertices = done.vertices
     for p in moved:
@@ -55,5 +65,6 @@ def separate_sheets(sheets, *, gap: float, names: list[str], where: str, progres
             "crossed_parts": pairs(done.crossed), "close": [list(p) for p in done.close],
             "close_parts": pairs(done.close), "moved": done.moved,
             "moved_petals": [int(p) for p in moved], "largest": done.largest, "rms": done.rms,
-            "rounds": done.iterations,
+            "rounds": done.iterations, "left": [list(p) for p in done.left],
+            "left_parts": pairs(done.left), "patch": done.patch,
             "distance": done.distance if np.isfinite(done.distance) else None}

@@ -52,6 +52,13 @@ class Separation:
     iterations: int = 0  #: rounds of push and check
     distance: float = np.inf  #: smallest distance between two petals after (inf: none near)
     length: np.ndarray = None  #: (P,) the length of each petal the moves are measured in
+    #: petal pairs left through each other (``leave=True``): too far into each other to
+    #: move apart within the bounds; each was put back as it was, and the two are one
+    #: patch of :attr:`patch` (contact between them is off)
+    left: list = field(default_factory=list)
+    reason: str = ""  #: why the first of ``left`` could not be separated
+    patch: np.ndarray = None  #: (V,) the contact patch of each vertex: its petal's, or the
+    #: smallest petal of a group left through each other
 
 
 class SeparationError(ValueError):
@@ -65,7 +72,7 @@ class SeparationError(ValueError):
 
 def separate(vertices: np.ndarray, faces: np.ndarray, petal: np.ndarray, gap: float, *,
              max_move: float = MAX_MOVE, max_iterations: int = MAX_ITERATIONS,
-             progress=None) -> Separation:
+             progress=None, leave: bool = False) -> Separation:
     """Move petals that pass through or touch each other apart, by as little as it takes.
 
     Parameters
@@ -76,6 +83,9 @@ def separate(vertices: np.ndarray, faces: np.ndarray, petal: np.ndarray, gap: fl
     gap : float, the smallest distance two petals may have after (same units as vertices)
     max_move : float, the bound on any vertex's move, as a fraction of its petal's length
     max_iterations : int, the bound on the rounds of push and check
+    leave : bool, where pairs cannot be moved apart within the bounds, put both petals
+        back as they were and leave them through each other (``Separation.left``; their
+        vertices one contact patch), and separate the others, instead of raising
 
     Returns
     -------
@@ -88,7 +98,7 @@ def separate(vertices: np.ndarray, faces: np.ndarray, petal: np.ndarray, gap: fl
     SeparationError
         naming the petal pairs, when they are still through each other or closer than the
         gap after ``max_iterations`` rounds, or a vertex would move further than
-        ``max_move``.
+        ``max_move`` (and not ``leave``); or a move folds a petal over itself.
 
     Notes
     -----
@@ -124,7 +134,7 @@ def separate(vertices: np.ndarray, faces: np.ndarray, petal: np.ndarray, gap: fl
     F = np.ascontiguousarray(faces, dtype=np.int64)
     petal = np.ascontiguousarray(petal, dtype=np.int64)
     if len(X0) == 0 or len(F) == 0:
-        return Separation(X0, length=np.zeros(0))
+        return Separation(X0, length=np.zeros(0), patch=petal.copy())
     count = int(petal.max()) + 1
     length = _petal_lengths(X0, petal, count)
     E = np.asarray(ipctk.edges(np.asfortranarray(F, dtype=np.int32)), dtype=np.int64)
@@ -134,6 +144,8 @@ def separate(vertices: np.ndarray, faces: np.ndarray, petal: np.ndarray, gap: fl
     patches = np.ascontiguousarray(petal, dtype=np.int32)
     mesh = ipctk.CollisionMesh(rest, edges32, faces32)
     mesh.can_collide = ipctk.make_vertex_patches_filter(patches)
+    left: list = []
+    reason = ""
     graph = _graph(E, len(X0))
     area = _vertex_areas(X0, F)
     edge = _mean_edge(X0, E)
@@ -144,7 +156,7 @@ def separate(vertices: np.ndarray, faces: np.ndarray, petal: np.ndarray, gap: fl
     crossed0 = close0 = None
     sides: dict = {}
     for it in range(max_iterations + 1):
-        crossing = _crossings(X, F, E, petal)
+        crossing = _crossings(X, F, E, patches)
         near = _near(mesh, X, petal, gap, crossing)
         close = [c for c in near if c[2] < gap]
         if progress is not None:  # (a round on a studio model takes seconds)
@@ -155,13 +167,16 @@ def separate(vertices: np.ndarray, faces: np.ndarray, petal: np.ndarray, gap: fl
             close0 = sorted({(a, b) for a, b, _, _ in close} - set(crossed0))
             if not crossed0 and not close0:
                 return Separation(X0, moved=0, distance=_min_distance(mesh, X0, gap),
-                                  length=length)
+                                  length=length, patch=petal.copy())
         if not len(crossing) and not close:
             break
         if it == max_iterations:
-            raise SeparationError(_involved(crossing, close, E, F, petal),
-                                  f"still {_state(crossing, close, E, F, petal)} after "
-                                  f"{max_iterations} rounds")
+            pairs = _involved(crossing, close, E, F, petal)
+            why = f"still {_state(crossing, close, E, F, petal)} after {max_iterations} rounds"
+            if not leave:
+                raise SeparationError(pairs, why)
+            left, reason = left + pairs, reason or why
+            break
         rows = _overlap_rows(X, F, E, petal, crossing, area, length, max_move, gap, sides)
         rows += [r for _, _, _, r in near]
         D = _solve(X, graph, rows, petal, spread / edge)
@@ -170,18 +185,59 @@ def separate(vertices: np.ndarray, faces: np.ndarray, petal: np.ndarray, gap: fl
         if reach.max() > max_move:
             worst = int(np.argmax(reach))
             pairs = _involved(crossing, close, E, F, petal)
-            mine = [p for p in pairs if petal[worst] in p] or pairs
-            raise SeparationError(mine, f"a vertex of petal {petal[worst]} would move "
-                                        f"{reach[worst]:.1%} of its length (at most "
-                                        f"{max_move:.0%})")
+            mine = _culprits(X0, petal, reach > max_move, pairs) or pairs
+            why = (f"a vertex of petal {petal[worst]} would move {reach[worst]:.1%} of its "
+                   f"length (at most {max_move:.0%})")
+            if not leave:
+                raise SeparationError([p for p in pairs if petal[worst] in p] or pairs, why)
+            # (those pairs are left as modelled: both petals back where they were, one
+            # patch, so that neither the test nor the pushes see them again)
+            left, reason = left + mine, reason or why
+            back = np.isin(petal, [q for pair in mine for q in pair])
+            X[back] = X0[back]
+            patches = np.ascontiguousarray(_patches(petal, count, left), dtype=np.int32)
+            mesh.can_collide = ipctk.make_vertex_patches_filter(patches)
+            for pair in mine:
+                sides.pop(pair, None)
     folded = sorted(set(_folded(X, F, petal)) - set(folded0))
     if folded:  # (the moves are smooth: this is a petal folded over itself at its base)
         raise SeparationError(crossed0 + close0, "it would fold petal(s) "
                               f"{', '.join(str(p) for p in folded)} over itself")
     move = np.linalg.norm(X - X0, axis=1) / length[petal]
+    left = sorted(set(left))
     return Separation(X, crossed0, close0, int(np.count_nonzero(np.any(X != X0, axis=1))),
                       float(move.max()), float(np.sqrt(np.mean(move ** 2))), it,
-                      _min_distance(mesh, X, gap), length)
+                      _min_distance(mesh, X, gap), length, left, reason,
+                      _patches(petal, count, left))
+
+
+def _culprits(X0, petal, over, pairs) -> list[tuple[int, int]]:
+    """The pairs (of ``pairs``) whose moves took vertices ``over`` (V,) too far: for each
+    petal with such vertices, its pair with the petal nearest to them (as modelled). A
+    pair crossing deep in one place is left; its petals' shallow crossings elsewhere are
+    still separated."""
+    out = set()
+    for b in np.unique(petal[over]).tolist():
+        others = [q for pair in pairs if b in pair for q in pair if q != b]
+        if not others:
+            continue
+        near = [cKDTree(X0[petal == q]).query(X0[over & (petal == b)])[0].min() for q in others]
+        q = others[int(np.argmin(near))]
+        out.add((min(b, q), max(b, q)))
+    return sorted(out)
+
+
+def _patches(petal, count: int, pairs) -> np.ndarray:
+    """``(V,)`` each vertex's patch: its petal, or, for petals joined by ``pairs``, the
+    smallest petal of their group."""
+    if not pairs:
+        return np.asarray(petal, dtype=np.int64).copy()
+    a, b = np.asarray(pairs, dtype=np.int64).T
+    graph = sp.coo_matrix((np.ones(len(a)), (a, b)), shape=(count, count))
+    label = connected_components(graph, directed=False)[1]
+    smallest = np.full(label.max() + 1, count, dtype=np.int64)
+    np.minimum.at(smallest, label, np.arange(count))
+    return smallest[label][petal]
 
 
 # --- finding what to move -------------------------------------------------------------------

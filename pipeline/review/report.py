@@ -46,7 +46,7 @@ def crossings(X, faces, petal) -> int:
 
 def soundness(positions: np.ndarray, faces: np.ndarray, opening_per_petal: np.ndarray, *,
               distance_to_model: float | None = None, petal_names: list[str] | None = None,
-              intersecting: list[bool] | None = None) -> dict:
+              intersecting: list[bool] | None = None, petal=None, patch=None) -> dict:
     """Whether a bloom is sound, from its arrays.
 
     Parameters
@@ -59,6 +59,9 @@ def soundness(positions: np.ndarray, faces: np.ndarray, opening_per_petal: np.nd
     petal_names : (P,) a name per petal (:func:`petal_names`), or None: "petal p".
     intersecting : (T,) whether each frame has an intersection, if already checked; else
         checked here, exactly (:func:`pipeline.sim.contact.frame_intersections`).
+    petal, patch : (V,) each vertex's petal and contact patch (sim.h5's ``mesh/petal``
+        and ``mesh/patch``), or None: petals that share a patch were left through each
+        other as modelled, and their crossings are not counted (``left``: those pairs).
 
     Returns
     -------
@@ -69,7 +72,13 @@ def soundness(positions: np.ndarray, faces: np.ndarray, opening_per_petal: np.nd
     """
     opening = np.asarray(opening_per_petal, dtype=np.float64).reshape(len(positions), -1)
     if intersecting is None:
-        intersecting = frame_intersections(positions, faces)
+        intersecting = frame_intersections(positions, faces, petal, patch)
+    left = []
+    if petal is not None and patch is not None:
+        petal, patch = np.asarray(petal), np.asarray(patch)
+        for q in np.unique(patch):
+            mine = np.unique(petal[patch == q]).tolist()
+            left.extend(f"{a}-{b}" for i, a in enumerate(mine) for b in mine[i + 1:])
     final = opening[-1]
     names = list(petal_names) if petal_names is not None else [f"petal {p}" for p in
                                                                  range(len(final))]
@@ -84,6 +93,7 @@ def soundness(positions: np.ndarray, faces: np.ndarray, opening_per_petal: np.nd
         "did_not_open": closed.tolist(),
         "not_opened": [{"petal": int(p), "name": names[p], "opening": float(final[p])}
                        for p in np.flatnonzero(closed)],
+        "left": left,
     }
 
 
@@ -92,8 +102,11 @@ def summary_line(sound: dict) -> str:
     intersection (checked exactly); last frame 1.6e-13 petal lengths from the model; every
     petal opened (least 21.3 deg)"; "unsound:" when a frame has an intersection or a petal
     did not open."""
+    left = sound.get("left") or []
     parts = [f"{sound['intersecting_frames']} of {sound['frames']} frames with an intersection "
-             "(checked exactly)"]
+             "(checked exactly" + (f"; not between petals left through each other as modelled: "
+                                   f"{', '.join(left[:6])}" + (" ..." if len(left) > 6 else "")
+                                   if left else "") + ")"]
     if sound["distance_to_model"] is not None:
         parts.append(f"last frame {sound['distance_to_model']:.2g} petal lengths (RMS) from "
                      "the model")
@@ -166,13 +179,15 @@ def compute(sim) -> dict:
         crossing.append(crossings(frame, faces, petal) if petals > 1 else 0)
     curvature = np.asarray(curvature)
     # ipctk's exact test, self-contact included (simulate ran it and kept the answer)
+    patch = sim["mesh/patch"] if "mesh/patch" in sim else None
     intersecting = (sim["diagnostics/intersecting"].tolist() if "diagnostics/intersecting" in sim
-                    else frame_intersections(X, faces))
+                    else frame_intersections(X, faces, petal, patch))
     diag = {k: sim[f"diagnostics/{k}"] for k in ("opening_angle_per_petal", "kinetic_energy")}
     distance = sim.attrs.get("distance_to_model")
     sound = soundness(X, faces, diag["opening_angle_per_petal"],
                       distance_to_model=None if distance is None else float(distance),
-                      petal_names=_names(sim, petal, faces), intersecting=intersecting)
+                      petal_names=_names(sim, petal, faces), intersecting=intersecting,
+                      petal=petal, patch=patch)
     report = {
         "scene": sim.config().get("scene", {}).get("name", "") or sim.path.parent.name,
         "effects": [e for e in str(sim.attrs.get("effects", "")).split(",") if e],

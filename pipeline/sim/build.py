@@ -46,6 +46,9 @@ class Prepared:
     rest_angle: np.ndarray  #: (H,) dihedral angles of the rest state
     #: (V,) a thick petal's mid-surface thickness (mesh units; 0 for sheets), or None
     thickness: np.ndarray | None = None
+    #: (V,) each vertex's contact patch (its petal, or one shared by petals left through
+    #: each other as modelled: no contact between them), or None: its petal
+    patch: np.ndarray | None = None
 
     @classmethod
     def from_artifact(cls, src) -> Prepared:
@@ -55,7 +58,8 @@ class Prepared:
                    src["axis/plane"], np.asarray(src.attrs["flower_axis"]), src["growth/edges"],
                    src["growth/alpha"], src["growth/stiffness"], src["growth/hinges"],
                    src["growth/rest_angle"],
-                   src["mesh/thickness"] if "mesh/thickness" in src else None)
+                   src["mesh/thickness"] if "mesh/thickness" in src else None,
+                   src["mesh/patch"] if "mesh/patch" in src else None)
 
     @classmethod
     def of(cls, vertices, faces, petal, axes, growth) -> Prepared:
@@ -126,6 +130,7 @@ class Prepared:
         if max_edge is None:
             max_edge = self.max_grown_edge()
         return fx.build(names, vertices=positions, faces=self.faces, petal=self.petal,
+                        patch=self.patch,
                         pinned=self.base, on_axis=self.on_axis, plane=self.plane, s=self.s,
                         rest_angle=self.rest_angle if rest_angle is None else rest_angle,
                         flower_axis=self.flower_axis, max_edge=max_edge, params=params)

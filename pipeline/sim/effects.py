@@ -201,8 +201,10 @@ class Effects:
 
 
 def build(names, *, vertices, faces, petal, pinned, on_axis, plane, s, rest_angle,
-          flower_axis, max_edge: float, params: Params) -> Effects:
-    """Build the enabled effects (``names``) from the mesh and their parameters."""
+          flower_axis, max_edge: float, params: Params, patch=None) -> Effects:
+    """Build the enabled effects (``names``) from the mesh and their parameters.
+    ``patch`` (V,): contact patches (petals left through each other as modelled share one,
+    and do not collide); None: each petal its own."""
     names = tuple(n for n in ORDER if n in set(names))
     petal = np.asarray(petal, dtype=np.int64)
     point, direction = flower_axis_or_guess(vertices, flower_axis)
@@ -212,7 +214,8 @@ def build(names, *, vertices, faces, petal, pinned, on_axis, plane, s, rest_angl
         fx.curl = Curl.build(rest_angle, params.curl.beta)
     if "collisions" in names:
         c = params.collisions
-        fx.collisions = Collisions.build(vertices, faces, petal, offset=c.offset,
+        fx.collisions = Collisions.build(vertices, faces, petal if patch is None else patch,
+                                         offset=c.offset,
                                          max_edge=max_edge, thickness=c.thickness)
     if "connections" in names:
         c = params.connections

@@ -315,18 +315,43 @@ def _pairs(pairs) -> str:
     return ", ".join(f"{a}-{b}" for a, b in pairs) or "(none found pairwise)"
 
 
-def frame_intersections(frames, faces) -> list[bool]:
+def frame_intersections(frames, faces, petal=None, patch=None) -> list[bool]:
     """For each frame ``(V, 3)`` of ``frames``, whether any two triangles of the mesh
     intersect (an exact edge-through-triangle test by ipctk; petals against each other
-    and each against itself)."""
+    and each against itself).
+
+    ``petal`` and ``patch`` ``(V,)``: petals that share a contact patch (left through
+    each other as modelled: remesh could not move them apart) may pass through each
+    other, and through themselves; the others are checked against every petal and
+    against themselves."""
     ipctk = _ipctk()
     F = np.asfortranarray(faces, dtype=np.int32)
     E = ipctk.edges(F)
+    shared = []
+    if petal is not None and patch is not None:
+        petal, patch = np.asarray(petal), np.asarray(patch)
+        shared = [int(q) for q in np.unique(patch) if np.unique(petal[patch == q]).size > 1]
     out = []
-    mesh = None
+    mesh = between = None
+    alone = []
     for X in frames:
         X = np.asfortranarray(X, dtype=np.float64)
         if mesh is None:
             mesh = ipctk.CollisionMesh(X, E, F)
-        out.append(bool(ipctk.has_intersections(mesh, X)))
+            if shared:
+                between = ipctk.CollisionMesh(X, E, F)
+                patch32 = np.ascontiguousarray(patch, dtype=np.int32)
+                between.can_collide = ipctk.make_vertex_patches_filter(patch32)
+                face_petal = petal[np.asarray(faces)[:, 0]]
+                single = np.unique(petal[~np.isin(patch, shared)])
+                for p in single:  # (each with the arrays it refers to: they must live)
+                    f = np.asfortranarray(F[face_petal == p])
+                    if len(f):
+                        e = ipctk.edges(f)
+                        alone.append((f, e, ipctk.CollisionMesh(X, e, f)))
+        hit = bool(ipctk.has_intersections(mesh, X))
+        if hit and between is not None:  # (only between patches, and within a lone petal)
+            hit = bool(ipctk.has_intersections(between, X)) or any(
+                ipctk.has_intersections(m, X) for _, _, m in alone)
+        out.append(hit)
     return out
