@@ -211,6 +211,17 @@ def test_a_pair_too_far_through_each_other_is_left_as_modelled_and_the_rest_sepa
     assert min_distance(contact, out.vertices, 4 * GAP) >= GAP  # (the others kept apart)
 
 
+def test_when_the_rounds_run_out_the_pairs_still_crossing_are_left_as_modelled():
+    """The pinwheel given one round: the pairs still crossing are left, their petals put
+    back as modelled, and nothing crosses across contact patches."""
+    v, f, p = pinwheel()
+    out = separate(v, f, p, GAP, max_iterations=1, leave=True)
+    assert out.left and "after 1 rounds" in out.reason
+    back = np.isin(p, [q for pair in out.left for q in pair])
+    assert np.array_equal(out.vertices[back], v[back])
+    assert frame_intersections([out.vertices], f, p, out.patch) == [False]
+
+
 @pytest.mark.slow
 def test_the_dense_crossed_12_petal_bud_is_separated():
     """The bud of 12 petals as bent, before it is untangled (crossing=True): 11 pairs cross."""

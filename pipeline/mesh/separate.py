@@ -175,7 +175,16 @@ def separate(vertices: np.ndarray, faces: np.ndarray, petal: np.ndarray, gap: fl
             why = f"still {_state(crossing, close, E, F, petal)} after {max_iterations} rounds"
             if not leave:
                 raise SeparationError(pairs, why)
+            # (those pairs are left as modelled: their petals back where they were, and
+            # whatever then crosses them across patches is left too, until nothing does)
             left, reason = left + pairs, reason or why
+            while pairs:
+                back = np.isin(petal, [q for pair in left for q in pair])
+                X[back] = X0[back]
+                patches = np.ascontiguousarray(_patches(petal, count, left), dtype=np.int32)
+                mesh.can_collide = ipctk.make_vertex_patches_filter(patches)
+                pairs = _pair_list(_crossings(X, F, E, patches), E, F, petal)
+                left = left + pairs
             break
         rows = _overlap_rows(X, F, E, petal, crossing, area, length, max_move, gap, sides)
         rows += [r for _, _, _, r in near]
