@@ -31,19 +31,10 @@ def _scene(tmp_path, name):
     return scene
 
 
-#: models whose crossed petals main's remesh.separate (default on) refuses to move apart
-#: ("a vertex of petal 7 would move 10.8% of its length (at most 10%)"; the rose bed's
-#: petal 74, 38.2%): they go through remesh, axis and growth with remesh.separate = false
-SEPARATION_REFUSES = {"resonate_lotus.glb", "mitagki_roses.glb"}
-
-
 @pytest.mark.slow
 @pytest.mark.studio
 @needs_shared
-@pytest.mark.parametrize("name", [
-    pytest.param(n, marks=pytest.mark.xfail(strict=True, reason="remesh.separate refuses its "
-                                            "crossed petals")) if n in SEPARATION_REFUSES else n
-    for n in sorted(MODELS)])
+@pytest.mark.parametrize("name", sorted(MODELS))
 def test_studio_model_through_remesh_axis_growth(tmp_path, name):
     least, flowers, area = MODELS[name]
     scene = _scene(tmp_path, name)
@@ -61,6 +52,10 @@ def test_studio_model_through_remesh_axis_growth(tmp_path, name):
         kept = sum(r["area_in"] * r["area_kept"] for r in found.values()) / sum(
             r["area_in"] for r in found.values())
         assert kept >= area, found
+        # (pairs too far into each other to part are left as modelled, sharing a patch)
+        patch = h["mesh/patch"][()]
+        left = json.loads(h.attrs["separation"])["left"]
+        assert (len(np.unique(patch)) < petals) == bool(left)
     for stage, src, dst in (("axis", "r.h5", "a.h5"), ("growth", "a.h5", "g.h5")):
         code, out = run(stage, tmp_path / src, "--config", scene, "--out", tmp_path / dst)
         assert code == 0 and "Traceback" not in out, out

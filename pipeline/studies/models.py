@@ -112,6 +112,11 @@ def judge(row: Row, h) -> None:
     failed = []
     if crossed.any():
         failed.append("petals through each other")
+    if "mesh/patch" in h:  # (pairs remesh could not part: left through each other)
+        patch = h["mesh/patch"][()]
+        left = row.petals - len(np.unique(patch))
+        if left:
+            failed.append(f"{left} petal(s) left through another as modelled")
     if row.start == "open":
         if not row.distance <= ON_MODEL:
             failed.append(f"ends {row.distance:.3g} petal lengths from the model")
