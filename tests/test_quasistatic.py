@@ -405,13 +405,16 @@ def test_threads_give_the_same_arrays_as_one(monkeypatch, effects):
     assert np.array_equal(runs[0].positions, runs[1].positions)
 
 
-@pytest.mark.parametrize("names, inertia", [((), False), (("collisions",), False),
-                                             (("connections",), True)],
-                         ids=["independent-petals", "contact", "springs-inertia"])
-def test_the_solver_state_restored_mid_path_goes_on_to_the_same_bits(names, inertia):
+@pytest.mark.parametrize("names, inertia, flowers", [((), False, 1), (("collisions",), False, 1),
+                                                      (("connections",), True, 1),
+                                                      (("collisions",), False, 2)],
+                         ids=["independent-petals", "contact", "springs-inertia",
+                              "contact-two-flowers"])
+def test_the_solver_state_restored_mid_path_goes_on_to_the_same_bits(names, inertia, flowers):
     """The quasi-static solver's state (:meth:`QuasiStatic.state`) taken after 6 frames
     and restored into a fresh solver (as ``simulate --resume`` does from a checkpoint)
-    gives the frames after it to the bit, and the same Newton counts."""
+    gives the frames after it to the bit, and the same Newton counts. Two buds far apart
+    with contact are two problems, each with its own contact."""
     import copy
 
     from pipeline.mesh import procedural
@@ -420,6 +423,9 @@ def test_the_solver_state_restored_mid_path_goes_on_to_the_same_bits(names, iner
     from pipeline.sim.run import frame_steps
 
     v, f, p = procedural.bud(3, 600, 0)
+    if flowers == 2:  # (a second bud, far off: two problems)
+        far = 10.0 * np.ptp(v, axis=0).max()
+        v, f, p = np.vstack([v, v + [far, 0.0, 0.0]]), np.vstack([f, f + len(v)]), np.r_[p, p + 3]
     prep = Prepared.from_mesh(v, f, p)
     model = prep.model(0.1, 0.0005)
     params = Params.defaults().but(connections={"max_distance": 3.0})
@@ -440,6 +446,11 @@ def test_the_solver_state_restored_mid_path_goes_on_to_the_same_bits(names, iner
 
     whole = go(*fresh(), len(targets))
     qs, state, fx = fresh()
+    if flowers == 2:
+        go(qs, state, fx, 2)
+        assert len(qs._parts) == 2 and all(pt.solver.newton.contact is not None
+                                           for pt in qs._parts)
+        qs, state, fx = fresh()
     go(qs, state, fx, 7)
     saved = copy.deepcopy(qs.state())
     arrays = {k: a.copy() for k, a in fx.bundle()._asdict().items() if isinstance(a, np.ndarray)}

@@ -13,6 +13,8 @@ from pipeline.mesh import symmetry
 from pipeline.mesh.separate import SeparationError, separate
 
 KEY = "remesh.separate"
+#: pairs named in a line of the log (all are in remesh.h5's separation attribute)
+SHOWN = 12
 log = logging.getLogger("bloom")
 
 
@@ -36,14 +38,18 @@ def separate_sheets(sheets, *, gap: float, names: list[str], where: str, progres
     part_of[petal] = sheets.part
 
     def pairs(found) -> str:
-        """"0-1, 1-2 (0: 'a', 1: 'b', 2: 'c')", or "... (of part 'a')" when one part."""
+        """"0-1, 1-2 (0: 'a', 1: 'b', 2: 'c')", or "... (of part 'a')" when one part;
+        the first :data:`SHOWN` pairs and how many more (a rose bed has hundreds)."""
         if not found:
             return ""
+        more = len(found) - SHOWN
+        found = found[:SHOWN]
         petals = sorted({p for pair in found for p in pair})
         parts = [names[part_of[p]] for p in petals]
         which = (f"of part {parts[0]!r}" if len(set(parts)) == 1 else
                  ", ".join(f"{p}: {n!r}" for p, n in zip(petals, parts, strict=True)))
-        return ", ".join(f"{a}-{b}" for a, b in found) + f" ({which})"
+        return (", ".join(f"{a}-{b}" for a, b in found)
+                + (f" and {more} more pair(s)" if more > 0 else "") + f" ({which})")
 
     try:
         done = separate(sheets.vertices, sheets.faces, petal, gap, progress=progress, leave=True)

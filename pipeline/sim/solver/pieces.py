@@ -11,6 +11,7 @@ arithmetic is its own, so the results are the same bits with any number of threa
 from __future__ import annotations
 
 import os
+import threading
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
@@ -19,11 +20,15 @@ import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components
 
 from pipeline.sim.effects import Effects
+from pipeline.sim.explicit.pushback import Collisions
 from pipeline.sim.model import Model, State
 from pipeline.sim.terms.center_plane import CenterPlane
 from pipeline.sim.terms.growth import Curl
 
 _POOL = None  #: the thread pool, made at its first use
+#: whether this thread is running a call of :func:`_map` (a cluster of petals solved in a
+#: pool thread maps its groups inline: waiting on the pool from the pool can deadlock it)
+_WORKER = threading.local()
 
 
 def _map(fn, items: list) -> list:
@@ -33,13 +38,21 @@ def _map(fn, items: list) -> list:
     the groups of one coupled Newton step, the pieces' Hessians. Each call's arithmetic is its own, so the
     results are the same to the bit with any number of threads, and they come back in
     order (an exception: the first item's that raised). A call made from a pool thread
-    has one item (a petal's solver has one group), so it runs inline."""
+    (a cluster of petals' solver, mapping its groups) runs inline."""
     global _POOL
-    if len(items) < 2:
+    if len(items) < 2 or getattr(_WORKER, "busy", False):
         return [fn(x) for x in items]
     if _POOL is None:
         _POOL = ThreadPoolExecutor(max_workers=max(1, min(4, os.cpu_count() or 1)))
-    return list(_POOL.map(fn, items))
+
+    def run(x):
+        _WORKER.busy = True
+        try:
+            return fn(x)
+        finally:
+            _WORKER.busy = False
+
+    return list(_POOL.map(run, items))
 
 
 @dataclass
@@ -53,12 +66,40 @@ class Piece:
     solver: object = None  #: its own path follower (a QuasiStatic)
 
 
-def split(model: Model, effects: Effects) -> list[Piece]:
+#: with contact, pieces (petals) are problems apart in clusters that cannot meet: each
+#: piece's box grown by this many times the largest piece's box diagonal (a petal swings
+#: about its base by at most its length; boxes that overlap are one cluster)
+CLUSTER_REACH = 1.0
+
+
+def clusters(positions: np.ndarray, label: np.ndarray, count: int) -> np.ndarray:
+    """``(count,)`` the cluster of each piece (``label`` (V,): each vertex's): pieces
+    whose boxes, grown by :data:`CLUSTER_REACH` of the largest piece's box diagonal,
+    overlap (directly or through others) are one cluster: the flowers of a bush, far
+    enough apart, are each a cluster of their own."""
+    from pipeline.flower.measure import REACH, petals_within_reach
+
+    X = np.asarray(positions, dtype=np.float64)
+    low = np.full((count, 3), np.inf)
+    high = np.full((count, 3), -np.inf)
+    np.minimum.at(low, label, X)
+    np.maximum.at(high, label, X)
+    size = float(np.linalg.norm(high - low, axis=1).max())
+    pairs = np.asarray(petals_within_reach(X, label, np.full(count, CLUSTER_REACH * size / REACH)),
+                       dtype=np.int64).reshape(-1, 2)
+    graph = sp.coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(count, count))
+    return connected_components(graph, directed=False)[1].astype(np.int64)
+
+
+def split(model: Model, effects: Effects, positions=None) -> list[Piece]:
     """The mesh's connected pieces, each as a problem of its own; [] if it is one piece
-    or if the pieces interact (collisions, connection springs: then they are one problem).
-    Without those, petals do not interact: each is solved on its own, so a petal that
-    snaps costs iterations of its own factorization only, and the line search of one does
-    not hold back another. Pieces without springs are left where they are."""
+    or if the pieces interact (connection springs: then they are one problem). Without
+    those, petals do not interact: each is solved on its own, so a petal that snaps costs
+    iterations of its own factorization only, and the line search of one does not hold
+    back another. With contact, the pieces are gathered in clusters that cannot meet
+    (:func:`clusters`, measured at ``positions``: a bush's flowers), each a problem of
+    its own with its own contact; [] if that is one cluster. Pieces without springs are
+    left where they are."""
     n = model.vertex_count
     e = model.edge_indices
     graph = sp.coo_matrix((np.ones(len(e)), (e[:, 0], e[:, 1])), shape=(n, n))
@@ -69,10 +110,18 @@ def split(model: Model, effects: Effects) -> list[Piece]:
             raise ValueError(f"a piece of the mesh ({int(np.sum(label == c))} vertices) has no "
                              "fixed base vertex: with nothing holding it, it has no "
                              "equilibrium; check axis.base")
-    if count <= 1 or effects.collisions is not None or effects.connections is not None:
+    if count <= 1 or effects.connections is not None:
         return []
+    cluster = np.arange(count)
+    if effects.collisions is not None:
+        if positions is None:
+            return []
+        cluster = clusters(positions, label, count)
+        if cluster.max() == 0:
+            return []
+    label = cluster[label]  # (from here on, a "piece" is a cluster of pieces)
     parts = []
-    for c in range(count):
+    for c in range(int(label.max()) + 1):
         idx = np.flatnonzero(label == c)
         local = np.full(n, -1, dtype=np.int64)
         local[idx] = np.arange(len(idx))
@@ -102,6 +151,14 @@ def split(model: Model, effects: Effects) -> list[Piece]:
             mine = label[cp.vertices] == c
             fx.center_plane = CenterPlane(local[cp.vertices[mine]], cp.normals[mine],
                                           cp.height[mine])
+        if effects.collisions is not None:  # (its contact: the quasi-static solver's)
+            k = effects.collisions
+            cell, offset, margin, slack = (float(x) for x in k.params)
+            faces = k.faces[label[k.faces[:, 0]] == c]
+            fx.collisions = Collisions.build(
+                positions[idx], local[faces], np.unique(k.vertex_petal[idx], return_inverse=True)[1],
+                offset=offset, max_edge=cell - 2.0 * (margin + offset + slack),
+                thickness=k.thickness, margin=margin, slack=slack)
         zeros = np.zeros((len(idx), 3))
         state = State(zeros.copy(), zeros.copy(), zeros.copy(), 0, 0.0, zeros.copy())
         parts.append(Piece(idx, sub, fx, state))

@@ -104,6 +104,8 @@ class QuasiStatic:
     newton: Newton | None = field(default=None, repr=False)  #: its Newton solver
     _started: bool = field(default=False, repr=False)  #: settled at the start
     _parts: list | None = field(default=None, repr=False)  #: one solver per petal, or []
+    #: (V, 3) where the petals were gathered into clusters that cannot meet (contact)
+    _split_at: np.ndarray | None = field(default=None, repr=False)
     _perturbed: bool = field(default=False, repr=False)  #: the symmetry-breaking nudge is made
     #: the equilibrium before the last one on the path: (A, X), for the secant predictor
     _behind: tuple | None = field(default=None, repr=False)
@@ -153,7 +155,7 @@ class QuasiStatic:
             self._perturbed = True
             self._perturb(model, state, effects)
         if self._parts is None:
-            self._split(model, effects)
+            self._split(model, effects, state.positions)
         if not self._parts:
             try:
                 self._advance(model, state, control, n_steps, h, effects)
@@ -213,12 +215,18 @@ class QuasiStatic:
         if effects.connections is not None:
             self.newton.springs = Springs(effects.connections)
 
-    def _split(self, model: Model, effects: Effects) -> None:
-        """The independent petals, each with a solver of its own (or none: one problem)."""
-        self._parts = split(model, effects)
+    def _split(self, model: Model, effects: Effects, positions) -> None:
+        """The independent petals (with contact, clusters of petals that cannot meet),
+        each with a solver of its own (or none: one problem)."""
+        self._parts = split(model, effects, positions)
+        self._split_at = None if positions is None else np.array(positions, dtype=np.float64)
         for part in self._parts:
             part.solver = QuasiStatic(self.stages, self.tolerance, self.max_iterations,
                                       perturbation=0.0, inertia=self.inertia)
+            if part.effects.collisions is not None:  # (a cluster: contact of its own)
+                part.state.positions[:] = positions[part.vertices]
+                part.solver._couple(part.model, part.state, part.effects, check=False)
+                part.solver._parts = []
 
     # --- what a checkpoint saves ---------------------------------------------------------------
     def state(self) -> dict:
@@ -241,6 +249,7 @@ class QuasiStatic:
             "contact": None if newton.contact is None else newton.contact.snapshot(),
             "system": None if newton.system is None else newton.system.snapshot(),
             "parts": None if self._parts is None else [p.solver.state() for p in self._parts],
+            "split_at": self._split_at if self._parts else None,
         }
 
     def restore(self, model: Model, state: State, effects: Effects, saved: dict) -> None:
@@ -257,7 +266,11 @@ class QuasiStatic:
             self._couple(model, state, effects, check=False)
             if saved["contact"] is not None:
                 self.newton.contact.restore(saved["contact"])
-            self._split(model, effects)
+            if saved["parts"]:
+                at = saved.get("split_at")
+                self._split(model, effects, None if at is None else np.asarray(at))
+            else:
+                self._parts = []
             for part, part_state in zip(self._parts, saved["parts"], strict=True):
                 part.state.step = state.step  # (each petal's path is at the whole's step)
                 part.solver.restore(part.model, part.state, part.effects, part_state)
