@@ -114,6 +114,25 @@ def test_ipctk_runs_on_one_thread():
     assert _ipctk().get_num_threads() == 1
 
 
+def test_a_petal_keeps_off_itself_where_its_start_allows():
+    """Two sheets of one petal (a petal folded over itself), 5 gaps apart: a move of the
+    upper one through the lower is cut by the CCD (the petal keeps off itself), unless
+    the barrier is between petals only (``own=False``). Sheets 1.5 gaps apart, within
+    the barrier's reach at the start (a sliver can be), are left to themselves: the
+    barrier would act at rest."""
+    v, faces, petal, _ = two_sheets(height=0.0)
+    one = np.zeros_like(petal)
+    for height, own, cut in ((5 * GAP, True, True), (5 * GAP, False, False),
+                             (1.5 * GAP, True, False)):
+        X = v.copy()
+        X[petal == 1, 2] = height
+        c = Contact.build(X, faces, one, gap=GAP, stiffness=0.1, own=own)
+        through = X.copy()
+        through[petal == 1, 2] -= 2 * height
+        step = c.max_step(X, through)
+        assert (step < 0.5) == cut and (step == 1.0) == (not cut), (height, own, step)
+
+
 def test_the_active_set_is_the_same_whatever_order_the_broad_phase_finds():
     """The broad phase runs in threads, which find the candidates in an order the
     scheduling decides; the active set is put in one order (``_canonical``), so the

@@ -217,6 +217,7 @@ def build(names, *, vertices, faces, petal, pinned, on_axis, plane, s, rest_angl
         fx.collisions = Collisions.build(vertices, faces, petal if patch is None else patch,
                                          offset=c.offset,
                                          max_edge=max_edge, thickness=c.thickness)
+        fx.collisions.joined = patch is not None and bool(np.any(np.asarray(patch) != petal))
     if "connections" in names:
         c = params.connections
         fx.connections = Connections.build(

@@ -178,7 +178,8 @@ def contact_free(lift, positions, effects):
     c = effects.collisions
     if c is None:
         return lift
-    contact = Contact.build(positions, c.faces, c.vertex_petal, gap=c.thickness, stiffness=1.0)
+    contact = Contact.build(positions, c.faces, c.vertex_petal, gap=c.thickness, stiffness=1.0,
+                            own=not c.joined)
     fraction = contact.max_step(positions, positions + lift)
     if fraction >= 1.0:
         return lift

@@ -337,6 +337,9 @@ class Collisions:
     #: gap the quasi-static solver's contact barrier keeps between petals (mesh units);
     #: the push-back above does not use it
     thickness: float
+    #: ``vertex_petal`` holds contact patches that join petals (left through each other
+    #: as modelled): the barrier then keeps no petal off itself (see the contact's build)
+    joined: bool = False
 
     @classmethod
     def build(cls, vertices, faces, petal, *, offset: float, max_edge: float,

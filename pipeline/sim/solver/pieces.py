@@ -159,6 +159,7 @@ def split(model: Model, effects: Effects, positions=None) -> list[Piece]:
                 positions[idx], local[faces], np.unique(k.vertex_petal[idx], return_inverse=True)[1],
                 offset=offset, max_edge=cell - 2.0 * (margin + offset + slack),
                 thickness=k.thickness, margin=margin, slack=slack)
+            fx.collisions.joined = k.joined
         zeros = np.zeros((len(idx), 3))
         state = State(zeros.copy(), zeros.copy(), zeros.copy(), 0, 0.0, zeros.copy())
         parts.append(Piece(idx, sub, fx, state))

@@ -209,7 +209,8 @@ class QuasiStatic:
             if getattr(model, "shell", None) is not None:  # (in petal units: contact_stiffness)
                 stiffness = contact_stiffness(model.shell)
             self.newton.contact = Contact.build(state.positions, c.faces, c.vertex_petal,
-                                                gap=c.thickness, stiffness=stiffness)
+                                                gap=c.thickness, stiffness=stiffness,
+                                                own=not c.joined)
             if check:
                 self.newton.contact.check_start(state.positions)
         if effects.connections is not None:

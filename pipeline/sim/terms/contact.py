@@ -8,10 +8,11 @@ Newton step (line search, negative-curvature search) is first limited by continu
 collision detection (:meth:`Contact.max_step`), so no iterate ever comes closer than
 ``gap``, let alone crosses: the energy stays finite and the barrier keeps it that way.
 
-- Filter: a petal does not collide with itself. Its own elements are held apart by its
-  stretch and bending springs (a petal folding through itself is not what these scenes
-  do), and the paper's model has only contact between petals. The exact intersection
-  test of the report (:func:`frame_intersections`) checks self-intersections too.
+- A petal keeps off itself too (ipctk leaves out primitives that share a vertex),
+  where its start allows it (:func:`_own_contact`: nothing through itself, none of its
+  own primitives within the barrier's reach); otherwise contact is between petals
+  only. The exact intersection test of the report (:func:`frame_intersections`) checks
+  self-intersections.
 - ``gap`` is the key ``effects.collisions.thickness``; the band over which the barrier
   acts is as wide again, so petals feel each other from ``2 gap`` on.
 - ``kappa`` makes the barrier as stiff, at the middle of its band, as the stiffest
@@ -112,14 +113,19 @@ class Contact(Term):
     _high: np.ndarray | None = field(repr=False, default=None)
 
     @classmethod
-    def build(cls, positions, faces, petal, *, gap: float, stiffness: float) -> Contact:
-        """``stiffness``: what the barrier's curvature is at the middle of its band."""
+    def build(cls, positions, faces, petal, *, gap: float, stiffness: float,
+              own: bool = True) -> Contact:
+        """``stiffness``: what the barrier's curvature is at the middle of its band.
+        ``own``: a petal keeps off itself too (its triangles that share no vertex), where
+        the start allows it (:func:`_own_contact`); False: between petals only (``petal``
+        then holds patches that join petals left through each other)."""
         ipctk = _ipctk()
         X = np.asfortranarray(positions, dtype=np.float64)
         F = np.asfortranarray(faces, dtype=np.int32)
         mesh = ipctk.CollisionMesh(X, ipctk.edges(F), F)
         petal = np.ascontiguousarray(petal, dtype=np.int32)
-        mesh.can_collide = ipctk.make_vertex_patches_filter(petal)
+        if not (own and _own_contact(mesh, X, petal, 2.0 * gap)):
+            mesh.can_collide = ipctk.make_vertex_patches_filter(petal)
         band = gap
         kappa = stiffness / barrier_curvature(gap + 0.5 * band, gap, band)
         contact = cls(mesh, petal, float(gap), float(band), float(kappa))
@@ -309,6 +315,31 @@ class Contact(Term):
         return float(self.candidates.compute_collision_free_stepsize(
             self.mesh, np.asfortranarray(X0, dtype=np.float64),
             np.asfortranarray(X1, dtype=np.float64), self.gap, self.ccd))
+
+
+def _own_contact(mesh, X, petal, reach: float) -> bool:
+    """Whether the barrier can keep each petal off itself from the start ``X``: no petal
+    passes through itself there, and no two of its primitives that share no vertex are
+    within the barrier's ``reach`` (they would feel it at rest; a sliver can). Otherwise
+    contact is between petals only, and the log says why."""
+    ipctk = _ipctk()
+    why = ""
+    if ipctk.has_intersections(mesh, X):
+        why = "a petal, or two, pass through themselves or each other"
+    else:
+        found = ipctk.NormalCollisions()
+        found.build(mesh, X, reach)
+        edges, faces = mesh.edges, mesh.faces
+        for k in range(len(found)):
+            ids = found[k].vertex_ids(edges, faces)
+            if len({int(petal[i]) for i in ids if i >= 0}) == 1:
+                why = (f"petal {int(petal[ids[0]])} has triangles within {reach:.3g} of "
+                       "each other")
+                break
+    if why:
+        logging.getLogger("bloom").info("contact: between petals only, not of a petal with "
+                                        "itself (%s at the start)", why)
+    return not why
 
 
 def _pairs(pairs) -> str:
