@@ -21,6 +21,7 @@ from pipeline.chain import carried_attrs
 from pipeline.config import Config
 from pipeline.errors import BloomError
 from pipeline.flower.measure import Start, bloom_start, petals_within_reach
+from pipeline.mesh.separate import patch_groups
 from pipeline.progress import Progress
 from pipeline.review import report
 from pipeline.sim import checkpoint
@@ -221,9 +222,9 @@ def decide_effects(cfg: Config, prep: Prepared) -> list[str]:
                                     petal_lengths(prep.vertices, prep.petal, prep.base))
         count = int(prep.petal.max()) + 1
         if prep.patch is not None:  # (petals left through each other as modelled: no contact)
-            first = np.zeros(count, dtype=np.int64)
-            first[prep.petal] = prep.patch
-            pairs = [(a, b) for a, b in pairs if first[a] != first[b]]
+            together = {(a, b) for g in patch_groups(prep.petal, prep.patch)
+                        for i, a in enumerate(g) for b in g[i + 1:]}
+            pairs = [pair for pair in pairs if pair not in together]
         if pairs:
             names.append("collisions")
             log.info("effects.collisions.enabled = auto: on (%d pair(s) of %d petals can meet)",

@@ -150,6 +150,17 @@ def separate(vertices: np.ndarray, faces: np.ndarray, petal: np.ndarray, gap: fl
     mesh.can_collide = ipctk.make_vertex_patches_filter(patches)
     left: list = []
     reason = ""
+
+    def put_back(pairs) -> np.ndarray:
+        """The petals of ``pairs`` back as modelled; the patches with every pair of
+        ``left`` joined, given to the mesh's filter (so that neither the test nor the
+        pushes see those pairs again). Returns the patches."""
+        back = np.isin(petal, [q for pair in pairs for q in pair])
+        X[back] = X0[back]
+        joined = np.ascontiguousarray(_patches(petal, count, left), dtype=np.int32)
+        mesh.can_collide = ipctk.make_vertex_patches_filter(joined)
+        return joined
+
     graph = _graph(E, len(X0))
     area = _vertex_areas(X0, F)
     edge = _mean_edge(X0, E)
@@ -183,14 +194,11 @@ def separate(vertices: np.ndarray, faces: np.ndarray, petal: np.ndarray, gap: fl
                       else ""))
             if not leave:
                 raise SeparationError(pairs, why)
-            # (those pairs are left as modelled: their petals back where they were, and
-            # whatever then crosses them across patches is left too, until nothing does)
+            # (those pairs are left as modelled, and whatever then crosses them across
+            # patches is left too, until nothing does)
             left, reason = left + pairs, reason or why
             while pairs:
-                back = np.isin(petal, [q for pair in left for q in pair])
-                X[back] = X0[back]
-                patches = np.ascontiguousarray(_patches(petal, count, left), dtype=np.int32)
-                mesh.can_collide = ipctk.make_vertex_patches_filter(patches)
+                patches = put_back(left)
                 pairs = _pair_list(_crossings(X, F, E, patches), E, F, petal)
                 left = left + pairs
             break
@@ -207,13 +215,8 @@ def separate(vertices: np.ndarray, faces: np.ndarray, petal: np.ndarray, gap: fl
                    f"length (at most {max_move:.0%})")
             if not leave:
                 raise SeparationError([p for p in pairs if petal[worst] in p] or pairs, why)
-            # (those pairs are left as modelled: both petals back where they were, one
-            # patch, so that neither the test nor the pushes see them again)
-            left, reason = left + mine, reason or why
-            back = np.isin(petal, [q for pair in mine for q in pair])
-            X[back] = X0[back]
-            patches = np.ascontiguousarray(_patches(petal, count, left), dtype=np.int32)
-            mesh.can_collide = ipctk.make_vertex_patches_filter(patches)
+            left, reason = left + mine, reason or why  # (those pairs left as modelled)
+            patches = put_back(mine)
             for pair in mine:
                 sides.pop(pair, None)
     folded = sorted(set(_folded(X, F, petal)) - set(folded0))
@@ -242,6 +245,18 @@ def _culprits(X0, petal, over, pairs) -> list[tuple[int, int]]:
         q = others[int(np.argmin(near))]
         out.add((min(b, q), max(b, q)))
     return sorted(out)
+
+
+def patch_groups(petal, patch) -> list[list[int]]:
+    """The petals that share a contact patch (left through each other as modelled), a
+    list per patch of two petals or more, each ascending; [] when every petal is its own
+    patch. ``petal`` and ``patch``: (V,) each vertex's (remesh.h5's ``mesh/petal`` and
+    ``mesh/patch``)."""
+    petal, patch = np.asarray(petal), np.asarray(patch)
+    of = np.zeros(int(petal.max()) + 1 if len(petal) else 0, dtype=np.int64)
+    of[petal] = patch
+    groups = [np.flatnonzero(of == q).tolist() for q in np.unique(of)]
+    return [g for g in groups if len(g) > 1]
 
 
 def _patches(petal, count: int, pairs) -> np.ndarray:
@@ -369,7 +384,7 @@ def _overlap_rows(X, F, E, petal, crossing, area, length, max_move, gap, sides) 
     is then on (by the sign of the cosine between their normals)."""
     rows = []
     normals = vertex_normals(X, F)
-    rim = _rim(F, len(X), E, petal)
+    rim = _rim(F, E, petal)
     ea, fb = petal[E[crossing[:, 0], 0]], petal[F[crossing[:, 1], 0]]
     for a, b in _pair_list(crossing, E, F, petal):
         reach = max_move * (length[a] + length[b])
@@ -426,22 +441,20 @@ def _overlap_rows(X, F, E, petal, crossing, area, length, max_move, gap, sides) 
     return rows
 
 
-def _rim(F, count, E=None, petal=None) -> dict:
+def _rim(F, E, petal) -> dict:
     """The mesh's boundary: ``vertex (V,) bool``, and ``edges``, sorted keys ``i * count + j``
-    (i < j) of its boundary edges. With ``E`` and ``petal``, also each petal's vertices,
-    faces and edges (``verts``, ``faces``, ``edge_rows``: lists by petal, ascending), so
-    that a pair's records look at its two petals only, not the whole mesh."""
+    (i < j) of its boundary edges; and each petal's vertices, faces and edges
+    (``verts``, ``faces``, ``edge_rows``: lists by petal, ascending), so that a pair's
+    records look at its two petals only, not the whole mesh."""
+    count = len(petal)
     edges, _, uses = unique_edges(F)
     rim = edges[uses == 1]
     vertex = np.zeros(count, dtype=bool)
     vertex[rim.ravel()] = True
-    out = {"vertex": vertex, "edges": np.sort(rim[:, 0] * count + rim[:, 1]), "count": count}
-    if E is not None and petal is not None:
-        n = int(petal.max()) + 1
-        out["verts"] = _by(petal, n)
-        out["faces"] = _by(petal[F[:, 0]], n)
-        out["edge_rows"] = _by(petal[E[:, 0]], n)
-    return out
+    n = int(petal.max()) + 1
+    return {"vertex": vertex, "edges": np.sort(rim[:, 0] * count + rim[:, 1]), "count": count,
+            "verts": _by(petal, n), "faces": _by(petal[F[:, 0]], n),
+            "edge_rows": _by(petal[E[:, 0]], n)}
 
 
 def _by(label, count: int) -> list[np.ndarray]:
@@ -496,8 +509,7 @@ def _records(X, F, petal, normals, rim, a, b, reach) -> dict:
     distance ``s`` along it, whether the vertex is over or under ``b`` (``over``: the
     closest point is not on ``b``'s rim, ``rim`` of :func:`_rim`), and ``kappa``: the
     cosine between ``a``'s normal at the vertex and ``n``."""
-    va = rim["verts"][a] if "verts" in rim else np.flatnonzero(petal == a)
-    fb = rim["faces"][b] if "faces" in rim else np.flatnonzero(petal[F[:, 0]] == b)
+    va, fb = rim["verts"][a], rim["faces"][b]
     used = np.unique(F[fb])
     tri = X[F[fb]]
     longest = float(np.linalg.norm(tri - tri[:, [1, 2, 0]], axis=2).max())
@@ -541,8 +553,9 @@ def _records(X, F, petal, normals, rim, a, b, reach) -> dict:
     ends = np.sort(np.stack([corners[np.arange(len(f)), (k + 1) % 3],
                              corners[np.arange(len(f)), (k + 2) % 3]], axis=1), axis=1)
     key = ends[:, 0] * rim["count"] + ends[:, 1]
-    at = np.minimum(np.searchsorted(rim["edges"], key), max(len(rim["edges"]) - 1, 0))
-    on_rim |= single & (rim["edges"][at] == key) if len(rim["edges"]) else False
+    if len(rim["edges"]):  # (a key among the sorted rim edges' keys)
+        at = np.minimum(np.searchsorted(rim["edges"], key), len(rim["edges"]) - 1)
+        on_rim |= single & (rim["edges"][at] == key)
     over = ~on_rim
     kappa = np.einsum("ij,ij->i", normals[v], n)
     return {"vertex": v, "face": f, "bary": bary, "d": d, "dv": dv, "n": n, "s": s,

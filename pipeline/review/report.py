@@ -18,6 +18,7 @@ from pipeline.flower import measure
 from pipeline.io import binding, userasset
 from pipeline.mesh import topology
 from pipeline.mesh.remesh import boundary_loops
+from pipeline.mesh.separate import patch_groups
 from pipeline.sim.explicit.pushback import build_face_grid, edges_through_faces
 from pipeline.sim.terms.contact import frame_intersections
 
@@ -73,12 +74,8 @@ def soundness(positions: np.ndarray, faces: np.ndarray, opening_per_petal: np.nd
     opening = np.asarray(opening_per_petal, dtype=np.float64).reshape(len(positions), -1)
     if intersecting is None:
         intersecting = frame_intersections(positions, faces, petal, patch)
-    left = []
-    if petal is not None and patch is not None:
-        petal, patch = np.asarray(petal), np.asarray(patch)
-        for q in np.unique(patch):
-            mine = np.unique(petal[patch == q]).tolist()
-            left.extend(f"{a}-{b}" for i, a in enumerate(mine) for b in mine[i + 1:])
+    groups = patch_groups(petal, patch) if petal is not None and patch is not None else []
+    left = [f"{a}-{b}" for g in groups for i, a in enumerate(g) for b in g[i + 1:]]
     final = opening[-1]
     names = list(petal_names) if petal_names is not None else [f"petal {p}" for p in
                                                                  range(len(final))]
@@ -103,10 +100,12 @@ def summary_line(sound: dict) -> str:
     petal opened (least 21.3 deg)"; "unsound:" when a frame has an intersection or a petal
     did not open."""
     left = sound.get("left") or []
+    checked = "checked exactly"
+    if left:
+        checked += ("; not between petals left through each other as modelled: "
+                    + ", ".join(left[:6]) + (" ..." if len(left) > 6 else ""))
     parts = [f"{sound['intersecting_frames']} of {sound['frames']} frames with an intersection "
-             "(checked exactly" + (f"; not between petals left through each other as modelled: "
-                                   f"{', '.join(left[:6])}" + (" ..." if len(left) > 6 else "")
-                                   if left else "") + ")"]
+             f"({checked})"]
     if sound["distance_to_model"] is not None:
         parts.append(f"last frame {sound['distance_to_model']:.2g} petal lengths (RMS) from "
                      "the model")

@@ -24,6 +24,7 @@ from dataclasses import dataclass, field, fields, replace
 import numpy as np
 
 from pipeline.config import Config, load_config
+from pipeline.mesh.separate import patch_groups
 from pipeline.sim.explicit.pushback import Collisions
 from pipeline.sim.terms.center_plane import CenterPlane, project_out_normals
 from pipeline.sim.terms.connections import Connections
@@ -217,7 +218,7 @@ def build(names, *, vertices, faces, petal, pinned, on_axis, plane, s, rest_angl
         fx.collisions = Collisions.build(vertices, faces, petal if patch is None else patch,
                                          offset=c.offset,
                                          max_edge=max_edge, thickness=c.thickness)
-        fx.collisions.joined = patch is not None and bool(np.any(np.asarray(patch) != petal))
+        fx.collisions.joined = patch is not None and bool(patch_groups(petal, patch))
     if "connections" in names:
         c = params.connections
         fx.connections = Connections.build(

@@ -29,6 +29,7 @@ import h5py
 import numpy as np
 
 from pipeline.chain import SIMULATION, argv
+from pipeline.mesh.separate import patch_groups
 from pipeline.review.report import NOT_OPEN
 
 #: an open model's last frame is within this fraction of a petal length of the model (RMS)
@@ -113,8 +114,7 @@ def judge(row: Row, h) -> None:
     if crossed.any():
         failed.append("petals through each other")
     if "mesh/patch" in h:  # (pairs remesh could not part: left through each other)
-        patch = h["mesh/patch"][()]
-        left = row.petals - len(np.unique(patch))
+        left = sum(len(g) - 1 for g in patch_groups(petal, h["mesh/patch"][()]))
         if left:
             failed.append(f"{left} petal(s) left through another as modelled")
     if row.start == "open":

@@ -40,6 +40,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import scipy.sparse as sp
 
+from pipeline.mesh.separate import patch_groups
 from pipeline.sim.terms.term import Term
 
 
@@ -358,10 +359,7 @@ def frame_intersections(frames, faces, petal=None, patch=None) -> list[bool]:
     ipctk = _ipctk()
     F = np.asfortranarray(faces, dtype=np.int32)
     E = ipctk.edges(F)
-    shared = []
-    if petal is not None and patch is not None:
-        petal, patch = np.asarray(petal), np.asarray(patch)
-        shared = [int(q) for q in np.unique(patch) if np.unique(petal[patch == q]).size > 1]
+    groups = patch_groups(petal, patch) if petal is not None and patch is not None else []
     out = []
     mesh = between = None
     alone = []
@@ -369,12 +367,14 @@ def frame_intersections(frames, faces, petal=None, patch=None) -> list[bool]:
         X = np.asfortranarray(X, dtype=np.float64)
         if mesh is None:
             mesh = ipctk.CollisionMesh(X, E, F)
-            if shared:
+            if groups:
                 between = ipctk.CollisionMesh(X, E, F)
                 patch32 = np.ascontiguousarray(patch, dtype=np.int32)
                 between.can_collide = ipctk.make_vertex_patches_filter(patch32)
+                petal = np.asarray(petal)
                 face_petal = petal[np.asarray(faces)[:, 0]]
-                single = np.unique(petal[~np.isin(patch, shared)])
+                grouped = {q for g in groups for q in g}
+                single = [q for q in np.unique(petal).tolist() if q not in grouped]
                 for p in single:  # (each with the arrays it refers to: they must live)
                     f = np.asfortranarray(F[face_petal == p])
                     if len(f):
