@@ -89,10 +89,13 @@ SCHEMA: dict[str, Any] = {
                       "simulate: all, a flower's index (0, 1, ...: in the order of their first "
                       "petals, as the remesh log lists them) or a glob over part names (the one "
                       "flower whose petals those parts hold)", whole_numbers=True),
-        "stagger": Key(int, 0, "a file of many flowers: the spread of their start frames (each "
-                       "flower holds its bud, then blooms as the run does, then holds; the "
-                       "render and the export run that many frames longer); 0: all together",
-                       low=0),
+        "stagger": Key(int, "auto", "a file of many flowers: the spread of their start frames "
+                       "(each flower holds its bud, then blooms as the run does, then holds; "
+                       "the render and the export run that many frames longer). Staggered "
+                       "flowers bloom as problems apart (contact among each flower's own "
+                       "petals); 0: all together, one problem, contact between flowers too. "
+                       "auto: a quarter of simulate.frames for a file of many flowers",
+                       low=0, auto=True),
         "stagger_seed": Key(int, 0, "seed of the flowers' start frames within scene.stagger "
                             "(the same seed, the same starts)", low=0),
         "up": Key(str, "auto", "the scene's up direction (+x ... -z): orients the flower's axis "
@@ -539,7 +542,7 @@ def keys_markdown() -> str:
     the table docs/guide.md holds (``bloom config --keys --markdown`` prints it)."""
     rows = ["| key | type | default | meaning |", "|---|---|---|---|"]
     for dotted, key in KEYS.items():
-        kind = "bool or auto" if key.auto else key.kind.__name__
+        kind = f"{key.kind.__name__} or auto" if key.auto else key.kind.__name__
         if key.choices:
             kind = " \\| ".join(key.choices)
         default = json.dumps(key.default) if key.default != "" else ""

@@ -304,3 +304,34 @@ def test_many_flowers_come_back_staggered_in_one_usd(tmp_path):
         np.testing.assert_allclose(got, want[t][order], rtol=1e-6, atol=1e-6 * np.abs(want).max())
     late = int(np.argmax(starts))  # at its start frame the latest flower still holds its bud
     np.testing.assert_array_equal(want[starts[late]][flower == late], (run[0] / scale)[flower == late])
+
+
+def test_the_flowers_of_a_file_are_problems_apart_however_near():
+    """With contact, petals that can meet are one problem; but the flowers of a file are
+    each a problem of their own (each from its own bud, staggered by the scene), even
+    where their boxes overlap: contact is kept within each flower."""
+    from pipeline.sim.build import Prepared
+    from pipeline.sim.effects import Params
+    from pipeline.sim.solver.pieces import split
+
+    v, f, p = procedural.bud(3, 300, 0)
+    near = 0.3 * np.ptp(v, axis=0).max()  # (a second bud, within the first's reach)
+    v, f, p = np.vstack([v, v + [near, 0.0, 0.0]]), np.vstack([f, f + len(v)]), np.r_[p, p + 3]
+    prep = Prepared.from_mesh(v, f, p)
+    model = prep.model(0.1, 0.0005)
+    params = Params.defaults()
+    assert split(model, prep.effects(("collisions",), params), prep.vertices) == []  # one problem
+    prep.flower = (prep.petal >= 3).astype(np.int64)
+    parts = split(model, prep.effects(("collisions",), params), prep.vertices)
+    assert [np.unique(prep.flower[pt.vertices]).tolist() for pt in parts] == [[0], [1]]
+    assert all(pt.effects.collisions is not None for pt in parts)
+    assert sorted(np.unique(prep.petal[parts[1].vertices]).tolist()) == [3, 4, 5]
+    from pipeline.sim.model import Control, State
+    from pipeline.sim.solver.quasistatic import QuasiStatic
+
+    control = Control("linear", 1.0)
+    state = State.at_rest(model, prep.vertices, control)
+    qs = QuasiStatic(stages=2)
+    qs.advance(model, state, control, 1, 0.1, prep.effects(("collisions",), params))
+    assert qs.newton.contact is None  # (no contact between the flowers ...)
+    assert len(qs._parts) == 2 and all(pt.solver.newton.contact is not None for pt in qs._parts)

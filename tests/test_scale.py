@@ -151,3 +151,25 @@ def test_progress_lines_under_make(caplog):
         caplog.clear()
         quiet("remeshing petals", 0, 1)
     assert caplog.records == []
+
+
+def test_many_coarse_petals_are_held_to_a_budget_of_vertices(monkeypatch):
+    """A coarse petal (under MIN_PETAL_VERTICES) is remeshed up to about that many; a file
+    of many coarse petals (a branch of blossoms) is held to COARSE_BUDGET vertices in
+    all, each petal about its share, and says so in a note."""
+    from pipeline.flower import petals as module
+    from pipeline.flower.petals import prepare_parts
+
+    v, f, p = procedural.bud(4, 4 * 40, 0)  # (coarse petals: about 40 vertices each)
+    coarse = []
+    for k in range(4):
+        idx = np.flatnonzero(p == k)
+        coarse.append(Part(f"Petal.{k}", v[idx], np.searchsorted(idx, f[np.isin(f[:, 0], idx)])))
+    counts = []
+    for budget in (10_000, 4 * 50):
+        monkeypatch.setattr(module, "COARSE_BUDGET", budget)
+        result = prepare_parts(MeshFile(coarse, None, None), where="coarse")
+        counts.append(np.bincount(result.petal))
+        assert (f"a coarse petal is remeshed to about 50 vertices" in "\n".join(result.notes)) \
+            == (budget == 200)
+    assert np.all(counts[0] > 80) and np.all(counts[1] < 70)  # about 100, then about 50

@@ -222,6 +222,25 @@ def test_when_the_rounds_run_out_the_pairs_still_crossing_are_left_as_modelled()
     assert frame_intersections([out.vertices], f, p, out.patch) == [False]
 
 
+def test_a_petal_the_moves_would_fold_is_left_as_modelled(monkeypatch):
+    """Where the separated petals would leave one folded over itself (a branch's blossoms
+    packed into each other), with ``leave`` its pairs are put back as modelled, and
+    whatever then crosses them is left too; without it, the model is refused."""
+    from pipeline.mesh import separate as module
+
+    v, f, p = pinwheel()
+    folded = module._folded
+    monkeypatch.setattr(module, "_folded", lambda X, F, petal: (
+        [0] if not np.array_equal(X, v) else folded(X, F, petal)))
+    with pytest.raises(SeparationError, match="fold petal"):
+        separate(v, f, p, GAP)
+    out = separate(v, f, p, GAP, leave=True)
+    assert "fold petal(s) 0" in out.reason
+    assert any(0 in pair for pair in out.left)
+    assert np.array_equal(out.vertices[p == 0], v[p == 0])  # (back as it was)
+    assert frame_intersections([out.vertices], f, p, out.patch) == [False]
+
+
 @pytest.mark.slow
 def test_the_dense_crossed_12_petal_bud_is_separated():
     """The bud of 12 petals as bent, before it is untangled (crossing=True): 11 pairs cross."""

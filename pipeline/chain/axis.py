@@ -17,6 +17,8 @@ from pipeline.flower.axis import BASE_REACH, BadPetal, WeakBase, check_axes, fin
 from pipeline.progress import Steps
 
 log = logging.getLogger("bloom")
+#: petals named in a line of many (the rest counted)
+SHOWN = 12
 
 #: what the later stages need of remesh.h5, carried forward
 CARRIED = ("mesh/vertices", "mesh/faces", "mesh/petal", "mesh/patch", "mesh/part_names",
@@ -70,9 +72,13 @@ def run(remesh_h5: str | Path, out: str | Path, cfg: Config, *, overwrite: bool 
                              f"{BASE_REACH:g} (the widening's reach; now "
                              f"{cfg['axis.base_fraction']:g}), another axis.base end, or a mesh "
                              "whose petal base is not a straight row", where=remesh_h5) from None
-        for p in axes.widened:
-            log.warning("petal %d: its base was on a line (it could spin about it): widened to "
-                        "%d fixed vertices", p, int(axes.base[petal == p].sum()))
+        if len(axes.widened):  # (one line: a branch of blossoms can have hundreds)
+            held = np.bincount(petal[axes.base], minlength=int(petal.max()) + 1)
+            shown = ", ".join(f"{p} ({held[p]})" for p in list(axes.widened)[:SHOWN])
+            more = len(axes.widened) - SHOWN
+            log.warning("%d petal(s) had their base on a line (they could spin about it): "
+                        "widened to the fixed vertices in brackets: petal(s) %s%s",
+                        len(axes.widened), shown, f" and {more} more" if more > 0 else "")
         _log_axes(axes, petal, flower)
         attrs = {**carried_attrs(src), "flower_axis": axes.flower_axis, "up": up,
                  "flower_count": len(axes.flower_axes)}

@@ -42,7 +42,7 @@ def run(sim_h5: str | Path, out: str | Path, cfg: Config, *, overwrite: bool = F
         if starts is not None:  # many flowers, each from its own start frame
             sheet = stagger.staggered(sheet, stagger.vertex_flowers(src), starts)
             numbers = np.r_[numbers, numbers[-1] + 1 + np.arange(len(sheet) - len(numbers))]
-            log.info("scene.stagger = %d: %d flowers start at frames %s", cfg["scene.stagger"],
+            log.info("scene.stagger = %s: %d flowers start at frames %s", cfg["scene.stagger"],
                      len(starts), ", ".join(map(str, starts)))
         positions = sheet / scale
         faces, petal = src["mesh/faces"], src["mesh/petal"]

@@ -20,6 +20,7 @@ from pipeline import artifact
 from pipeline.chain import carried_attrs
 from pipeline.config import Config
 from pipeline.errors import BloomError
+from pipeline.flower import stagger
 from pipeline.flower.measure import Start, bloom_start, petals_within_reach
 from pipeline.mesh.separate import patch_groups
 from pipeline.progress import Progress
@@ -33,6 +34,7 @@ from pipeline.sim.model import Control, State
 from pipeline.sim.reverse import distance_to_model, open_start, petal_lengths
 from pipeline.sim.run import run as integrate
 from pipeline.sim.solver.newton import NotConverged
+from pipeline.sim.terms.contact import frame_intersections
 
 log = logging.getLogger("bloom")
 
@@ -57,6 +59,7 @@ def run(growth_h5: str | Path, out: str | Path, cfg: Config, *, overwrite: bool 
         prep = Prepared.from_artifact(src)
         v, petal, base = prep.vertices, prep.petal, prep.base
         shell = sim["model"] == "shell"
+        starts = decide_flowers(cfg, prep, stagger.flower_count(src), frames)
         start = decide_start(cfg, prep)
         if shell and (sim["integrator"] != "quasi-static" or start.start == "open"):
             raise BloomError("simulate.model: the shell runs with simulate.integrator = "
@@ -161,10 +164,13 @@ def run(growth_h5: str | Path, out: str | Path, cfg: Config, *, overwrite: bool 
                      attrs["distance_to_model"])
         names = report.petal_names(petal, src["mesh/part_names"], src["mesh/part"]) \
             if "mesh/part_names" in src and "mesh/part" in src else None
+        seen = positions if starts is None else stagger.staggered(positions, prep.flower, starts)
         sound = report.soundness(positions, prep.faces,
                                  diag.get("opening_angle_per_petal", np.zeros((len(positions), 0))),
                                  distance_to_model=attrs.get("distance_to_model"),
-                                 petal_names=names, petal=petal, patch=prep.patch)
+                                 petal_names=names, petal=petal, patch=prep.patch,
+                                 intersecting=frame_intersections(seen, prep.faces, petal,
+                                                                  prep.patch))
         diag["intersecting"] = np.asarray(sound["intersecting"], dtype=bool)
         attrs["summary"] = report.summary_line(sound)
         for p in sound["not_opened"]:
@@ -194,6 +200,25 @@ def run(growth_h5: str | Path, out: str | Path, cfg: Config, *, overwrite: bool 
     log.info("wrote %s", out)
 
 
+def decide_flowers(cfg: Config, prep: Prepared, flowers: int, frames: int):
+    """A file of many flowers: staggered (``scene.stagger``), they bloom as problems
+    apart (``prep.flower`` kept: each flower's contact among its own petals); all
+    together, as one problem (``prep.flower`` None). Returns the start frames the frames'
+    check staggers the run by, or None; logged in one line."""
+    spread = stagger.spread(cfg, flowers, frames)
+    if flowers <= 1 or spread <= 0:
+        if flowers > 1:
+            log.info("scene.stagger = 0: the %d flowers bloom together, as one problem "
+                     "(contact between flowers too)", flowers)
+        prep.flower = None
+        return None
+    starts = stagger.start_frames(flowers, spread, cfg["scene.stagger_seed"])
+    log.info("scene.stagger = %s: the %d flowers start over %d frames (the render and the "
+             "export stagger them); each blooms as a problem of its own, with contact among "
+             "its own petals", cfg["scene.stagger"], flowers, spread)
+    return starts
+
+
 def decide_start(cfg: Config, prep: Prepared) -> Start:
     """``growth.start``: as the scene says, or (``auto``) decided from the model
     (:func:`pipeline.flower.measure.bloom_start`), logged in one line. A scene with
@@ -221,6 +246,10 @@ def decide_effects(cfg: Config, prep: Prepared) -> list[str]:
         pairs = petals_within_reach(prep.vertices, prep.petal,
                                     petal_lengths(prep.vertices, prep.petal, prep.base))
         count = int(prep.petal.max()) + 1
+        if prep.flower is not None:  # (flowers apart: contact within each flower only)
+            of = np.zeros(count, dtype=np.int64)
+            of[prep.petal] = prep.flower
+            pairs = [(a, b) for a, b in pairs if of[a] == of[b]]
         if prep.patch is not None:  # (petals left through each other as modelled: no contact)
             together = {(a, b) for g in patch_groups(prep.petal, prep.patch)
                         for i, a in enumerate(g) for b in g[i + 1:]}

@@ -40,6 +40,10 @@ SNAP_CORNER = 0.5
 #: a petal with fewer vertices than this (and no remesh.target_edge or petal_vertices set)
 #: is remeshed to about this many: a coarse model has too few hinges to bend smoothly
 MIN_PETAL_VERTICES = 100
+#: ... but not past this many vertices in all for the file's coarse petals (a branch of a
+#: thousand blossoms of a few vertices a petal would become half a million vertices):
+#: then each coarse petal is remeshed to this over the petal count, never below its own
+COARSE_BUDGET = 50_000
 DUST = 0.01  #: connected pieces under this fraction of their part's area are dropped
 LAYERED = 0.5  #: a sheet this much of whose area has a second layer behind it is a slab
 #: a mid-surface must cover at least this fraction of half its shell's area (a shell's
@@ -99,7 +103,12 @@ def _build(v, f, petal, report, *, target_edge, petal_vertices, symmetrize, drop
     out_part, out_thick = [], []
     unsymmetrized, quality, broken, kept = [], [], [], []
     groups = _groups(petal, f, count)
-    tasks = [(v[idx], lf, target_edge, petal_vertices, symmetrize, labels[p], scale)
+    least = min(MIN_PETAL_VERTICES, COARSE_BUDGET // max(count, 1))
+    if least < MIN_PETAL_VERTICES and target_edge <= 0 and petal_vertices <= 0:
+        notes.append(f"{count} petals: a coarse petal is remeshed to about {least} vertices, "
+                     f"not {MIN_PETAL_VERTICES} ({COARSE_BUDGET} in all for the file; "
+                     "remesh.petal_vertices sets it)")
+    tasks = [(v[idx], lf, target_edge, petal_vertices, symmetrize, labels[p], scale, least)
              for p, (idx, lf) in enumerate(groups)]
     # a petal that is a copy of another (moved, turned, and scaled unless the target edge
     # is absolute) is remeshed once: instanced blossoms, a bush of one daisy's copies
@@ -250,7 +259,8 @@ def _one_task(task):
     return _one_petal(*task)
 
 
-def _one_petal(pts, lf, target_edge, petal_vertices, symmetrize, label, scale) -> dict:
+def _one_petal(pts, lf, target_edge, petal_vertices, symmetrize, label, scale,
+               least: int = MIN_PETAL_VERTICES) -> dict:
     """One petal (mean edge 1 units) through steps 4 and 5: its center plane, the remesh
     target, :func:`_petal`, and the checks after. Returns a dict: ``vertices``, ``faces``,
     ``plane``, ``h``, ``before``/``after`` (asymmetry), ``worst`` (smallest angle),
@@ -259,9 +269,9 @@ def _one_petal(pts, lf, target_edge, petal_vertices, symmetrize, label, scale) -
     plane, err = symmetry.mirror_plane(pts)
     h = (target_edge * scale if target_edge > 0 else
          remesh.target_for_vertices(pts, lf, petal_vertices) if petal_vertices > 0 else 0.0)
-    if h == 0.0 and len(pts) < MIN_PETAL_VERTICES:  # a coarse model: too few hinges to bend
-        h = remesh.target_for_vertices(pts, lf, MIN_PETAL_VERTICES)
-        notes.append(f"{label}: {len(pts)} vertices: remeshed to about {MIN_PETAL_VERTICES} "
+    if h == 0.0 and len(pts) < least:  # a coarse model: too few hinges to bend
+        h = remesh.target_for_vertices(pts, lf, least)
+        notes.append(f"{label}: {len(pts)} vertices: remeshed to about {least} "
                      "(remesh.petal_vertices sets it)")
     try:
         pts, lf, h, note, mirrored = _petal(pts, lf, plane, h, symmetrize, label, scale)

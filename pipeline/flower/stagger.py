@@ -6,8 +6,12 @@ independent pieces: the solver follows each on its own). A flower's motion depen
 its own growth, so a flower that starts ``k`` frames later is the same run shifted by ``k``
 frames: frame ``j`` of flower ``f`` is the run's frame ``clamp(j - start[f], 0, T - 1)``.
 The start frames are drawn once from a seeded generator (``scene.stagger`` and
-``scene.stagger_seed``), the first flower's at 0, so the same scene gives the same starts.
-The render and the export use the staggered frames; the report measures the run.
+``scene.stagger_seed``), the first flower's at 0, so the same scene gives the same starts;
+``auto`` spreads a file of many flowers over a quarter of the frames. Staggered flowers
+bloom as problems apart: each from its own bud, with contact among its own petals only
+(their petals are never in one equilibrium: each is at its own stage of growth). The
+render and the export use the staggered frames, and the frames' check of simulate looks
+at them too (a crossing between two flowers is one the user would see).
 """
 
 from __future__ import annotations
@@ -39,14 +43,37 @@ def staggered(positions, vertex_flower, starts) -> np.ndarray:
     return out
 
 
+#: scene.stagger = auto: a file of many flowers spreads their starts over this fraction of
+#: the frames
+AUTO_SPREAD = 0.25
+
+
+def spread(cfg, flowers: int, frames: int) -> int:
+    """The spread of the start frames of ``flowers`` flowers in a run of ``frames``:
+    ``scene.stagger``, or for ``auto`` :data:`AUTO_SPREAD` of the frames when there are
+    many (0 for one)."""
+    said = cfg["scene.stagger"]
+    if said == "auto":
+        return int(AUTO_SPREAD * frames) if flowers > 1 else 0
+    return int(said)
+
+
+def flower_count(src) -> int:
+    """How many flowers an artifact holds (1 without ``flower/petal_flower``)."""
+    if "flower/petal_flower" not in src:
+        return 1
+    petal_flower = np.asarray(src["flower/petal_flower"], dtype=np.int64)
+    return int(petal_flower.max()) + 1 if len(petal_flower) else 1
+
+
 def of_run(src, cfg) -> np.ndarray | None:
     """The start frames of a simulate artifact's flowers as the scene sets them, or None
     when there is nothing to stagger (one flower, no spread)."""
-    if cfg["scene.stagger"] <= 0 or "flower/petal_flower" not in src:
+    flowers = flower_count(src)
+    wide = spread(cfg, flowers, len(src["frames/positions"]))
+    if wide <= 0 or flowers <= 1:
         return None
-    petal_flower = np.asarray(src["flower/petal_flower"], dtype=np.int64)
-    flowers = int(petal_flower.max()) + 1 if len(petal_flower) else 0
-    starts = start_frames(flowers, cfg["scene.stagger"], cfg["scene.stagger_seed"])
+    starts = start_frames(flowers, wide, cfg["scene.stagger_seed"])
     return starts if starts.any() else None
 
 

@@ -161,6 +161,15 @@ def separate(vertices: np.ndarray, faces: np.ndarray, petal: np.ndarray, gap: fl
         mesh.can_collide = ipctk.make_vertex_patches_filter(joined)
         return joined
 
+    def leave_all(pairs) -> None:
+        """Leave ``pairs`` as modelled, and whatever then crosses them across patches
+        too, until nothing does."""
+        nonlocal left, patches
+        while pairs:
+            left = left + pairs
+            patches = put_back(left)
+            pairs = _pair_list(_crossings(X, F, E, patches), E, F, petal)
+
     graph = _graph(E, len(X0))
     area = _vertex_areas(X0, F)
     edge = _mean_edge(X0, E)
@@ -194,13 +203,8 @@ def separate(vertices: np.ndarray, faces: np.ndarray, petal: np.ndarray, gap: fl
                       else ""))
             if not leave:
                 raise SeparationError(pairs, why)
-            # (those pairs are left as modelled, and whatever then crosses them across
-            # patches is left too, until nothing does)
-            left, reason = left + pairs, reason or why
-            while pairs:
-                patches = put_back(left)
-                pairs = _pair_list(_crossings(X, F, E, patches), E, F, petal)
-                left = left + pairs
+            leave_all(pairs)
+            reason = reason or why
             break
         rows = _overlap_rows(X, F, E, petal, crossing, area, length, max_move, gap, sides)
         rows += [r for _, _, _, r in near]
@@ -221,8 +225,12 @@ def separate(vertices: np.ndarray, faces: np.ndarray, petal: np.ndarray, gap: fl
                 sides.pop(pair, None)
     folded = sorted(set(_folded(X, F, petal)) - set(folded0))
     if folded:  # (the moves are smooth: this is a petal folded over itself at its base)
-        raise SeparationError(crossed0 + close0, "it would fold petal(s) "
-                              f"{', '.join(str(p) for p in folded)} over itself")
+        why = f"it would fold petal(s) {', '.join(str(p) for p in folded)} over itself"
+        pairs = [pair for pair in crossed0 + close0 if set(pair) & set(folded)]
+        if not (leave and pairs):
+            raise SeparationError(crossed0 + close0, why)
+        leave_all(sorted(set(pairs) - set(left)))
+        reason = reason or why
     move = np.linalg.norm(X - X0, axis=1) / length[petal]
     left = sorted(set(left))
     return Separation(X, crossed0, close0, int(np.count_nonzero(np.any(X != X0, axis=1))),
@@ -300,8 +308,21 @@ def _crossings(X, F, E, petal) -> np.ndarray:
     return out[np.lexsort((out[:, 1], out[:, 0]))]
 
 
+def crossed_pairs(X, F, patch) -> list[tuple[int, int]]:
+    """The pairs of patches (``patch`` (V,): each vertex's) with an edge of one through a
+    triangle of the other (ipctk's exact test), sorted: one pass over the mesh (a BVH),
+    not a test per pair."""
+    import ipctk
+
+    F = np.ascontiguousarray(F, dtype=np.int64)
+    E = np.asarray(ipctk.edges(np.asfortranarray(F, dtype=np.int32)), dtype=np.int64)
+    patch = np.ascontiguousarray(patch, dtype=np.int64)
+    return _pair_list(_crossings(np.asarray(X, dtype=np.float64), F, E, patch), E, F, patch)
+
+
 def _folded(X, F, petal) -> list[int]:
-    """The petals that pass through themselves (ipctk's exact test, each petal alone)."""
+    """The petals that pass through themselves (ipctk's exact test, each petal alone,
+    on its own vertices: the work grows with the mesh, not with petals times vertices)."""
     import ipctk
 
     Xf = np.asfortranarray(X)
@@ -310,11 +331,16 @@ def _folded(X, F, petal) -> list[int]:
     if not ipctk.has_intersections(whole, Xf):
         return []
     out = []
-    face_petal = petal[F[:, 0]]
-    for p in np.unique(face_petal):
-        sub = np.asfortranarray(F[face_petal == p], dtype=np.int32)
-        if ipctk.has_intersections(ipctk.CollisionMesh(Xf, ipctk.edges(sub), sub), Xf):
-            out.append(int(p))
+    n = int(petal.max()) + 1
+    local = np.empty(len(petal), dtype=np.int64)
+    for p, (verts, faces) in enumerate(zip(_by(petal, n), _by(petal[F[:, 0]], n), strict=True)):
+        if not len(faces):
+            continue
+        local[verts] = np.arange(len(verts))
+        sub = np.asfortranarray(local[F[faces]], dtype=np.int32)
+        Xp = np.asfortranarray(X[verts])
+        if ipctk.has_intersections(ipctk.CollisionMesh(Xp, ipctk.edges(sub), sub), Xp):
+            out.append(p)
     return out
 
 

@@ -58,15 +58,17 @@ def soundness(positions: np.ndarray, faces: np.ndarray, opening_per_petal: np.nd
     distance_to_model : the last frame's RMS distance to the open model over the mean
         petal length (sim.h5's ``distance_to_model``), or None (not an open start).
     petal_names : (P,) a name per petal (:func:`petal_names`), or None: "petal p".
-    intersecting : (T,) whether each frame has an intersection, if already checked; else
-        checked here, exactly (:func:`pipeline.sim.contact.frame_intersections`).
+    intersecting : whether each frame has an intersection, if already checked (of the
+        frames as the user gets them: a file of staggered flowers has more than T); else
+        checked here on ``positions``, exactly
+        (:func:`pipeline.sim.contact.frame_intersections`).
     petal, patch : (V,) each vertex's petal and contact patch (sim.h5's ``mesh/petal``
         and ``mesh/patch``), or None: petals that share a patch were left through each
         other as modelled, and their crossings are not counted (``left``: those pairs).
 
     Returns
     -------
-    dict with ``frames`` (T), ``intersecting`` (T bools), ``intersecting_frames``,
+    dict with ``frames`` (the frames checked), ``intersecting`` (a bool each), ``intersecting_frames``,
     ``distance_to_model`` (float or None), ``opening_final_per_petal`` (P degrees),
     ``did_not_open`` (P bools: under :data:`NOT_OPEN` degrees at the last frame) and
     ``not_opened`` (one ``{"petal", "name", "opening"}`` per petal that did not open).
@@ -82,7 +84,7 @@ def soundness(positions: np.ndarray, faces: np.ndarray, opening_per_petal: np.nd
     closed = final < NOT_OPEN
     distance = None if distance_to_model is None else float(distance_to_model)
     return {
-        "frames": int(len(positions)),
+        "frames": int(len(intersecting)),
         "intersecting": [bool(b) for b in intersecting],
         "intersecting_frames": int(sum(bool(b) for b in intersecting)),
         "distance_to_model": distance,

@@ -49,6 +49,9 @@ class Prepared:
     #: (V,) each vertex's contact patch (its petal, or one shared by petals left through
     #: each other as modelled: no contact between them), or None: its petal
     patch: np.ndarray | None = None
+    #: (V,) each vertex's flower in a file of many (remesh's ``flower/petal_flower``), or
+    #: None: one flower
+    flower: np.ndarray | None = None
 
     @classmethod
     def from_artifact(cls, src) -> Prepared:
@@ -59,7 +62,9 @@ class Prepared:
                    src["growth/alpha"], src["growth/stiffness"], src["growth/hinges"],
                    src["growth/rest_angle"],
                    src["mesh/thickness"] if "mesh/thickness" in src else None,
-                   src["mesh/patch"] if "mesh/patch" in src else None)
+                   src["mesh/patch"] if "mesh/patch" in src else None,
+                   np.asarray(src["flower/petal_flower"])[np.asarray(src["mesh/petal"])]
+                   if "flower/petal_flower" in src else None)
 
     @classmethod
     def of(cls, vertices, faces, petal, axes, growth) -> Prepared:
@@ -130,7 +135,7 @@ class Prepared:
         if max_edge is None:
             max_edge = self.max_grown_edge()
         return fx.build(names, vertices=positions, faces=self.faces, petal=self.petal,
-                        patch=self.patch,
+                        patch=self.patch, flower=self.flower,
                         pinned=self.base, on_axis=self.on_axis, plane=self.plane, s=self.s,
                         rest_angle=self.rest_angle if rest_angle is None else rest_angle,
                         flower_axis=self.flower_axis, max_edge=max_edge, params=params)

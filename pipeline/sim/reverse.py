@@ -174,18 +174,39 @@ def contact_free(lift, positions, effects):
     """The lift, cut short where it would bring petals nearer than the contact's gap
     (petals that lie close in the model, a pinwheel's, pressed into each other by it): to
     half the largest fraction of the straight move that keeps them apart (continuous
-    collision detection). As it is without contact."""
+    collision detection). As it is without contact. The flowers of a file of many are cut
+    each on its own (their petals never meet: each flower is a problem of its own)."""
     c = effects.collisions
     if c is None:
         return lift
-    contact = Contact.build(positions, c.faces, c.vertex_petal, gap=c.thickness, stiffness=1.0,
-                            own=not c.joined)
-    fraction = contact.max_step(positions, positions + lift)
-    if fraction >= 1.0:
-        return lift
-    log.info("growth.start = open: the closing lift would press petals into each other; cut "
-             "to %.3g of it (%.3g petal lengths at the tip)", 0.5 * fraction, 0.5 * fraction * LIFT)
-    return 0.5 * fraction * lift
+    X = np.asarray(positions, dtype=np.float64)
+    out = np.array(lift, dtype=np.float64)
+    flower = c.vertex_flower
+    groups = [np.arange(len(X))] if flower is None else [
+        np.flatnonzero(flower == f) for f in range(int(flower.max()) + 1)]
+    cuts = []
+    for f, idx in enumerate(groups):
+        faces, petal = c.faces, c.vertex_petal
+        if flower is not None:
+            local = np.full(len(X), -1, dtype=np.int64)
+            local[idx] = np.arange(len(idx))
+            faces = local[faces[flower[faces[:, 0]] == f]]
+            petal = np.unique(petal[idx], return_inverse=True)[1]
+        contact = Contact.build(X[idx], faces, petal, gap=c.thickness, stiffness=1.0,
+                                own=not c.joined)
+        fraction = contact.max_step(X[idx], X[idx] + out[idx])
+        if fraction < 1.0:
+            out[idx] *= 0.5 * fraction
+            cuts.append((f, 0.5 * fraction))
+    if cuts and flower is None:
+        log.info("growth.start = open: the closing lift would press petals into each other; "
+                 "cut to %.3g of it (%.3g petal lengths at the tip)", cuts[0][1],
+                 cuts[0][1] * LIFT)
+    elif cuts:
+        log.info("growth.start = open: the closing lift would press petals into each other "
+                 "in %d of %d flowers; cut to %s of it", len(cuts), len(groups),
+                 ", ".join(f"{cut:.3g} (flower {f})" for f, cut in cuts))
+    return out
 
 
 def petal_lengths(positions, petal, base) -> np.ndarray:

@@ -340,6 +340,10 @@ class Collisions:
     #: ``vertex_petal`` holds contact patches that join petals (left through each other
     #: as modelled): the barrier then keeps no petal off itself (see the contact's build)
     joined: bool = False
+    #: ``(V,)`` each vertex's flower in a file of many, or None (one flower): flowers bloom
+    #: as problems apart (each from its own bud, and staggered in time by the scene, so
+    #: their petals are never in one equilibrium), contact kept within each flower
+    vertex_flower: np.ndarray | None = None
 
     @classmethod
     def build(cls, vertices, faces, petal, *, offset: float, max_edge: float,

@@ -72,11 +72,12 @@ class Piece:
 CLUSTER_REACH = 1.0
 
 
-def clusters(positions: np.ndarray, label: np.ndarray, count: int) -> np.ndarray:
+def clusters(positions: np.ndarray, label: np.ndarray, count: int, apart=None) -> np.ndarray:
     """``(count,)`` the cluster of each piece (``label`` (V,): each vertex's): pieces
     whose boxes, grown by :data:`CLUSTER_REACH` of the largest piece's box diagonal,
     overlap (directly or through others) are one cluster: the flowers of a bush, far
-    enough apart, are each a cluster of their own."""
+    enough apart, are each a cluster of their own. ``apart`` ``(count,)``: pieces of
+    different labels (the flowers of a file) are never one cluster, however near."""
     from pipeline.flower.measure import REACH, petals_within_reach
 
     X = np.asarray(positions, dtype=np.float64)
@@ -87,6 +88,9 @@ def clusters(positions: np.ndarray, label: np.ndarray, count: int) -> np.ndarray
     size = float(np.linalg.norm(high - low, axis=1).max())
     pairs = np.asarray(petals_within_reach(X, label, np.full(count, CLUSTER_REACH * size / REACH)),
                        dtype=np.int64).reshape(-1, 2)
+    if apart is not None:
+        apart = np.asarray(apart, dtype=np.int64)
+        pairs = pairs[apart[pairs[:, 0]] == apart[pairs[:, 1]]]
     graph = sp.coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(count, count))
     return connected_components(graph, directed=False)[1].astype(np.int64)
 
@@ -116,7 +120,12 @@ def split(model: Model, effects: Effects, positions=None) -> list[Piece]:
     if effects.collisions is not None:
         if positions is None:
             return []
-        cluster = clusters(positions, label, count)
+        flower = effects.collisions.vertex_flower
+        apart = None
+        if flower is not None:  # (each piece's flower: a piece lies in one flower)
+            apart = np.zeros(count, dtype=np.int64)
+            apart[label] = flower
+        cluster = clusters(positions, label, count, apart)
         if cluster.max() == 0:
             return []
     label = cluster[label]  # (from here on, a "piece" is a cluster of pieces)
@@ -160,6 +169,7 @@ def split(model: Model, effects: Effects, positions=None) -> list[Piece]:
                 offset=offset, max_edge=cell - 2.0 * (margin + offset + slack),
                 thickness=k.thickness, margin=margin, slack=slack)
             fx.collisions.joined = k.joined
+            fx.collisions.vertex_flower = None if k.vertex_flower is None else k.vertex_flower[idx]
         zeros = np.zeros((len(idx), 3))
         state = State(zeros.copy(), zeros.copy(), zeros.copy(), 0, 0.0, zeros.copy())
         parts.append(Piece(idx, sub, fx, state))

@@ -148,7 +148,7 @@ class QuasiStatic:
             raise ValueError("the quasi-static integrator needs bending stiffness > 0 (without "
                              "it a petal has no stiffness out of its plane)")
         if self._parts is None:
-            self._couple(model, state, effects)
+            self._couple(model, state.positions, effects)
         if not self._perturbed and (control.growth_at((state.step + n_steps) * h)
                                     != control.growth_at(state.step * h)):
             # at the first growth (not before: a keyed hold of the bud holds to the bit)
@@ -197,37 +197,45 @@ class QuasiStatic:
         effects.constrain(state.forces)
         if self.newton.contact is not None:  # the frame's contacts: pairs within the barrier's band
             effects.counters[0] = self.newton.contact.active_count(state.positions)
+        elif self._parts and _apart(effects):  # (flowers apart: each flower's own)
+            effects.counters[0] = sum(p.solver.newton.contact.active_count(p.state.positions)
+                                      for p in self._parts if p.solver.newton.contact is not None)
 
-    def _couple(self, model: Model, state: State, effects: Effects, check: bool = True) -> None:
+    def _couple(self, model: Model, positions, effects: Effects, check: bool = True) -> None:
         """Build the terms that couple the petals, if the scene has them; refuse a bud
         that contact cannot start from
         (:meth:`~pipeline.sim.terms.contact.Contact.check_start`; not ``check``: a run
         resumed from a checkpoint, whose contact is restored)."""
-        if effects.collisions is not None:
+        if effects.collisions is not None and not (self._parts is None and _apart(effects)):
+            # (flowers apart: each flower's contact is its own, built with its cluster)
             c = effects.collisions
             stiffness = float(model.edge_stiffness.max())
             if getattr(model, "shell", None) is not None:  # (in petal units: contact_stiffness)
                 stiffness = contact_stiffness(model.shell)
-            self.newton.contact = Contact.build(state.positions, c.faces, c.vertex_petal,
+            self.newton.contact = Contact.build(positions, c.faces, c.vertex_petal,
                                                 gap=c.thickness, stiffness=stiffness,
                                                 own=not c.joined)
             if check:
-                self.newton.contact.check_start(state.positions)
+                self.newton.contact.check_start(positions)
         if effects.connections is not None:
             self.newton.springs = Springs(effects.connections)
 
-    def _split(self, model: Model, effects: Effects, positions) -> None:
+    def _split(self, model: Model, effects: Effects, positions, check: bool = True) -> None:
         """The independent petals (with contact, clusters of petals that cannot meet),
         each with a solver of its own (or none: one problem)."""
         self._parts = split(model, effects, positions)
         self._split_at = None if positions is None else np.array(positions, dtype=np.float64)
+        if not self._parts and _apart(effects) and self.newton.contact is None:
+            self._parts = []  # (one cluster after all: the whole's contact)
+            self._couple(model, positions, effects, check=check)
         for part in self._parts:
             part.solver = QuasiStatic(self.stages, self.tolerance, self.max_iterations,
                                       perturbation=0.0, inertia=self.inertia)
             if part.effects.collisions is not None:  # (a cluster: contact of its own)
                 part.state.positions[:] = positions[part.vertices]
-                part.solver._couple(part.model, part.state, part.effects, check=False)
                 part.solver._parts = []
+                part.solver._couple(part.model, part.state.positions, part.effects,
+                                    check=check and _apart(effects))
 
     # --- what a checkpoint saves ---------------------------------------------------------------
     def state(self) -> dict:
@@ -264,12 +272,12 @@ class QuasiStatic:
         self.newton.energy_rounding = float(saved["energy_rounding"])
         self.newton.reference = float(saved["reference"])
         if saved["parts"] is not None:  # (the solver of the whole, past its first advance)
-            self._couple(model, state, effects, check=False)
+            self._couple(model, state.positions, effects, check=False)
             if saved["contact"] is not None:
                 self.newton.contact.restore(saved["contact"])
             if saved["parts"]:
                 at = saved.get("split_at")
-                self._split(model, effects, None if at is None else np.asarray(at))
+                self._split(model, effects, None if at is None else np.asarray(at), check=False)
             else:
                 self._parts = []
             for part, part_state in zip(self._parts, saved["parts"], strict=True):
@@ -516,3 +524,11 @@ class QuasiStatic:
         length = self.newton.line_search(X, scratch, energy, g, step)
         for gr in self.newton.system.groups:
             gr.moved = length * float(np.abs(step[gr.dofs]).max(initial=0.0))
+
+
+def _apart(effects: Effects) -> bool:
+    """Whether the scene's flowers bloom as problems apart (staggered flowers of a file of
+    many: contact within each flower only; see :mod:`pipeline.flower.stagger`)."""
+    c = effects.collisions
+    return (c is not None and c.vertex_flower is not None and len(c.vertex_flower) > 0
+            and int(c.vertex_flower.max()) != int(c.vertex_flower.min()))

@@ -40,7 +40,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import scipy.sparse as sp
 
-from pipeline.mesh.separate import patch_groups
+from pipeline.mesh.separate import crossed_pairs, patch_groups
 from pipeline.sim.terms.term import Term
 
 
@@ -177,21 +177,9 @@ class Contact(Term):
         self.collisions, self._at, self.candidates = None, None, None
 
     def intersecting_pairs(self, X) -> list[tuple[int, int]]:
-        """Petal pairs that intersect at X (one exact test per pair)."""
-        ipctk = _ipctk()
-        faces = self.mesh.faces
-        face_petal = self.petal[faces[:, 0]]
-        out = []
-        count = int(self.petal.max()) + 1
-        for a in range(count):
-            for b in range(a + 1, count):
-                keep = (face_petal == a) | (face_petal == b)
-                sub = np.asfortranarray(faces[keep])
-                m = ipctk.CollisionMesh(np.asfortranarray(X), ipctk.edges(sub), sub)
-                m.can_collide = ipctk.make_vertex_patches_filter(self.petal)
-                if ipctk.has_intersections(m, np.asfortranarray(X)):
-                    out.append((a, b))
-        return out
+        """Petal pairs that intersect at X (an edge of one through a triangle of the
+        other: one pass over the mesh, :func:`pipeline.mesh.separate.crossed_pairs`)."""
+        return crossed_pairs(X, self.mesh.faces, self.petal)
 
     def close_pairs(self, X, distance: float) -> list[tuple[int, int, float]]:
         """Petal pairs closer than ``distance`` at X, with their smallest distance."""
