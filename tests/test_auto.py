@@ -88,3 +88,13 @@ def test_simulate_records_what_it_decided(tmp_path, kind, petals, start, collisi
         assert ("collisions" in h5.attrs["effects"].split(",")) == collisions
         assert h5.attrs["summary"].startswith(("sound", "unsound"))
         assert h5["diagnostics/intersecting"].shape == (5,)
+
+
+def test_a_bud_whose_petals_lean_out_but_curl_their_tips_in_is_a_bud():
+    """The lotus's kind: petals leaving the receptacle far from the axis (chords leaning
+    over OPEN_CHORD) but turning their tips back in over the centre. A lean alone would
+    call it open; its tips say it is closed."""
+    shape = procedural.OpenShape(lean=75.0, recurve=-25.0, inner_lean=75.0, inner_recurve=-25.0)
+    lotus = _start(*procedural.open_flower(6, 1200, 0, shape))
+    assert lotus.figure > OPEN_CHORD and lotus.start == "bud", lotus.reason
+    assert "their tips turn -" in lotus.reason

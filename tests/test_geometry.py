@@ -166,3 +166,29 @@ def test_rim_sliver_is_dropped_and_an_inner_one_kept_whole():
     v3, f3, rep = clean.clean_mesh(v, f)
     assert rep.degenerate_faces == 0 and len(f3) == len(f)  # the cap is kept ...
     assert len(boundary_loops(f3)) == 1  # ... so no slit is cut into the sheet
+
+
+def test_sharp_ears_on_the_rim_are_dropped_in_mirror_pairs():
+    """A needle and a flat cap hung on the rim of a sheet (each a face whose tip is in no
+    other face) are dropped after a remesh, on both sides of the center plane alike; a
+    sound ear and the rest of the sheet are kept."""
+    from pipeline.mesh.remesh import drop_ears, triangle_angles
+
+    xs = np.linspace(-1.0, 1.0, 5)
+    v = np.array([(x, y, 0.0) for y in xs for x in xs])
+    f = []
+    for j in range(4):
+        for i in range(4):
+            a = 5 * j + i
+            f += [(a, a + 1, a + 6), (a, a + 6, a + 5)]
+    sheet = len(f)
+    v = np.vstack([v, [(-0.75, -5.0, 0.0), (0.75, -5.0, 0.0),  # needles, a mirror pair
+                       (-1.02, -0.25, 0.0), (1.02, -0.25, 0.0),  # flat caps, a pair
+                       (0.25, 1.4, 0.0)]])  # a sound ear
+    f = np.array(f + [(1, 0, 25), (4, 3, 26), (5, 10, 27), (14, 9, 28), (22, 23, 29)])
+    angles = triangle_angles(v, f).min(axis=1)
+    assert np.all(angles[sheet:sheet + 4] < 10.0) and angles[sheet + 4] > 10.0
+    v2, f2, dropped = drop_ears(v, f)
+    assert dropped == 4 and len(f2) == sheet + 1 and len(v2) == 26
+    assert np.all(triangle_angles(v2, f2).min(axis=1) > 10.0)
+    assert np.array_equal(v2, np.vstack([v[:25], v[29:]]))  # (both of each pair gone)

@@ -170,6 +170,11 @@ def rim_bending(X, hinges, rim) -> float:
 #: growth.start = auto: a flower whose petals' base-to-tip chords lean (median) this far
 #: from its axis is already open (the project's buds: 9 deg; the open models: 49-95 deg)
 OPEN_CHORD = 30.0
+#: ... and whose petals' tips turn outward, away from its axis, by more than this (median;
+#: the angle of the last fifth of each midrib from the axis, positive outward): a closed
+#: bud of petals leaning out at the base curls its tips back in over its centre (the
+#: lotus: chords 37.7 deg, tips -4.5 deg; the open models' tips 15-131 deg)
+OPEN_TIP = 5.0
 #: ... and a lone petal whose surface turns (median over its rims and midrib) less than
 #: this from base to tip and across is already open (a cupped bud petal: 89 deg; the
 #: external single petals: 0-53 deg)
@@ -200,16 +205,19 @@ def bloom_start(vertices, faces, petal, base, tip, s, x, on_axis, flower_axis) -
     fa = np.asarray(flower_axis, dtype=np.float64)
     if count >= 2 and fa.shape == (6,) and np.all(np.isfinite(fa)):
         d = fa[3:] / np.linalg.norm(fa[3:])
-        angles = []
+        s, on_axis = np.asarray(s), np.asarray(on_axis, bool)
+        angles, turns = [], []
         for p in range(count):
             mine = petal == p
             held = mine & np.asarray(base, bool)
             chord = v[tip[p]] - v[held if held.any() else mine].mean(axis=0)
             angles.append(np.degrees(np.arccos(np.clip(chord @ d / np.linalg.norm(chord), -1, 1))))
-        lean = float(np.median(angles))
-        start = "open" if lean > OPEN_CHORD else "bud"
+            turns.append(_tip_turn(v, mine, on_axis, s, v[tip[p]], fa[:3], d))
+        lean, turn = float(np.median(angles)), float(np.median(turns))
+        start = "open" if lean > OPEN_CHORD and turn > OPEN_TIP else "bud"
         return Start(start, lean, f"the petals' base-to-tip chords lean {lean:.1f} deg (median) "
-                     f"from the flower's axis; a bud's lean under {OPEN_CHORD:g}")
+                     f"from the flower's axis, their tips turn {turn:.1f} deg outward; a bud's "
+                     f"lean is under {OPEN_CHORD:g}, or its tips under {OPEN_TIP:g}")
     normals = topology.vertex_normals(v, faces)
     turns = []
     for p in range(count):
@@ -226,6 +234,19 @@ def bloom_start(vertices, faces, petal, base, tip, s, x, on_axis, flower_axis) -
     start = "open" if cup < OPEN_CUP else "bud"
     return Start(start, cup, f"the petal's surface turns {cup:.1f} deg (median, base to tip and "
                  f"rim to rim); a bud petal's turns over {OPEN_CUP:g}")
+
+
+def _tip_turn(v, mine, on_axis, s, tip, point, direction) -> float:
+    """How far a petal's tip turns outward from the flower's axis (through ``point``
+    along ``direction``), in degrees: the angle from the axis of the last fifth of its
+    midrib (the tip from the mean of the midrib's vertices at s 0.7-0.9), positive away
+    from the axis, negative toward it (a tip curled in over the centre)."""
+    band = mine & (s > 0.7) & (s < 0.9)
+    mid = band & on_axis
+    seg = tip - v[mid if mid.any() else band if band.any() else mine].mean(axis=0)
+    r = (tip - point) - ((tip - point) @ direction) * direction
+    out = r / max(float(np.linalg.norm(r)), 1e-300)
+    return float(np.degrees(np.arctan2(seg @ out, seg @ direction)))
 
 
 #: effects.collisions.enabled = auto: petals whose boxes, grown by this fraction of the

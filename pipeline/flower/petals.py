@@ -278,6 +278,10 @@ def _one_petal(pts, lf, target_edge, petal_vertices, symmetrize, label, scale,
     except ValueError as exc:  # no sheet the remesher can take, nor the input's
         return {"notes": notes, "broken": _one_line(exc)}
     notes += note
+    pts, lf, ears = remesh.drop_ears(pts, lf)
+    if ears:
+        notes.append(f"{label}: dropped {ears} ear(s) on its rim (a face on one vertex of its "
+                     f"own, under {remesh.EAR_ANGLE:g} deg: growth would crush it)")
     try:  # what growth needs of a sheet: each edge of one or two faces, one orientation
         topology.hinges(lf)
     except ValueError as exc:
