@@ -89,7 +89,8 @@ def run(growth_h5: str | Path, out: str | Path, cfg: Config, *, overwrite: bool 
 
         def build_effects(positions):
             return prep.effects(names, params, positions=positions, rest_angle=rest_angle,
-                                max_edge=max_edge)
+                                max_edge=max_edge,
+                                pushback=sim["integrator"] != "quasi-static")
 
         model_positions, bud_info = None, {}
         if start.start == "open":

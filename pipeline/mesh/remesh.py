@@ -167,6 +167,8 @@ def drop_ears(vertices: np.ndarray, faces: np.ndarray, angle: float = EAR_ANGLE)
             break
         f = f[~ear]
         dropped += int(ear.sum())
+    if not dropped:
+        return vertices, faces, 0
     used = np.zeros(len(v), dtype=bool)
     used[f.ravel()] = True
     remap = np.cumsum(used) - 1

@@ -127,10 +127,12 @@ class Prepared:
         return model
 
     def effects(self, names, params: fx.Params, *, positions=None, rest_angle=None,
-                max_edge: float | None = None) -> fx.Effects:
+                max_edge: float | None = None, pushback: bool = True) -> fx.Effects:
         """The effects ``names`` (those the scene enabled), built at ``positions`` (default
         the rest state) with the parameters ``params``. ``max_edge``: the
-        longest edge the collision grid must hold (default: the longest fully grown edge)."""
+        longest edge the collision grid must hold (default: the longest fully grown edge).
+        ``pushback``: with the dynamic integrators' push-back arrays (False: the
+        quasi-static solver's contact, which does not read them)."""
         positions = self.vertices if positions is None else positions
         if max_edge is None:
             max_edge = self.max_grown_edge()
@@ -138,7 +140,8 @@ class Prepared:
                         patch=self.patch, flower=self.flower,
                         pinned=self.base, on_axis=self.on_axis, plane=self.plane, s=self.s,
                         rest_angle=self.rest_angle if rest_angle is None else rest_angle,
-                        flower_axis=self.flower_axis, max_edge=max_edge, params=params)
+                        flower_axis=self.flower_axis, max_edge=max_edge, params=params,
+                        pushback=pushback)
 
     def max_grown_edge(self) -> float:
         """The longest edge at full growth (``L (1 + max(alpha, 0))``, measured as the

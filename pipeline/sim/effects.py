@@ -202,12 +202,14 @@ class Effects:
 
 
 def build(names, *, vertices, faces, petal, pinned, on_axis, plane, s, rest_angle,
-          flower_axis, max_edge: float, params: Params, patch=None, flower=None) -> Effects:
+          flower_axis, max_edge: float, params: Params, patch=None, flower=None,
+          pushback: bool = True) -> Effects:
     """Build the enabled effects (``names``) from the mesh and their parameters.
     ``patch`` (V,): contact patches (petals left through each other as modelled share one,
     and do not collide); None: each petal its own. ``flower`` (V,): each vertex's flower
     in a file of many (each flower blooms as a problem of its own, with contact among its
-    own petals only); None: one flower."""
+    own petals only); None: one flower. ``pushback``: the collisions' arrays for the
+    push-back of the dynamic integrators (False: the quasi-static solver's contact only)."""
     names = tuple(n for n in ORDER if n in set(names))
     petal = np.asarray(petal, dtype=np.int64)
     point, direction = flower_axis_or_guess(vertices, flower_axis)
@@ -219,7 +221,8 @@ def build(names, *, vertices, faces, petal, pinned, on_axis, plane, s, rest_angl
         c = params.collisions
         fx.collisions = Collisions.build(vertices, faces, petal if patch is None else patch,
                                          offset=c.offset,
-                                         max_edge=max_edge, thickness=c.thickness)
+                                         max_edge=max_edge, thickness=c.thickness,
+                                         pushback=pushback)
         fx.collisions.joined = patch is not None and bool(patch_groups(petal, patch))
         if flower is not None and len(flower) and int(np.max(flower)) > 0:
             fx.collisions.vertex_flower = np.asarray(flower, dtype=np.int64)

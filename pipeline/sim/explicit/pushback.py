@@ -347,26 +347,32 @@ class Collisions:
 
     @classmethod
     def build(cls, vertices, faces, petal, *, offset: float, max_edge: float,
-              thickness: float, margin: float = 0.2, slack: float = 0.1) -> Collisions:
+              thickness: float, margin: float = 0.2, slack: float = 0.1,
+              pushback: bool = True) -> Collisions:
         """Which side of another petal a vertex belongs on is the side it is on when it
         comes near that petal (within the margin, over or under one of its faces): the
         kernel records it then. For vertices near another petal in the bud that is the
         bud's side (inner petals inside outer ones, an imbricate rim in its order), taken
         at the first step; for the others, the side they arrive on, round the petal's
-        rim, as the bud opens. Petals that touch in the bud start with no contact."""
+        rim, as the bud opens. Petals that touch in the bud start with no contact.
+
+        ``pushback``: allocate the push-back's ``(V, P)`` arrays (``side``, ``near``); the
+        quasi-static solver's contact does not read them (False: empty), and at a branch's
+        50,000 vertices and 5,000 petals they would take 2 GB."""
         v = np.asarray(vertices, dtype=np.float64)
         f = np.ascontiguousarray(faces, dtype=np.int64)
         petal = np.ascontiguousarray(petal, dtype=np.int64)
         count = int(petal.max()) + 1
         size = 4 * len(f) + 1
         cell = max_edge + 2.0 * (margin + offset + slack)
-        return cls(f, np.ascontiguousarray(petal[f[:, 0]]), petal, np.ones((len(v), count)),
+        rows, cols = (len(v), count) if pushback else (0, 0)
+        return cls(f, np.ascontiguousarray(petal[f[:, 0]]), petal, np.ones((rows, cols)),
                    np.array([cell, offset, margin, slack]), np.zeros((len(f), 3)),
                    np.zeros(size + 1, dtype=np.int64), np.zeros(size, dtype=np.int64),
                    np.zeros(27 * len(f), dtype=np.int64), v.copy(),
                    np.zeros(len(v) + 1, dtype=np.int64), np.zeros(64 * len(v), dtype=np.int64),
                    np.zeros(count, dtype=np.int64), np.zeros(count),
-                   np.zeros((len(v), count), dtype=np.int8), float(thickness))
+                   np.zeros((rows, cols), dtype=np.int8), float(thickness))
 
     def near_pairs(self, X, reach: float) -> int:
         """List the near pairs at ``X`` (as the kernel does when it rebuilds)."""

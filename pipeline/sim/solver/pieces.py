@@ -167,7 +167,7 @@ def split(model: Model, effects: Effects, positions=None) -> list[Piece]:
             fx.collisions = Collisions.build(
                 positions[idx], local[faces], np.unique(k.vertex_petal[idx], return_inverse=True)[1],
                 offset=offset, max_edge=cell - 2.0 * (margin + offset + slack),
-                thickness=k.thickness, margin=margin, slack=slack)
+                thickness=k.thickness, margin=margin, slack=slack, pushback=False)
             fx.collisions.joined = k.joined
             fx.collisions.vertex_flower = None if k.vertex_flower is None else k.vertex_flower[idx]
         zeros = np.zeros((len(idx), 3))
