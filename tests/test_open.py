@@ -115,3 +115,39 @@ def test_the_lift_chooses_the_branch_a_flat_petal_closes_on():
         tips.append(bud[int(axes.tip[0]), 2] - v[axes.base, 2].mean())
     length = reverse.petal_lengths(v, petal, axes.base)[0]
     assert tips[0] > 0.05 * length and tips[1] < -0.05 * length, tips
+
+
+def test_a_bud_search_that_finds_no_equilibrium_closes_half_as_far(tmp_path, monkeypatch):
+    """Where the path to the bud crumples a petal (a rose's rolled rim), the bud is found
+    closing half as far (logged, recorded as bud_close), not refused; after
+    CLOSE_TRIES halvings it is refused in one line naming growth.close."""
+    from pipeline.sim.solver.newton import NotConverged
+
+    v, f, p = procedural.open_flower(3, 600, 0)
+    mesh = tmp_path / "open.obj"
+    procedural.write_obj(mesh, v, f, p, "an open flower")
+    real = reverse.find_bud
+    closes = []
+
+    def crumples_at_full_close(model, *args, **kwargs):
+        closes.append(float(np.max(np.abs(model.edge_growth))))
+        if len(closes) == 1 or fail_always:
+            raise NotConverged(0, 0.5, 1.0, scale=1.0, vertex=0)
+        return real(model, *args, **kwargs)
+
+    monkeypatch.setattr(reverse, "find_bud", crumples_at_full_close)
+    short = ["--set", "growth.start=open", "--set", "simulate.frames=5"]
+    out = {k: tmp_path / f"{k}.h5" for k in ("r", "a", "g", "s")}
+    for stage, src, dst in (("remesh", mesh, "r"), ("axis", out["r"], "a"), ("growth", out["a"], "g")):
+        assert CliRunner().invoke(cli, [stage, str(src), "--out", str(out[dst])]).exit_code == 0
+    fail_always = False
+    r = CliRunner().invoke(cli, ["simulate", str(out["g"]), "--out", str(out["s"]), *short])
+    assert r.exit_code == 0, r.output
+    assert closes[1] == pytest.approx(0.5 * closes[0])  # (the growth ratios, halved)
+    assert "closing half as far" in r.output
+    with h5py.File(out["s"]) as h:
+        assert h.attrs["bud_close"] == 0.5
+    fail_always = True
+    r = CliRunner().invoke(cli, ["simulate", str(out["g"]), "--out", str(tmp_path / "t.h5"), *short])
+    assert r.exit_code != 0 and "growth.close" in r.output and "0.25" in r.output
+    assert not (tmp_path / "t.h5").exists()

@@ -227,53 +227,78 @@ def distance_to_model(positions, model_positions, petal, base) -> float:
     return float(np.sqrt(np.mean(d ** 2)) / petal_lengths(model_positions, petal, base).mean())
 
 
+#: growth.start = open: where the path to the bud finds no equilibrium (a petal that
+#: crumples as it closes: a rose's rolled rim), it is tried again closing half as far,
+#: this many times, before the run is refused
+CLOSE_TRIES = 2
+
+
+def _find_bud_closing(cfg, close, model, positions, rest_angle, params, build_effects, petal,
+                      base, s, x, flower_axis, faces, plane):
+    """:func:`open_start`'s bud search at ``close`` (``growth.close``): the bud, the solver,
+    and the model, rest angles and effect parameters that grow from it back to the mesh."""
+    model = open_model(model, close)
+    if cfg["effects.curl.enabled"] is True:
+        params = params.but(curl={"beta": close * params.curl.beta})
+        rest_angle = open_rest_angle(rest_angle, params.curl.beta)
+    _, up = flower_axis_or_guess(positions, flower_axis)
+    size = LIFT * petal_lengths(positions, petal, base).mean()
+    if faces is not None and plane is not None:
+        lift, folded = unfolded_lift(positions, faces, petal, plane, s, x, base, up, size)
+        if folded:
+            log.info("growth.start = open: the closing lift (s^2 + x^2) would fold a "
+                     "triangle of petal(s) %s (under %g of its shape); lifted by the "
+                     "distance from each center plane instead", ", ".join(map(str, folded)),
+                     FOLD)
+    else:
+        lift = closing_lift(positions, s, x, base, up, size)
+    at_model = build_effects(positions)  # (the settle's; contact_free only reads it)
+    lift = contact_free(lift, positions, at_model)
+    bud, solver = find_bud(model, positions, build_effects(positions + lift),
+                           stages=cfg["simulate.stages"], tolerance=cfg["simulate.tolerance"],
+                           lift=lift, settle_effects=at_model, petal=np.asarray(petal))
+    return bud, solver, model, rest_angle, params
+
+
 def open_start(cfg, model: Model, positions, rest_angle, params: Params, build_effects, petal,
                base, s, x, flower_axis, where: str, *, faces=None, plane=None):
     """``growth.start = "open"``: the model at A = 1, the bud at A = 0. Returns the bud's
     positions, the model, rest angles and effect parameters that grow from it back to
     the mesh, and figures for the artifact (``bud_seconds``, ``bud_newton_iterations``,
-    ``bud_distance``). ``build_effects(positions)`` builds the scene's effects at
+    ``bud_distance``, ``bud_close``: the growth.close it closed by, halved where the
+    full one found no equilibrium). ``build_effects(positions)`` builds the scene's effects at
     ``positions``. With ``faces`` and ``plane`` (each petal's center plane) a lift that
     would fold a triangle is mended (:func:`unfolded_lift`). Raises :class:`BloomError`
     naming the key to change."""
     close = cfg["growth.close"]
-    try:
-        model = open_model(model, close)
-        if cfg["effects.curl.enabled"] is True:
-            params = params.but(curl={"beta": close * params.curl.beta})
-            rest_angle = open_rest_angle(rest_angle, params.curl.beta)
-    except ValueError as exc:
-        raise BloomError(str(exc), where=where) from None
     clock = time.perf_counter()
-    try:
-        _, up = flower_axis_or_guess(positions, flower_axis)
-        size = LIFT * petal_lengths(positions, petal, base).mean()
-        if faces is not None and plane is not None:
-            lift, folded = unfolded_lift(positions, faces, petal, plane, s, x, base, up, size)
-            if folded:
-                log.info("growth.start = open: the closing lift (s^2 + x^2) would fold a "
-                         "triangle of petal(s) %s (under %g of its shape); lifted by the "
-                         "distance from each center plane instead", ", ".join(map(str, folded)),
-                         FOLD)
-        else:
-            lift = closing_lift(positions, s, x, base, up, size)
-        at_model = build_effects(positions)  # (the settle's; contact_free only reads it)
-        lift = contact_free(lift, positions, at_model)
-        bud, solver = find_bud(model, positions, build_effects(positions + lift),
-                               stages=cfg["simulate.stages"], tolerance=cfg["simulate.tolerance"],
-                               lift=lift, settle_effects=at_model, petal=np.asarray(petal))
-    except NotConverged as exc:
-        raise BloomError(f"growth.close: finding the bud, the quasi-static solver found {exc} "
-                         f"(petal {int(petal[exc.vertex])}); remedy: a smaller growth.close, or "
-                         "more simulate.stages", where=where) from None
-    except ContactError as exc:
-        raise BloomError(f"{exc.key}: finding the bud: {exc}", where=where) from None
-    except ValueError as exc:
-        raise BloomError(f"growth.start: finding the bud: {exc}", where=where) from None
+    for attempt in range(CLOSE_TRIES + 1):
+        try:
+            found = _find_bud_closing(cfg, close, model, positions, rest_angle, params,
+                                      build_effects, petal, base, s, x, flower_axis, faces,
+                                      plane)
+            break
+        except NotConverged as exc:
+            if attempt == CLOSE_TRIES:
+                tried = (f" (tried closing down to growth.close = {close:g})"
+                         if CLOSE_TRIES else "")
+                raise BloomError(f"growth.close: finding the bud, the quasi-static solver "
+                                 f"found {exc} (petal {int(petal[exc.vertex])}){tried}; remedy: "
+                                 "a smaller growth.close, or more simulate.stages",
+                                 where=where) from None
+            log.warning("growth.start = open: closing by growth.close = %g, the path to the "
+                        "bud found no equilibrium at A = %.4g (petal %d); closing half as far",
+                        close, exc.growth, int(petal[exc.vertex]))
+            close *= 0.5
+        except ContactError as exc:
+            raise BloomError(f"{exc.key}: finding the bud: {exc}", where=where) from None
+        except ValueError as exc:
+            raise BloomError(f"growth.start: finding the bud: {exc}", where=where) from None
+    bud, solver, model, rest_angle, params = found
     seconds = time.perf_counter() - clock
     moved = distance_to_model(bud, positions, petal, base)
     log.info("growth.start = open: found the bud in %.2f s (%d Newton iterations); it is %.3g "
              "petal lengths (RMS) from the model", seconds, solver.iterations, moved)
     return bud, model, rest_angle, params, {"bud_seconds": seconds,
                                             "bud_newton_iterations": solver.iterations,
-                                            "bud_distance": moved}
+                                            "bud_distance": moved, "bud_close": close}
