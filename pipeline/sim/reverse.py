@@ -191,7 +191,7 @@ def contact_free(lift, positions, effects):
             local = np.full(len(X), -1, dtype=np.int64)
             local[idx] = np.arange(len(idx))
             faces = local[faces[flower[faces[:, 0]] == f]]
-            petal = np.unique(petal[idx], return_inverse=True)[1]
+            petal = petal[idx]
         contact = Contact.build(X[idx], faces, petal, gap=c.thickness, stiffness=1.0,
                                 own=not c.joined)
         fraction = contact.max_step(X[idx], X[idx] + out[idx])

@@ -165,7 +165,8 @@ def split(model: Model, effects: Effects, positions=None) -> list[Piece]:
             cell, offset, margin, slack = (float(x) for x in k.params)
             faces = k.faces[label[k.faces[:, 0]] == c]
             fx.collisions = Collisions.build(
-                positions[idx], local[faces], np.unique(k.vertex_petal[idx], return_inverse=True)[1],
+                positions[idx], local[faces], k.vertex_petal[idx],  # (the whole's labels:
+                # a refusal of the cluster's start names the petals as the log does)
                 offset=offset, max_edge=cell - 2.0 * (margin + offset + slack),
                 thickness=k.thickness, margin=margin, slack=slack, pushback=False)
             fx.collisions.joined = k.joined
