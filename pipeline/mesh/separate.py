@@ -334,12 +334,10 @@ def _folded(X, F, petal) -> list[int]:
         return []
     out = []
     n = int(petal.max()) + 1
-    local = np.empty(len(petal), dtype=np.int64)
     for p, (verts, faces) in enumerate(zip(_by(petal, n), _by(petal[F[:, 0]], n), strict=True)):
         if not len(faces):
             continue
-        local[verts] = np.arange(len(verts))
-        sub = np.asfortranarray(local[F[faces]], dtype=np.int32)
+        sub = np.asfortranarray(np.searchsorted(verts, F[faces]), dtype=np.int32)
         Xp = np.asfortranarray(X[verts])
         if ipctk.has_intersections(ipctk.CollisionMesh(Xp, ipctk.edges(sub), sub), Xp):
             out.append(p)

@@ -187,10 +187,8 @@ def contact_free(lift, positions, effects):
     cuts = []
     for f, idx in enumerate(groups):
         faces, petal = c.faces, c.vertex_petal
-        if flower is not None:
-            local = np.full(len(X), -1, dtype=np.int64)
-            local[idx] = np.arange(len(idx))
-            faces = local[faces[flower[faces[:, 0]] == f]]
+        if flower is not None:  # (the flower's own faces, on its own vertices)
+            faces = np.searchsorted(idx, faces[flower[faces[:, 0]] == f])
             petal = petal[idx]
         contact = Contact.build(X[idx], faces, petal, gap=c.thickness, stiffness=1.0,
                                 own=not c.joined)

@@ -170,7 +170,6 @@ def split(model: Model, effects: Effects, positions=None) -> list[Piece]:
                 offset=offset, max_edge=cell - 2.0 * (margin + offset + slack),
                 thickness=k.thickness, margin=margin, slack=slack, pushback=False)
             fx.collisions.joined = k.joined
-            fx.collisions.vertex_flower = None if k.vertex_flower is None else k.vertex_flower[idx]
         zeros = np.zeros((len(idx), 3))
         state = State(zeros.copy(), zeros.copy(), zeros.copy(), 0, 0.0, zeros.copy())
         parts.append(Piece(idx, sub, fx, state))

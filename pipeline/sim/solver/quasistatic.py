@@ -226,8 +226,7 @@ class QuasiStatic:
         self._parts = split(model, effects, positions)
         self._split_at = None if positions is None else np.array(positions, dtype=np.float64)
         if not self._parts and _apart(effects) and self.newton.contact is None:
-            self._parts = []  # (one cluster after all: the whole's contact)
-            self._couple(model, positions, effects, check=check)
+            self._couple(model, positions, effects, check=check)  # (one problem after all)
         for part in self._parts:
             part.solver = QuasiStatic(self.stages, self.tolerance, self.max_iterations,
                                       perturbation=0.0, inertia=self.inertia)

@@ -363,14 +363,12 @@ def frame_intersections(frames, faces, petal=None, patch=None) -> list[bool]:
                 face_petal = petal[np.asarray(faces)[:, 0]]
                 grouped = {q for g in groups for q in g}
                 single = [q for q in np.unique(petal).tolist() if q not in grouped]
-                local = np.empty(len(X), dtype=np.int64)
                 for p in single:  # (each on its own vertices: memory linear in the mesh;
                     # with the arrays it refers to: they must live)
                     mine = F[face_petal == p]
                     if len(mine):
                         verts = np.unique(mine)
-                        local[verts] = np.arange(len(verts))
-                        f = np.asfortranarray(local[mine], dtype=np.int32)
+                        f = np.asfortranarray(np.searchsorted(verts, mine), dtype=np.int32)
                         e = ipctk.edges(f)
                         alone.append((verts, f, e, ipctk.CollisionMesh(
                             np.asfortranarray(X[verts]), e, f)))
