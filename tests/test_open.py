@@ -151,3 +151,36 @@ def test_a_bud_search_that_finds_no_equilibrium_closes_half_as_far(tmp_path, mon
     r = CliRunner().invoke(cli, ["simulate", str(out["g"]), "--out", str(tmp_path / "t.h5"), *short])
     assert r.exit_code != 0 and "growth.close" in r.output and "0.25" in r.output
     assert not (tmp_path / "t.h5").exists()
+
+
+def test_an_open_shell_is_its_own_rest_state_and_blooms_back_to_itself():
+    """The shell (``simulate.model = shell``) from an open model: at A = 1 the mesh is at
+    rest, curvature included (with and without curl), and not at A = 0; the bud found
+    backward grows forward onto the model to the solver's tolerance."""
+    from pipeline.sim.build import Prepared
+    from pipeline.sim.effects import Curl
+    from pipeline.sim.terms.shell import ShellTerm
+
+    v, f, petal, axes, growth = open_petal()
+    opened = Prepared.of(v, f, petal, axes, growth).shell_model(27.3, 0.013, 1 / 3)
+
+    def force(model, X, A, curl=None):
+        g = ShellTerm(model, curl).at(A).gradient(X)
+        g[model.pinned] = 0.0
+        return np.abs(g).max()
+
+    for beta in (0.0, 0.4):
+        model = reverse.open_model(opened, 1.0, v, beta)
+        curl = Curl.build(np.zeros(model.hinge_count), beta=beta) if beta else None
+        at_bud = force(model, v, 0.0, curl)  # the bud's rest state is not the mesh
+        assert at_bud > 0.0
+        assert force(model, v, 1.0, curl) <= 1e-9 * at_bud
+    with pytest.raises(ValueError, match="positions"):
+        reverse.open_model(opened, 1.0)
+    model = reverse.open_model(opened, 1.0, v)
+    bud, _ = reverse.find_bud(model, v, Effects(), stages=20, tolerance=1e-6)
+    assert reverse.distance_to_model(bud, v, petal, axes.base) > 0.05
+    control = Control("linear", 10.0)
+    state = State.at_rest(model, bud, control)
+    QuasiStatic(perturbation=0.0).advance(model, state, control, 10, 1.0)
+    assert reverse.distance_to_model(state.positions, v, petal, axes.base) < 1e-6

@@ -480,3 +480,40 @@ def test_petals_apart_are_solved_apart_as_one():
         QuasiStatic(stages=5, perturbation=0.0).advance(part.model, alone, control, 5, 1.0)
         np.testing.assert_allclose(state.positions[part.vertices], alone.positions,
                                    atol=1e-6 * np.abs(alone.positions).max())
+
+
+# --- in the dynamic integrators (Eq. 7-8) -----------------------------------------------------
+
+def test_the_semi_implicit_scheme_runs_the_shell():
+    """The paper's scheme on the shell: the kernel's forces are the term's own (same
+    bits); velocity Verlet (eta = 1/2, at a fifth of the stable step) keeps the total
+    energy of a held growth within 2% of what the state started with (measured 0.85%),
+    and eta = 0.1 only loses energy."""
+    from pipeline.sim.explicit.semi_implicit import SemiImplicit
+    from pipeline.sim.model import Control, State
+
+    prep, model = _shell_scene(1, 120)
+    rng = np.random.default_rng(3)
+    X0 = prep.vertices + np.where(model.pinned[:, None], 0.0,
+                                  rng.normal(scale=0.05, size=prep.vertices.shape))
+    held = Control("table", 1.0, np.full(2, 0.4))  # A = 0.4 at every time
+    totals = {}
+    for eta in (0.5, 0.1):
+        state = State.at_rest(model, X0, held)
+        start = state.potential_energy
+        si = SemiImplicit(eta=eta, speed_limit=1e3, safety=0.2)  # (h omega <= 0.4)
+        energies = []
+        for _ in range(20):
+            si.advance(model, state, held, 10, 1.0)
+            energies.append(state.potential_energy + state.kinetic_energy(model))
+        totals[eta] = (start, np.array(energies))
+        F = np.zeros_like(state.positions)
+        sh.ShellTerm(model).at(0.4).forces(state.positions, F)
+        assert np.array_equal(F, state.forces)
+        assert np.array_equal(state.positions[model.pinned], X0[model.pinned])
+    start, verlet = totals[0.5]
+    assert start > 0.0 and np.all(np.isfinite(verlet))
+    assert np.abs(verlet - start).max() <= 0.02 * start
+    start, damped = totals[0.1]
+    assert damped[-1] < 0.5 * start
+    assert np.all(np.diff(damped) <= 1e-9 * start)

@@ -61,13 +61,9 @@ def run(growth_h5: str | Path, out: str | Path, cfg: Config, *, overwrite: bool 
         shell = sim["model"] == "shell"
         starts = decide_flowers(cfg, prep, stagger.flower_count(src), frames)
         start = decide_start(cfg, prep)
-        if shell and (sim["integrator"] != "quasi-static" or start.start == "open"):
-            raise BloomError("simulate.model: the shell runs with simulate.integrator = "
-                             "quasi-static and growth.start = bud (for now); this scene has "
-                             f"{sim['integrator']} and a start {start.start} ({start.reason})",
-                             where=where)
-        if shell:  # a bud that is not perfectly symmetric, the same at any resolution (a
-            # random nudge per vertex picks a branch per mesh)
+        if shell and start.start != "open":  # a bud that is not perfectly symmetric, the
+            # same at any resolution (a random nudge per vertex picks a branch per mesh; an
+            # open start's closing lift picks the bud's)
             prep.vertices = v = prep.imperfect(sim["imperfection"])
         try:
             if shell:
@@ -110,7 +106,8 @@ def run(growth_h5: str | Path, out: str | Path, cfg: Config, *, overwrite: bool 
                                      sim["substeps"], sim["inertia"])
         if hasattr(integrator, "petal"):  # (it names the petal of each rescue in the log)
             integrator.petal = np.asarray(petal)
-        if shell and sim["imperfection"] > 0.0:  # (the imperfection breaks the symmetry)
+        if shell and (sim["imperfection"] > 0.0 or model_positions is not None):  # (the
+            # imperfection, or the found bud, breaks the symmetry)
             integrator.perturbation = 0.0
         effects = build_effects(v)
         state = State.at_rest(model, v, control)

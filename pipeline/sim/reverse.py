@@ -52,15 +52,23 @@ class Backward:
         return float(min(max(1.0 - t, 0.0), 1.0))
 
 
-def open_model(model: Model, close: float) -> Model:
+def open_model(model: Model, close: float, positions=None, beta: float = 0.0) -> Model:
     """The model whose rest lengths reach the mesh's own at A = 1: ``rest0 = L / (1 + c
-    alpha)``, growth ratios ``c alpha``."""
+    alpha)``, growth ratios ``c alpha``. A shell's rest curvature too: ``positions``' (the
+    mesh's) at A = 1, with the curl's ``beta`` (already times ``c``) decaying it on the
+    way (:meth:`~pipeline.sim.terms.shell.ShellData.rest_on`)."""
     growth = float(close) * model.edge_growth
     if np.any(1.0 + growth <= 0.0):
         raise ValueError("growth.close: a growth ratio times it is <= -1 (a rest length "
                          "at the bud would be zero or negative)")
-    return dataclasses.replace(model, edge_rest_length=model.edge_rest_length / (1.0 + growth),
-                               edge_growth=np.ascontiguousarray(growth))
+    rest = model.edge_rest_length / (1.0 + growth)
+    growth = np.ascontiguousarray(growth)
+    shell = model.shell
+    if shell is not None:
+        if positions is None:
+            raise ValueError("an open shell needs the model's positions (its curvature)")
+        shell = shell.rest_on(positions, rest, growth, beta)
+    return dataclasses.replace(model, edge_rest_length=rest, edge_growth=growth, shell=shell)
 
 
 def open_rest_angle(rest_angle: np.ndarray, beta: float) -> np.ndarray:
@@ -80,20 +88,25 @@ class _Bud:
         return 0.0
 
 
-def rest_at(model: Model, positions) -> Model:
+def rest_at(model: Model, positions, beta: float = 0.0) -> Model:
     """``model`` with its rest lengths and angles measured on ``positions`` (the growth
-    ratios kept): rest lengths ``L / (1 + alpha)``, so that they are ``positions``' at A = 1."""
+    ratios kept): rest lengths ``L / (1 + alpha)``, so that they are ``positions``' at A = 1.
+    A shell's rest curvature too (:meth:`~pipeline.sim.terms.shell.ShellData.rest_on`;
+    ``beta``: the curl's, which decays it on the way to A = 1)."""
     X = np.ascontiguousarray(positions, dtype=np.float64)
     length = np.empty(model.edge_count)
     edge_lengths(X, model.edge_indices, length)
     cos0, sin0 = np.empty(model.hinge_count), np.empty(model.hinge_count)
     hinge_cos_sin(X, model.hinge_indices, cos0, sin0)
-    return dataclasses.replace(model, edge_rest_length=length / (1.0 + model.edge_growth),
-                               hinge_rest_cos=cos0, hinge_rest_sin=sin0)
+    rest = length / (1.0 + model.edge_growth)
+    shell = (None if model.shell is None
+             else model.shell.rest_on(X, rest, model.edge_growth, beta))
+    return dataclasses.replace(model, edge_rest_length=rest, hinge_rest_cos=cos0,
+                               hinge_rest_sin=sin0, shell=shell)
 
 
 def find_bud(model: Model, open_positions, effects, *, stages: int, tolerance: float,
-             lift=None, settle_effects=None, petal=None):
+             lift=None, settle_effects=None, petal=None, beta: float = 0.0):
     """The equilibrium at A = 0 reached from the model (at A = 1) along the path of
     equilibria. Returns ``(positions, solver)``; the solver's diagnostics say what it took.
 
@@ -102,13 +115,14 @@ def find_bud(model: Model, open_positions, effects, *, stages: int, tolerance: f
     lengths and angles measured there), and the bud it reaches is then settled at A = 0
     on the model itself (``settle_effects``: fresh effects for that solve), so the bud
     is the model's own equilibrium, on the branch the lift chose. ``petal`` ``(V,)``
-    names the petals in the log (of the solver's rescues)."""
+    names the petals in the log (of the solver's rescues); ``beta`` is the curl's (a
+    shell's rest curvature on the lifted path, :func:`rest_at`)."""
     backward = Backward()
     solver = QuasiStatic(stages=stages, tolerance=tolerance, petal=petal)
     start = np.asarray(open_positions, dtype=np.float64)
     if lift is not None:
         start = start + lift
-    path_model = model if lift is None else rest_at(model, start)
+    path_model = model if lift is None else rest_at(model, start, beta)
     state = State.at_rest(path_model, start, backward)
     solver.advance(path_model, state, backward, 1, 1.0, effects)
     if lift is None:
@@ -235,10 +249,12 @@ def _find_bud_closing(cfg, close, model, positions, rest_angle, params, build_ef
                       base, s, x, flower_axis, faces, plane):
     """:func:`open_start`'s bud search at ``close`` (``growth.close``): the bud, the solver,
     and the model, rest angles and effect parameters that grow from it back to the mesh."""
-    model = open_model(model, close)
+    beta = 0.0
     if cfg["effects.curl.enabled"] is True:
         params = params.but(curl={"beta": close * params.curl.beta})
         rest_angle = open_rest_angle(rest_angle, params.curl.beta)
+        beta = params.curl.beta
+    model = open_model(model, close, positions, beta)
     _, up = flower_axis_or_guess(positions, flower_axis)
     size = LIFT * petal_lengths(positions, petal, base).mean()
     if faces is not None and plane is not None:
@@ -254,7 +270,8 @@ def _find_bud_closing(cfg, close, model, positions, rest_angle, params, build_ef
     lift = contact_free(lift, positions, at_model)
     bud, solver = find_bud(model, positions, build_effects(positions + lift),
                            stages=cfg["simulate.stages"], tolerance=cfg["simulate.tolerance"],
-                           lift=lift, settle_effects=at_model, petal=np.asarray(petal))
+                           lift=lift, settle_effects=at_model, petal=np.asarray(petal),
+                           beta=beta)
     return bud, solver, model, rest_angle, params
 
 

@@ -13,6 +13,7 @@ from pipeline.sim.effects import NO_EFFECTS, Effects
 from pipeline.sim.explicit.stable_step import StableStep, rest_angles, scheme_limit
 from pipeline.sim.explicit.step import advance
 from pipeline.sim.model import Control, Model, State
+from pipeline.sim.terms.shell import kernel_shell
 
 
 class Diverged(RuntimeError):
@@ -82,6 +83,7 @@ class SemiImplicit:
     chunk: int = CHUNK
     _estimator: object = field(default=None, repr=False, compare=False)
     _frame: dict = field(default_factory=dict, repr=False, compare=False)
+    _shell: tuple = field(default=None, repr=False, compare=False)  #: (model, curl, its KernelShell)
 
     def diagnostics(self) -> dict:
         """Per frame (the :meth:`advance` call that ended at it): ``substeps`` (kernel
@@ -110,7 +112,8 @@ class SemiImplicit:
             self._estimator = (model, StableStep.build(model))
         t = state.step * h
         cos0, sin0 = rest_angles(model, control, effects, t)
-        args = (model, state.positions, control.growth_at(t), cos0, sin0, effects.connections)
+        args = (model, state.positions, control.growth_at(t), cos0, sin0, effects.connections,
+                effects.curl)
         limit = self.limit()
         estimator = self._estimator[1]
         est = estimator.estimate(*args, tighten=False)
@@ -176,6 +179,8 @@ class SemiImplicit:
         connection springs that break get their step in the user's units."""
         conn = effects.connections
         intact = conn.alive.copy() if conn is not None and k > 1 else None
+        if self._shell is None or self._shell[0] is not model or self._shell[1] is not effects.curl:
+            self._shell = (model, effects.curl, kernel_shell(model, effects.curl))
         energy, taken = advance(
             state.positions, state.velocities, state.forces, state.scratch,
             model.vertex_inv_mass, model.edge_indices, model.edge_rest_length,
@@ -183,7 +188,7 @@ class SemiImplicit:
             model.hinge_rest_cos, model.hinge_rest_sin, model.hinge_stiffness,
             control.schedule_code, control.ramp_time, control.table, state.step * k, n, h_sub,
             self.eta,
-            self.d, effects.bundle(), self.speed_limit)
+            self.d, effects.bundle(), self.speed_limit, self._shell[2])
         if intact is not None:
             broke = intact & ~conn.alive
             conn.broken_step[broke] = -(-conn.broken_step[broke] // k)  # substep -> step

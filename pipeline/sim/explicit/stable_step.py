@@ -45,6 +45,7 @@ from numba import njit
 from pipeline.sim.blocks import Blocks
 from pipeline.sim.terms.connections import connection_blocks
 from pipeline.sim.terms.elastic import hessian
+from pipeline.sim.terms.shell import ShellBlocks, ShellTerm
 
 LANCZOS_STEPS = 24
 
@@ -229,17 +230,22 @@ class StableStep:
         k = np.arange(3 * model.vertex_count, dtype=np.float64)
         start = (np.cos(2.399963229728653 * k) + 0.5 * np.cos(0.7548776662466927 * k * k))
         start = np.ascontiguousarray(start.reshape(-1, 3) * (scale > 0.0)[:, None])
-        return cls(Blocks.build(model), scale, start, steps)
+        blocks = ShellBlocks.build(model) if model.shell is not None else Blocks.build(model)
+        return cls(blocks, scale, start, steps)
 
     def estimate(self, model, positions, A: float, cos0, sin0, connections=None,
-                 tighten: bool = True) -> Estimate:
+                 curl=None, tighten: bool = True) -> Estimate:
         """omega_max^2 at ``positions``, growth ``A`` (rest lengths), rest angles
-        ``cos0, sin0`` and the intact ``connections`` (an :class:`effects.Connections`)."""
+        ``cos0, sin0`` (a shell: its rest curvature decayed by the ``curl`` effect's beta)
+        and the intact ``connections`` (an :class:`effects.Connections`)."""
         X = np.ascontiguousarray(positions, dtype=np.float64)
         H = self.blocks
-        hessian(X, model.edge_indices, model.edge_rest_length, model.edge_growth,
-                model.edge_stiffness, model.hinge_indices, cos0, sin0, model.hinge_stiffness,
-                A, H.data, H.edge_slots, H.hinge_slots, H.work)
+        if model.shell is not None:
+            ShellTerm(model, curl).at(A).assemble(X, H)
+        else:
+            hessian(X, model.edge_indices, model.edge_rest_length, model.edge_growth,
+                    model.edge_stiffness, model.hinge_indices, cos0, sin0,
+                    model.hinge_stiffness, A, H.data, H.edge_slots, H.hinge_slots, H.work)
         if connections is not None and len(connections.pairs):
             pairs = connections.pairs
             blocks = np.zeros((len(pairs), 3, 3))

@@ -37,6 +37,7 @@ from pipeline.sim.terms.bending import _W_SIZE, _add_forces
 from pipeline.sim.terms.center_plane import project_out_normals, restore_plane
 from pipeline.sim.terms.connections import connection_forces
 from pipeline.sim.terms.growth import curl_rest_angles, growth_value
+from pipeline.sim.terms.shell_kernels import shell_forces
 
 
 @njit(cache=True, error_model="numpy")
@@ -101,7 +102,8 @@ def _velocities(V, F, F_next, inv_mass, h, d, eta, eta_next):
 
 @njit(cache=True, error_model="numpy")
 def advance(X, V, F, F_next, inv_mass, edges, rest0, growth, edge_k, hinges, cos0, sin0,
-            hinge_k, schedule, ramp_time, table, step0, n_steps, h, eta, d, fx, speed_limit):
+            hinge_k, schedule, ramp_time, table, step0, n_steps, h, eta, d, fx, speed_limit,
+            shell):
     """Advance ``n_steps`` steps from step index ``step0`` (time ``step0 * h``).
 
     The semi-implicit scheme of the paper, with one force evaluation per step::
@@ -115,6 +117,10 @@ def advance(X, V, F, F_next, inv_mass, edges, rest0, growth, edge_k, hinges, cos
     ``f(X[step0 + n_steps])`` on return (so does ``F_next``, the work array). Pinned
     vertices have ``inv_mass = 0``: their forces are ignored and their positions never
     change (Eq. 10).
+
+    ``shell`` (a :class:`~pipeline.sim.terms.shell.KernelShell`): where ``shell.on``, the
+    elastic forces are the shell's (membrane and bending of each face, its curl decaying
+    the rest curvature) instead of the springs and hinges.
 
     ``fx`` is the effects' :class:`~pipeline.sim.effects.Bundle` (fields by name); an effect that
     is off is skipped by one branch per step and runs no loop. Within a step: positions
@@ -171,9 +177,20 @@ def advance(X, V, F, F_next, inv_mass, edges, rest0, growth, edge_k, hinges, cos
                 restore_plane(X, V, plane_idx, plane_n, plane_h)
         t = (step0 + n + 1) * h
         A = growth_value(schedule, t, ramp_time, table)
-        if curl_on:
-            curl_rest_angles(theta0, A * beta, cos_t, sin_t)
-        energy = _add_forces(X, edges, rest0, growth, edge_k, hinges, c0, s0, hinge_k, A, Fn, W)
+        if shell.on:
+            P = shell.points
+            for v in range(X.shape[0]):
+                P[v, 0] = X[v, 0]
+                P[v, 1] = X[v, 1]
+                P[v, 2] = X[v, 2]
+            energy = shell_forces(P, shell.faces, shell.opposite, shell.ghost, shell.face_edges,
+                                  rest0, growth, shell.young, shell.bend, shell.nu, shell.form,
+                                  shell.det0, A, 1.0 - A * shell.beta, Fn, shell.scratch)
+        else:
+            if curl_on:
+                curl_rest_angles(theta0, A * beta, cos_t, sin_t)
+            energy = _add_forces(X, edges, rest0, growth, edge_k, hinges, c0, s0, hinge_k, A,
+                                 Fn, W)
         if conn_on:
             energy += connection_forces(X, conn_pairs, conn_rest, conn_k, conn_limit,
                                         conn_alive, conn_broken, step0 + n + 1, Fn)

@@ -15,6 +15,8 @@ read in :mod:`pipeline.sim.terms.shell_stencil`.
 
 from __future__ import annotations
 
+import dataclasses
+from collections import namedtuple
 from dataclasses import dataclass
 
 import numpy as np
@@ -187,6 +189,29 @@ class ShellData:
         return cls(f, opp, ghost, fe, form, det0, young, bend, float(poisson), size, anchors,
                    len(X))
 
+    def rest_on(self, positions, rest0, growth, beta: float = 0.0) -> ShellData:
+        """This shell with ``positions`` as its rest shape at full growth (A = 1; an open
+        start's model, :mod:`pipeline.sim.reverse`): the rest curvature at growth 0 is
+        ``positions``' own second fundamental form divided by what growth and curl
+        multiply it by on the way to A = 1 (``(det abar(1) / det abar(0))^(1/4)`` and
+        ``1 - beta``), so that at A = 1 it is ``positions``' own. ``rest0``, ``growth``:
+        the model's edges' rest lengths at growth 0 and growth ratios."""
+        X = np.ascontiguousarray(positions, dtype=np.float64)
+        if self.anchors is not None and len(self.anchors):
+            X = np.concatenate([X, self.anchors])
+        form = np.empty((self.face_count, 3))
+        second_form(X, self.face_indices, self.face_opposite, self.face_ghost, form)
+        det0, det1 = np.empty(self.face_count), np.empty(self.face_count)
+        rest0 = np.ascontiguousarray(rest0, dtype=np.float64)
+        growth = np.ascontiguousarray(growth, dtype=np.float64)
+        rest_dets(self.face_edges, rest0, growth, det0)
+        rest_dets(self.face_edges, rest0 * (1.0 + growth), np.zeros_like(growth), det1)
+        if np.any(det0 <= 0.0) or np.any(det1 <= 0.0):
+            raise ValueError(f"{int(np.sum((det0 <= 0.0) | (det1 <= 0.0)))} faces have no "
+                             "rest area")
+        k = np.sqrt(np.sqrt(det0 / det1)) / (1.0 - beta)
+        return dataclasses.replace(self, face_rest_form=form * k[:, None], face_rest_det=det0)
+
     def equivalent(self) -> tuple[float, float]:
         """The paper's (K_s, K_b) of the same sheet (mean over faces), for what still
         counts in springs: the contact barrier's stiffness, the solver's scales."""
@@ -208,6 +233,31 @@ class ShellData:
             self.face_rest_form[face_mask], self.face_rest_det[face_mask],
             self.face_stretch[face_mask], self.face_bending[face_mask], self.poisson,
             self.size, self.anchors, count)
+
+
+#: What the dynamic integrators' step (:func:`pipeline.sim.explicit.step.advance`) takes of
+#: the shell, by name: ``on`` (False: the paper's springs, every array empty), the
+#: positions' work array ``points`` (V + anchors), the face data and the curl's ``beta``.
+KernelShell = namedtuple("KernelShell", [
+    "on", "points", "faces", "opposite", "ghost", "face_edges", "young", "bend", "nu",
+    "form", "det0", "beta", "scratch"])
+
+
+def kernel_shell(model, curl=None) -> KernelShell:
+    """The shell of ``model`` as the step kernel takes it (empty for the paper's springs).
+    ``curl``: the scene's curl effect (its ``beta`` decays the rest curvature)."""
+    sh = model.shell
+    if sh is None:
+        return KernelShell(False, np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int64),
+                           np.zeros((0, 3), dtype=np.int64), np.zeros((0, 3, 3)),
+                           np.zeros((0, 3), dtype=np.int64), np.zeros(0), np.zeros(0), 0.0,
+                           np.zeros((0, 3)), np.zeros(0), 0.0, np.zeros(KERNEL_SCRATCH))
+    anchors = sh.anchors if sh.anchors is not None else np.zeros((0, 3))
+    points = np.concatenate([np.zeros((model.vertex_count, 3)), anchors])
+    return KernelShell(True, points, sh.face_indices, sh.face_opposite, sh.face_ghost,
+                       sh.face_edges, sh.face_stretch, sh.face_bending, sh.poisson,
+                       sh.face_rest_form, sh.face_rest_det,
+                       0.0 if curl is None else float(curl.beta), np.zeros(KERNEL_SCRATCH))
 
 
 @dataclass
