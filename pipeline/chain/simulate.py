@@ -18,7 +18,7 @@ import numpy as np
 
 from pipeline import artifact
 from pipeline.chain import carried_attrs
-from pipeline.config import Config
+from pipeline.config import KEYS, Config
 from pipeline.errors import BloomError
 from pipeline.flower import stagger
 from pipeline.flower.measure import Start, bloom_start, petals_within_reach
@@ -67,8 +67,8 @@ def run(growth_h5: str | Path, out: str | Path, cfg: Config, *, overwrite: bool 
             prep.vertices = v = prep.imperfect(sim["imperfection"])
         try:
             if shell:
-                model = prep.shell_model(sim["stretch_modulus"], sim["thickness"],
-                                         sim["poisson"], sim["mass"])
+                modulus, thickness = shell_moduli(cfg)
+                model = prep.shell_model(modulus, thickness, sim["poisson"], sim["mass"])
             else:
                 model = prep.model(sim["stretch_stiffness"], sim["bending_stiffness"],
                                    sim["mass"])
@@ -196,6 +196,28 @@ def run(growth_h5: str | Path, out: str | Path, cfg: Config, *, overwrite: bool 
                              "(C,) step at which each spring broke, -1 if intact")
     ckpt.unlink(missing_ok=True)
     log.info("wrote %s", out)
+
+
+def shell_moduli(cfg: Config) -> tuple[float, float]:
+    """The shell's ``(stretch_modulus, thickness)``: the scene's, or, where it sets the
+    paper's ``K_s``/``K_b`` (``simulate.stretch_stiffness``, ``bending_stiffness``) and not
+    these, the shell's defaults scaled as those springs are from their defaults: ``K_s``
+    times ``c`` stretches ``c`` times as hard, ``K_b`` times ``c`` bends ``c`` times as hard
+    (bending ~ ``Y t^2``: the thickness times ``sqrt(c / c_s)``). A scene made for the
+    springs keeps its meaning (the plum's stiffer ``K_b`` is a thicker shell). Logged."""
+    sim = cfg.section("simulate")
+    paper = [k for k in ("stretch_stiffness", "bending_stiffness")
+             if f"simulate.{k}" in cfg.given]
+    if not paper or any(f"simulate.{k}" in cfg.given for k in ("stretch_modulus", "thickness")):
+        return sim["stretch_modulus"], sim["thickness"]
+    stretch = sim["stretch_stiffness"] / KEYS["simulate.stretch_stiffness"].default
+    bend = sim["bending_stiffness"] / KEYS["simulate.bending_stiffness"].default
+    modulus = sim["stretch_modulus"] * stretch
+    thickness = sim["thickness"] * float(np.sqrt(bend / stretch))
+    log.info("simulate.model = shell: %s scale the shell's defaults: stretch_modulus %.4g, "
+             "thickness %.4g", ", ".join(f"simulate.{k} = {sim[k]:g}" for k in paper),
+             modulus, thickness)
+    return modulus, thickness
 
 
 def decide_flowers(cfg: Config, prep: Prepared, flowers: int, frames: int):
