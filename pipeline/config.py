@@ -200,30 +200,36 @@ SCHEMA: dict[str, Any] = {
                          "vertex further than this (mesh units)", low=0.0, low_open=True),
         "damping": Key(float, 0.9999, "velocity factor d of the explicit-damping integrator "
                        "(Eq. 9)", low=0.0, high=1.0),
-        "model": Key(str, "paper", "elasticity: paper (the paper's springs and hinges, one K_s "
-                     "per edge and one K_b per hinge: the bloom depends on the triangulation) or "
-                     "shell (a thin shell whose energy is a property of the surface: the same "
-                     "flower blooms the same at any mesh density; quasi-static integrator)",
+        "model": Key(str, "shell", "elasticity: shell (a thin shell whose energy is a property "
+                     "of the surface: the same flower blooms the same at any mesh density) or "
+                     "paper (the paper's springs and hinges, one K_s per edge and one K_b per "
+                     "hinge: the bloom depends on the triangulation)",
                      choices=("paper", "shell")),
         "stretch_modulus": Key(float, 27.3, "shell: Young's modulus times thickness, energy per "
                                "area with area in units of the petal size (sqrt of the mean "
                                "petal area); 27.3 is the paper's K_s = 0.1 on the default petal "
                                "(317 vertices)", low=0.0, low_open=True),
-        "thickness": Key(float, 0.013, "shell: thickness over the petal size (sqrt of the mean "
-                         "petal area); sets bending (~t^3) against stretching (~t). 0.013 is "
-                         "the paper's K_b = 0.0005 on the default petal. A thick petal's own "
-                         "thickness (mesh/thickness) wins where it is known", low=0.0,
-                         high=0.5, low_open=True),
-        "imperfection": Key(float, 1e-4, "shell: the bud's imperfection, a sideways offset "
-                            "along each petal's center-plane normal of this fraction of the "
-                            "petal size at the tip (s^2 from the base): where a symmetric petal "
+        "thickness": Key(float, 0.025, "shell: thickness over the petal size (sqrt of the mean "
+                         "petal area); sets bending (~t^3) against stretching (~t). At 0.025 a bud "
+                         "blooms alike (within about 1 deg) from about 200 vertices per petal; "
+                         "thinner sheets wrinkle and buckle finer (0.013 is the paper's K_b = "
+                         "0.0005 on the default petal) and need finer meshes. A thick petal's "
+                         "own thickness (mesh/thickness) wins where it is known", low=0.0, high=0.5, low_open=True),
+        "imperfection": Key(float, 1e-4, "shell: the rest state's imperfection (the run "
+                            "starts from the bud as given), a sideways offset along each "
+                            "petal's center-plane normal of this fraction of the petal size at "
+                            "the tip (s^2 from the base): where a symmetric petal "
                             "must lean or twist one way, it chooses the same way at any mesh "
                             "resolution (0: none; the solver then nudges at random)", low=0.0),
         "poisson": Key(float, 1.0 / 3.0, "shell: Poisson's ratio (1/3: the paper's lattice of "
                        "springs)", low=0.0, high=0.5, high_open=True),
-        "stretch_stiffness": Key(float, 0.1, "K_s, per edge (paper: 0.1)", low=0.0, low_open=True),
-        "bending_stiffness": Key(float, 0.0005, "K_b, per interior edge (paper: 0.0005)",
-                                 low=0.0),
+        "stretch_stiffness": Key(float, 0.1, "paper model: K_s, per edge (paper: 0.1); with the "
+                                "shell, set alone, it scales stretch_modulus by K_s / 0.1",
+                                low=0.0, low_open=True),
+        "bending_stiffness": Key(float, 0.0005, "paper model: K_b, per interior edge (paper: "
+                                "0.0005); with the shell, set alone, it scales the bending "
+                                "stiffness by K_b / 0.0005 (the thickness by its square root)",
+                                low=0.0),
         "mass": Key(float, 1.0, "mass of every vertex (paper: 1)", low=0.0, low_open=True),
         "checkpoint_seconds": Key(float, 20.0, "a running simulation writes a checkpoint at "
                                   "most this often (wall seconds; 0: never); `bloom simulate "

@@ -1,4 +1,5 @@
-"""bloom study accuracy: what accuracy costs in time -> accuracy.csv + accuracy.png."""
+"""bloom study: accuracy (what accuracy costs in time), resolution, stability, models and
+elastic (the paper's springs against the shell on every default scene)."""
 
 from __future__ import annotations
 
@@ -116,3 +117,28 @@ def models(models: tuple[str, ...], folder: str | None, out: str, timeout: float
     if any(r.verdict != "ok" for r in rows):
         raise BloomError(f"{sum(r.verdict != 'ok' for r in rows)} of {len(rows)} models failed "
                          "(see the table)", where="bloom study models")
+
+
+@command.command("elastic")
+@click.option("--out", "out", required=True, type=click.Path(file_okay=False),
+              help="Folder for elastic.png and elastic.md (created if missing).")
+@click.option("--scenes", default="", help="Scene names of configs/, comma-separated "
+              "(default: every default scene).")
+def elastic(out: str, scenes: str) -> None:
+    """Every default scene with the paper's springs and with the shell, side by side: the
+    final opening, curvature, wrinkles and simulate time (a table), and each bloom's bud
+    and last frame (elastic.png)."""
+    from pipeline.studies import elastic as study
+
+    root = Path(__file__).resolve().parents[1] / "configs"
+    names = [s for s in scenes.split(",") if s] or sorted(p.stem for p in root.glob("*.toml"))
+    missing = [n for n in names if not (root / f"{n}.toml").exists()]
+    if missing:
+        raise BloomError(f"no such scene: {', '.join(missing)}", where="bloom study elastic --scenes")
+    folder = Path(out)
+    folder.mkdir(parents=True, exist_ok=True)
+    rows = study.compare([root / f"{n}.toml" for n in names], folder, echo=click.echo)
+    text = study.table(rows)
+    (folder / "elastic.md").write_text(text + "\n")
+    click.echo(text)
+    click.echo(f"wrote {folder / 'elastic.png'} and {folder / 'elastic.md'}")

@@ -63,7 +63,7 @@ def test_a_base_that_cannot_be_widened_is_refused_in_one_line(tmp_path, monkeypa
     assert r.exit_code == 0, r.output
     out = tmp_path / "axis.h5"
     r = runner.invoke(cli, ["axis", str(remesh), "--out", str(out), "--set",
-                            "axis.base_fraction=0.01"])
+                            "axis.base_fraction=0.01", "--set", "axis.base_region=rim"])
     line = r.output.strip()
     assert r.exit_code != 0 and len(line.splitlines()) == 1 and "Traceback" not in line, line
     for words in ("axis.base_fraction", "petal 0", "base is a line", "spin about"):

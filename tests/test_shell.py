@@ -363,13 +363,14 @@ def test_the_contact_barrier_presses_the_same_at_any_resolution():
 
 def test_moduli_map_the_paper_springs_and_thickness():
     """The paper's (K_s, K_b) at a petal size of 15.37 mesh units (the default petal)
-    are the defaults of the config; a face of twice the reference thickness is twice
-    as stiff in stretching and eight times in bending."""
+    are the config's stretch modulus and a thickness of 0.013 (the default is about three
+    times that: docs/shell.md, "Why the default thickness is 0.04"); a face of twice the
+    reference thickness is twice as stiff in stretching and eight times in bending."""
     from pipeline.config import KEYS
 
     modulus, thickness = sh.paper_equivalent(15.3677)
     assert abs(modulus - KEYS["simulate.stretch_modulus"].default) < 0.01 * modulus
-    assert abs(thickness - KEYS["simulate.thickness"].default) < 0.01 * thickness
+    assert abs(thickness - 0.013) < 0.01 * thickness
     young, bend = sh.moduli(15.0, modulus, thickness, 1 / 3)
     assert np.isclose(young * np.sqrt(3) / 2, 0.1 * (15.3677 / 15.0) ** 2)
     t = thickness * 15.0
@@ -517,3 +518,22 @@ def test_the_semi_implicit_scheme_runs_the_shell():
     start, damped = totals[0.1]
     assert damped[-1] < 0.5 * start
     assert np.all(np.diff(damped) <= 1e-9 * start)
+
+
+def test_a_scene_made_for_the_springs_keeps_its_stiffness_ratio_as_a_shell():
+    """``K_s``/``K_b`` set (and not the shell's own keys) scale the shell's defaults as
+    they are from theirs: K_b x 4 is twice the thickness; K_s x 2 doubles the modulus and
+    keeps bending (the thickness over sqrt 2); the shell's keys, given, win."""
+    from pipeline.chain.simulate import shell_moduli
+    from pipeline.config import KEYS, load_config
+
+    modulus, thickness = (KEYS["simulate.stretch_modulus"].default,
+                          KEYS["simulate.thickness"].default)
+    assert shell_moduli(load_config(None)) == (modulus, thickness)
+    got = shell_moduli(load_config(None, ["simulate.bending_stiffness=0.002"]))
+    np.testing.assert_allclose(got, (modulus, 2.0 * thickness), rtol=1e-12)
+    got = shell_moduli(load_config(None, ["simulate.stretch_stiffness=0.2"]))
+    np.testing.assert_allclose(got, (2.0 * modulus, thickness / np.sqrt(2.0)), rtol=1e-12)
+    got = shell_moduli(load_config(None, ["simulate.bending_stiffness=0.002",
+                                          "simulate.thickness=0.02"]))
+    assert got == (modulus, 0.02)

@@ -61,10 +61,11 @@ def run(growth_h5: str | Path, out: str | Path, cfg: Config, *, overwrite: bool 
         shell = sim["model"] == "shell"
         starts = decide_flowers(cfg, prep, stagger.flower_count(src), frames)
         start = decide_start(cfg, prep)
-        if shell and start.start != "open":  # a bud that is not perfectly symmetric, the
-            # same at any resolution (a random nudge per vertex picks a branch per mesh; an
-            # open start's closing lift picks the bud's)
-            prep.vertices = v = prep.imperfect(sim["imperfection"])
+        if shell and start.start != "open":  # the rest state is a bud that is not
+            # perfectly symmetric, the same at any resolution (a random nudge per vertex
+            # picks a branch per mesh; an open start's closing lift picks the bud's); the
+            # run starts from the input itself (frame 0 is the user's bud)
+            prep.vertices = prep.imperfect(sim["imperfection"])
         try:
             if shell:
                 modulus, thickness = shell_moduli(cfg)
@@ -74,6 +75,8 @@ def run(growth_h5: str | Path, out: str | Path, cfg: Config, *, overwrite: bool 
                                    sim["mass"])
         except ValueError as exc:
             raise BloomError(f"cannot build the model: {exc}", where=growth_h5) from None
+        finally:
+            prep.vertices = v
         params = Params.of(cfg)
         if shell:  # the contact gap in units of the petal (mesh units shrink as the mesh is
             # refined)

@@ -215,6 +215,9 @@ class QuasiStatic:
             self.newton.contact = Contact.build(positions, c.faces, c.vertex_petal,
                                                 gap=c.thickness, stiffness=stiffness,
                                                 own=not c.joined)
+            if getattr(model, "shell", None) is not None:  # (its gap in units of the petal)
+                self.newton.contact.key = "effects.collisions.gap"
+                self.newton.contact.unit = model.shell.size
             if check:
                 self.newton.contact.check_start(positions)
         if effects.connections is not None:

@@ -103,6 +103,10 @@ class Contact(Term):
     gap: float  #: distance no two petals come closer than (mesh units)
     band: float  #: the barrier acts from gap + band down to gap
     kappa: float  #: barrier stiffness
+    #: the config key the gap comes from, and its unit in mesh units (the shell's gap is
+    #: in units of the petal size): what a message names
+    key: str = "effects.collisions.thickness"
+    unit: float = 1.0
     potential: object = field(repr=False, default=None)  #: ipctk.BarrierPotential
     ccd: object = field(repr=False, default=None)  #: narrow phase (Additive CCD)
     collisions: object = field(repr=False, default=None)  #: active set, built at the last X
@@ -155,14 +159,14 @@ class Contact(Term):
                     f"petals {_pairs([(a, b) for a, b, _ in close])} touch in the bud "
                     f"(down to {worst:.3g} apart): contact cannot start from petals that "
                     "touch; fix the input mesh, or disable effects.collisions",
-                    key="effects.collisions.thickness")
+                    key=self.key)
             # petals that start closer than the gap: the gap is what they start with, halved
             # (the barrier then acts from there down), and the log says so
             gap = 0.5 * worst
             logging.getLogger("bloom").warning(
-                "petals %s start closer than effects.collisions.thickness = %g (down to %.3g "
-                "apart): contact keeps a gap of %.3g instead",
-                _pairs([(a, b) for a, b, _ in close]), self.gap, worst, gap)
+                "petals %s start closer than %s = %.3g (down to %.3g apart): contact keeps a "
+                "gap of %.3g instead", _pairs([(a, b) for a, b, _ in close]), self.key,
+                self.gap / self.unit, worst / self.unit, gap / self.unit)
             self._regap(gap)
 
     def _regap(self, gap: float) -> None:
