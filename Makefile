@@ -19,7 +19,7 @@ MODELS ?= ../shared/external-meshes
 # A stage's artifacts depend on the library and on the stage's own module.
 LIB := $(wildcard pipeline/*.py pipeline/*/*.py pipeline/*/*/*.py) stages/cli.py stages/common.py
 
-.PHONY: all test test-studio lint bench accuracy stability models docs venv clean clean-venv help
+.PHONY: all test test-studio lint bench accuracy stability models elastic docs venv clean clean-venv help
 all: $(SCENES:%=$(OUT)/%/render/bloom.mp4) $(SCENES:%=$(OUT)/%/report.json) $(SCENES:%=$(OUT)/%/bloom.usdc)  ## build every scene: artifacts, frames, MP4, report, USD
 
 help:  ## list the targets
@@ -48,6 +48,9 @@ accuracy: $(INSTALLED)  ## what accuracy costs in time, with and without contact
 stability: $(INSTALLED)  ## the hard cases, slow ones included; prints the README's table (~30 s)
 	$(BLOOM) study stability
 
+elastic: $(INSTALLED)  ## every default scene with the paper's springs and with the shell, side by side: outputs/elastic/elastic.md, .png (~6 min)
+	$(BLOOM) study elastic --out $(OUT)/elastic
+
 models: $(INSTALLED)  ## real flower models, scene.mesh only, judged; the table into docs/performance.md (~30 min)
 	$(BLOOM) study models --dir $(MODELS) --out $(OUT)/models --into docs/performance.md
 
@@ -62,7 +65,7 @@ $(OUT)/%/mesh.d: configs/%.toml | $(INSTALLED)
 	@mkdir -p $(@D)
 	@echo "$(OUT)/$*/remesh.h5: $$($(BLOOM) config $< --mesh-path)" > $@
 
-ifeq ($(filter test test-studio lint bench accuracy stability models docs venv clean clean-venv help,$(MAKECMDGOALS)),)
+ifeq ($(filter test test-studio lint bench accuracy stability models elastic docs venv clean clean-venv help,$(MAKECMDGOALS)),)
 -include $(SCENES:%=$(OUT)/%/mesh.d)
 endif
 

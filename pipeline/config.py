@@ -215,10 +215,11 @@ SCHEMA: dict[str, Any] = {
                          "thinner sheets wrinkle and buckle finer (0.013 is the paper's K_b = "
                          "0.0005 on the default petal) and need finer meshes. A thick petal's "
                          "own thickness (mesh/thickness) wins where it is known", low=0.0, high=0.5, low_open=True),
-        "imperfection": Key(float, 1e-4, "shell: the rest state's imperfection (the run "
-                            "starts from the bud as given), a sideways offset along each "
-                            "petal's center-plane normal of this fraction of the petal size at "
-                            "the tip (s^2 from the base): where a symmetric petal "
+        "imperfection": Key(float, 1e-4, "shell, quasi-static: the bud's imperfection, given "
+                            "at the first growth (frame 0 and a keyed hold are the bud as "
+                            "given): a sideways offset along each petal's center-plane normal "
+                            "of this fraction of the petal size at the tip (s^2 from the "
+                            "base): where a symmetric petal "
                             "must lean or twist one way, it chooses the same way at any mesh "
                             "resolution (0: none; the solver then nudges at random)", low=0.0),
         "poisson": Key(float, 1.0 / 3.0, "shell: Poisson's ratio (1/3: the paper's lattice of "

@@ -61,11 +61,6 @@ def run(growth_h5: str | Path, out: str | Path, cfg: Config, *, overwrite: bool 
         shell = sim["model"] == "shell"
         starts = decide_flowers(cfg, prep, stagger.flower_count(src), frames)
         start = decide_start(cfg, prep)
-        if shell and start.start != "open":  # the rest state is a bud that is not
-            # perfectly symmetric, the same at any resolution (a random nudge per vertex
-            # picks a branch per mesh; an open start's closing lift picks the bud's); the
-            # run starts from the input itself (frame 0 is the user's bud)
-            prep.vertices = prep.imperfect(sim["imperfection"])
         try:
             if shell:
                 modulus, thickness = shell_moduli(cfg)
@@ -75,8 +70,6 @@ def run(growth_h5: str | Path, out: str | Path, cfg: Config, *, overwrite: bool 
                                    sim["mass"])
         except ValueError as exc:
             raise BloomError(f"cannot build the model: {exc}", where=growth_h5) from None
-        finally:
-            prep.vertices = v
         params = Params.of(cfg)
         if shell:  # the contact gap in units of the petal (mesh units shrink as the mesh is
             # refined)
@@ -109,9 +102,12 @@ def run(growth_h5: str | Path, out: str | Path, cfg: Config, *, overwrite: bool 
                                      sim["substeps"], sim["inertia"])
         if hasattr(integrator, "petal"):  # (it names the petal of each rescue in the log)
             integrator.petal = np.asarray(petal)
-        if shell and (sim["imperfection"] > 0.0 or model_positions is not None):  # (the
-            # imperfection, or the found bud, breaks the symmetry)
+        if shell and model_positions is not None:  # (the found bud breaks the symmetry)
             integrator.perturbation = 0.0
+        elif shell and hasattr(integrator, "nudge") and sim["imperfection"] > 0.0:
+            # a bud that is not perfectly symmetric, the same at any resolution, from the
+            # first growth on (a random nudge per vertex picks a branch per mesh)
+            integrator.nudge = prep.imperfect(sim["imperfection"]) - np.asarray(v)
         effects = build_effects(v)
         state = State.at_rest(model, v, control)
         effects.constrain(state.forces)

@@ -21,8 +21,8 @@ from pipeline.review import render, report
 MODELS = ("paper", "shell")
 
 
-def compare(configs: list[Path], out: Path, *, echo=print, width: int = 480,
-            height: int = 360) -> list[dict]:
+def compare(configs: list[Path], out: Path, *, echo=print, width: int = 320,
+            height: int = 240) -> list[dict]:
     """Run each scene of ``configs`` with both models; write ``out/elastic.png`` (one row
     per scene: the paper's bud and bloom, the shell's) and return one row per run."""
     rows, sheets = [], []

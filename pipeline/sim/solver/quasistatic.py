@@ -97,6 +97,9 @@ class QuasiStatic:
     max_iterations: int = 200  #: Newton iterations per increment before it is halved (a snap takes ~50)
     perturbation: float = 1e-6  #: symmetry-breaking nudge at the start (mesh units)
     seed: int = 0
+    #: (V, 3) a given symmetry-breaking offset instead of the random nudge (the shell's
+    #: imperfection: smooth, the same at any resolution), or None
+    nudge: np.ndarray | None = field(default=None, repr=False)
     #: with the inertia term: each increment is an implicit Euler step of the dynamics
     #: (:meth:`_advance_dynamic`); without it, the path of equilibria (its limit)
     inertia: bool = False
@@ -426,13 +429,24 @@ class QuasiStatic:
                             detail=detail, vertex=max(failure.vertex, 0))
 
     def _perturb(self, model: Model, state: State, effects: Effects) -> None:
-        if self.perturbation <= 0.0:
+        """The symmetry-breaking nudge (:attr:`nudge`, else a seeded random one of at most
+        :attr:`perturbation`), never into the contact barrier: cut to half the part of it
+        that continuous collision detection allows."""
+        if self.nudge is not None:
+            nudge = np.array(self.nudge, dtype=np.float64)
+        elif self.perturbation > 0.0:
+            rng = np.random.default_rng(self.seed)
+            nudge = rng.uniform(-self.perturbation, self.perturbation, state.positions.shape)
+        else:
             return
-        rng = np.random.default_rng(self.seed)
-        nudge = rng.uniform(-self.perturbation, self.perturbation, state.positions.shape)
         nudge[model.pinned] = 0.0
         if effects.center_plane is not None:
             effects.constrain(nudge)
+        contact = self.newton.contact if self.newton is not None else None
+        if contact is not None and self.nudge is not None:
+            allowed = contact.max_step(state.positions, state.positions + nudge)
+            if allowed < 1.0:
+                nudge *= 0.5 * allowed
         state.positions += nudge
 
     def _reach(self, model, state, effects, a_from: float, a_to: float, step: int,
