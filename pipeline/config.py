@@ -214,7 +214,8 @@ SCHEMA: dict[str, Any] = {
                          "blooms alike (within about 1 deg) from about 200 vertices per petal; "
                          "thinner sheets wrinkle and buckle finer (0.013 is the paper's K_b = "
                          "0.0005 on the default petal) and need finer meshes. A thick petal's "
-                         "own thickness (mesh/thickness) wins where it is known", low=0.0, high=0.5, low_open=True),
+                         "own thickness (mesh/thickness) wins where it is known", low=0.0,
+                         high=0.5, low_open=True),
         "imperfection": Key(float, 1e-4, "shell, quasi-static: the bud's imperfection, given "
                             "at the first growth (frame 0 and a keyed hold are the bud as "
                             "given): a sideways offset along each petal's center-plane normal "

@@ -170,6 +170,6 @@ def test_many_coarse_petals_are_held_to_a_budget_of_vertices(monkeypatch):
         monkeypatch.setattr(module, "COARSE_BUDGET", budget)
         result = prepare_parts(MeshFile(coarse, None, None), where="coarse")
         counts.append(np.bincount(result.petal))
-        assert (f"a coarse petal is remeshed to about 50 vertices" in "\n".join(result.notes)) \
+        assert ("a coarse petal is remeshed to about 50 vertices" in "\n".join(result.notes)) \
             == (budget == 200)
     assert np.all(counts[0] > 80) and np.all(counts[1] < 70)  # about 100, then about 50
