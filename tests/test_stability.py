@@ -11,9 +11,24 @@ from pipeline.studies import stability
 FAST = [c for c in stability.CASES if not c.slow]
 
 
+@pytest.fixture(scope="module")
+def runs(tmp_path_factory):
+    """Each case run once for the module: ``runs(name) -> (Result, its folder)`` (the
+    cases that two tests read run once)."""
+    done = {}
+    by = {c.name: c for c in stability.CASES}
+
+    def run(name):
+        if name not in done:
+            folder = tmp_path_factory.mktemp("case")
+            done[name] = (stability.run_case(by[name], folder), folder)
+        return done[name]
+    return run
+
+
 @pytest.mark.parametrize("case", FAST, ids=[c.name for c in FAST])
-def test_hard_case_is_stable_or_stops_cleanly(case, tmp_path):
-    r = stability.run_case(case, tmp_path)
+def test_hard_case_is_stable_or_stops_cleanly(case, runs):
+    r, tmp_path = runs(case.name)
     assert r.ok, (r.outcome, r.message, r.max_speed, r.drift, r.escape)
     if r.outcome == "finished":
         assert r.max_speed < 1.0 and r.escape < stability.MAX_ESCAPE
@@ -31,16 +46,15 @@ def test_hard_case_is_stable_or_stops_cleanly(case, tmp_path):
         assert not (tmp_path / "sim.h5").exists()
 
 
-def test_the_cases_exercise_what_they_claim(tmp_path):
+def test_the_cases_exercise_what_they_claim(runs):
     """Folds near pi, contacts between interpenetrating petals, springs breaking en masse."""
-    by = {c.name: c for c in stability.CASES}
-    folded = stability.run_case(by["folded near pi"], tmp_path / "f")
+    folded, _ = runs("folded near pi")
     assert "hinges folded past 170 deg" in folded.notes
-    crossing = stability.run_case(by["interpenetrating bud"], tmp_path / "c")
-    with h5py.File(tmp_path / "c" / "sim.h5") as h5:
+    crossing, folder = runs("interpenetrating bud")
+    with h5py.File(folder / "sim.h5") as h5:
         assert h5["diagnostics/contacts"][()].sum() > 100
-    breaking = stability.run_case(by["mass breaking"], tmp_path / "b")
-    with h5py.File(tmp_path / "b" / "sim.h5") as h5:
+    breaking, folder = runs("mass breaking")
+    with h5py.File(folder / "sim.h5") as h5:
         intact = h5["diagnostics/connections_intact"][()]
         broken_at = h5["effects/connections/broken_step"][()]
     assert intact[0] > 20 and intact[-1] < intact[0] // 2
