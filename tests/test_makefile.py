@@ -15,6 +15,7 @@ STAGES = ("remesh", "axis", "growth", "simulate", "render", "report", "export")
 TINY = """[scene]
 mesh = "../assets/{mesh}"
 [simulate]
+model = "paper"
 steps = 300
 frames = 3
 [render]
@@ -103,8 +104,7 @@ def test_killed_make_then_make_gives_the_uninterrupted_arrays(tree):
     import time
 
     long = TINY.replace("steps = 300\nframes = 3", "steps = 60000\nframes = 31\n"
-                        "checkpoint_seconds = 0.2\nintegrator = \"semi-implicit\"\n"
-                        "model = \"paper\"")  # (checkpoints; the springs' step is the cheaper)
+                        "checkpoint_seconds = 0.2\nintegrator = \"semi-implicit\"")  # (checkpoints)
     for scene in ("one", "two"):
         (tree / "configs" / f"{scene}.toml").write_text(long.format(mesh="petal.obj"))
     proc = subprocess.Popen(["make", "SCENES=one"], cwd=tree, stdout=subprocess.DEVNULL,
@@ -171,8 +171,7 @@ def test_bloom_batch_survives_a_lost_worker(tree):
     import psutil
 
     long = TINY.replace("steps = 300\nframes = 3", "steps = 400000\nframes = 21\n"
-                        "checkpoint_seconds = 0.3\nintegrator = \"semi-implicit\"\n"
-                        "model = \"paper\"")  # (checkpoints; the springs' step is the cheaper)
+                        "checkpoint_seconds = 0.3\nintegrator = \"semi-implicit\"")  # (checkpoints)
     for scene in ("one", "two"):
         (tree / "configs" / f"{scene}.toml").write_text(long.format(mesh="petal.obj"))
     assert make(tree, "SCENES=two").returncode == 0  # the uninterrupted reference
