@@ -107,7 +107,7 @@ def run(growth_h5: str | Path, out: str | Path, cfg: Config, *, overwrite: bool 
         elif shell and hasattr(integrator, "nudge") and sim["imperfection"] > 0.0:
             # a bud that is not perfectly symmetric, the same at any resolution, from the
             # first growth on (a random nudge per vertex picks a branch per mesh)
-            integrator.nudge = prep.imperfect(sim["imperfection"]) - np.asarray(v)
+            integrator.nudge = prep.imperfection(sim["imperfection"])
         effects = build_effects(v)
         state = State.at_rest(model, v, control)
         effects.constrain(state.forces)

@@ -92,8 +92,8 @@ class Prepared:
         return Model.build(self.vertices, self.edges, self.alpha, stretch * np.asarray(self.stiffness),
                            self.hinges, bending, self.base if pinned is None else pinned, mass=mass)
 
-    def imperfect(self, amount: float) -> np.ndarray:
-        """The bud's vertices with a small, smooth, mesh-independent imperfection: each
+    def imperfection(self, amount: float) -> np.ndarray:
+        """A small, smooth, mesh-independent imperfection of the bud ``(V, 3)``: each
         petal's vertices moved along its center plane's normal by ``amount`` times the
         petal size times ``s^2`` (0 at the base, ``amount`` at the tip). A perfectly
         symmetric petal can reach a fork in its path (a sideways lean, a twist) where
@@ -101,12 +101,12 @@ class Prepared:
         triangulation (a random nudge per vertex, or rounding, chooses per mesh)."""
         v = np.asarray(self.vertices, dtype=np.float64)
         if amount == 0.0:
-            return v
+            return np.zeros_like(v)
         petal = np.asarray(self.petal)
         normal = np.asarray(self.plane, dtype=np.float64)[petal, :3]
         size = petal_size(v, self.faces, petal)
         s = np.asarray(self.s, dtype=np.float64)
-        return v + (amount * size * s * s)[:, None] * normal
+        return (amount * size * s * s)[:, None] * normal
 
     def shell_model(self, stretch_modulus: float, thickness: float, poisson: float,
                     mass: float = 1.0, pinned=None) -> Model:
