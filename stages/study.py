@@ -42,7 +42,7 @@ def accuracy(out: str, petals: int, vertices: int, quick: bool) -> None:
 
 @command.command("resolution")
 @click.option("--out", "out", required=True, type=click.Path(file_okay=False),
-              help="Folder for the runs and resolution.csv (created if missing).")
+              help="Folder for the runs, resolution.csv and resolution.png (created if missing).")
 @click.option("--config", "config", required=True, type=click.Path(exists=True, dir_okay=False),
               help="The scene (its mesh a procedural asset, `bloom asset`).")
 @click.option("--counts", default="300,1200,4800", show_default=True,
@@ -50,7 +50,11 @@ def accuracy(out: str, petals: int, vertices: int, quick: bool) -> None:
 @click.option("--set", "overrides", multiple=True, metavar="KEY=VALUE",
               help="Config overrides for every run, e.g. simulate.model=shell.")
 @click.option("--regular-only", is_flag=True, help="Only the scene's own remesh (no irregular meshes).")
-def resolution(out: str, config: str, counts: str, overrides, regular_only: bool) -> None:
+@click.option("--models", default="", metavar="NAME,...",
+              help="Elastic models to run, each against its own finest regular run "
+                   "(e.g. paper,shell); default: the scene's simulate.model.")
+def resolution(out: str, config: str, counts: str, overrides, regular_only: bool,
+               models: str) -> None:
     """Run one scene at several mesh densities, on regular and irregular triangulations of
     the same surface, and measure each bloom against the finest regular one: the largest
     opening difference over the frames and the RMS shape difference (points matched by
@@ -64,11 +68,12 @@ def resolution(out: str, config: str, counts: str, overrides, regular_only: bool
     try:
         rows = study.resolution(Path(out), config, counts=numbers, overrides=overrides,
                                 kinds=("regular",) if regular_only else ("regular", "irregular"),
-                                echo=click.echo)
+                                models=tuple(m.strip() for m in models.split(",") if m.strip())
+                                or (None,), echo=click.echo)
     except ValueError as exc:
         raise BloomError(str(exc), where=config) from None
     click.echo("\n".join(study.table(rows)))
-    click.echo(f"wrote {Path(out) / 'resolution.csv'}")
+    click.echo(f"wrote {Path(out) / 'resolution.csv'} and {Path(out) / 'resolution.png'}")
 
 
 @command.command("stability")

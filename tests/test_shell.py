@@ -537,3 +537,69 @@ def test_a_scene_made_for_the_springs_keeps_its_stiffness_ratio_as_a_shell():
     got = shell_moduli(load_config(None, ["simulate.bending_stiffness=0.002",
                                           "simulate.thickness=0.02"]))
     assert got == (modulus, 0.02)
+
+
+# --- creases ----------------------------------------------------------------------------------
+
+def _folded_petal(angle_deg):
+    """A petal laid flat, then folded along its midrib (the line from its base to its
+    tip) by ``angle_deg``: a keeled petal, as real lilies are modelled. With its axes and
+    growth map."""
+    v, f, p, axes, growth = prepared(1, 90)
+    c = v.mean(axis=0)
+    _, _, vt = np.linalg.svd(v - c)
+    flat = (v - c) @ vt[:2].T @ vt[:2]  # (onto its plane)
+    base = flat[axes.base].mean(axis=0)
+    u = flat[axes.tip[0]] - base
+    u /= np.linalg.norm(u)
+    t = np.radians(angle_deg)
+    K = np.array([[0, -u[2], u[1]], [u[2], 0, -u[0]], [-u[1], u[0], 0]])
+    R = np.eye(3) + np.sin(t) * K + (1 - np.cos(t)) * K @ K
+    side = np.cross(u, flat - base) @ vt[2] > 1e-9
+    flat[side] = (flat[side] - base) @ R.T + base
+    return flat, f, p, axes, growth
+
+
+def test_a_sharp_fold_is_a_crease_with_exact_derivatives():
+    """A midrib folded by 100 deg: the patch quadratic cannot fit it (the vertex across
+    stands nearly above the edge's line), so its edges are creases (hinges weighted as in
+    discrete shells). The fold is at rest, its force scale stays that of the flat petal
+    (without creases the fitted curvature runs to ~1/row: forces 1e10 times the sheet's
+    on a real lily), and the derivatives match central differences at growth 0.6 with
+    curl."""
+    flat = _folded_petal(0.0)
+    w, f, p, axes, growth = _folded_petal(100.0)
+    scales = []
+    for v in (flat[0], w):
+        model = build_model(v, growth, axes)
+        model.shell = sh.ShellData.build(v, f, model, stretch_modulus=30.0, thickness=0.05,
+                                         petal=p)
+        term = sh.ShellTerm(model).at(0.0)
+        F = np.zeros_like(v)
+        term.forces(v, F)
+        scales.append(_force_scale(term, v))
+        assert np.abs(F).max() <= 100 * EPS * scales[-1]
+    creased = model.shell.face_crease[:, :, 0] > 0.0
+    assert creased.sum() >= 5
+    assert np.abs(model.shell.face_rest_form).max() < 10.0  # curvature per mean edge
+    assert scales[1] < 10.0 * scales[0]
+    curl = fx.Curl.build(np.asarray(growth.rest_angle), beta=0.5)
+    term = sh.ShellTerm(model, curl).at(0.6)
+    X = w + np.random.default_rng(7).normal(scale=0.15, size=w.shape)
+    g = term.gradient(X).ravel()
+    H = term.hessian(X).toarray()
+    fd_g, fd_H = _fd(term, X, 1e-6)
+    assert np.abs(fd_g - g).max() <= 1e-7 * np.abs(g).max()
+    assert np.abs(fd_H - H).max() <= 1e-7 * np.abs(H).max()
+    # an open model's creases are at rest at full growth (rest_on takes their angles)
+    opened = _folded_petal(120.0)[0]
+    model.shell = model.shell.rest_on(opened, model.edge_rest_length, model.edge_growth,
+                                      beta=0.0)
+    F = np.zeros_like(opened)
+    sh.ShellTerm(model).at(1.0).forces(opened, F)
+    scale = _force_scale(sh.ShellTerm(model).at(1.0), opened)
+    # (the rest metric is still the 100 deg fold's: only the bending is at rest)
+    model.shell.face_stretch[:] = 0.0
+    F = np.zeros_like(opened)
+    sh.ShellTerm(model).at(1.0).forces(opened, F)
+    assert np.abs(F[~model.pinned]).max() <= 100 * EPS * scale  # (the base is held)

@@ -27,6 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
+from pipeline.artifact import atomic_path
 from pipeline.chain import run_scene
 from pipeline.config import load_config
 from pipeline.io.meshfile import read_mesh
@@ -241,43 +242,85 @@ def measure(runs: dict[str, dict], reference: str) -> list[dict]:
 
 
 def resolution(out_dir, config, *, counts=COUNTS, overrides=(), kinds=("regular", "irregular"),
-               echo=print) -> list[dict]:
+               models=(None,), echo=print) -> list[dict]:
     """Run the scene ``config`` at each of ``counts`` (vertices per petal) on each
-    triangulation ``kinds`` into ``out_dir``, measure each against the finest regular
-    run, write ``resolution.csv`` and return its rows."""
+    triangulation ``kinds`` into ``out_dir``, with each elastic model of ``models``
+    (``simulate.model``; None: the scene's own), measure each against the finest regular
+    run of its model, write ``resolution.csv`` and ``resolution.png`` and return the rows."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     cfg = load_config(config, tuple(overrides))
     asset = Path(cfg["scene.mesh"])
     if not asset.is_absolute() and cfg.path is not None:
         asset = (Path(cfg.path).parent / asset).resolve()
-    runs = {}
-    for n in counts:
-        for kind in kinds:
-            folder = out / f"{kind}{n}"
-            if kind == "regular":
-                sets = [f"remesh.petal_vertices={n}"]
-            else:
-                mesh = out / f"irregular{n}.obj"
-                write_obj(mesh, *irregular_mesh(asset, n))
-                sets = [f"scene.mesh={mesh}", "remesh.symmetrize=false"]
-            run_scene(config, folder, overrides=(*overrides, *sets))
-            runs[f"{kind} {n}"] = load(folder)
-            echo(f"{kind} {n}: {runs[f'{kind} {n}']['P'].shape[1]} vertices, opening "
-                 f"{runs[f'{kind} {n}']['opening'][-1]:.2f} deg")
-    rows = measure(runs, f"regular {max(counts)}")
+    rows = []
+    for model in models:
+        name = model or cfg["simulate.model"]
+        chosen = () if model is None else (f"simulate.model={model}",)
+        runs = {}
+        for n in counts:
+            for kind in kinds:
+                folder = out / (f"{kind}{n}" if len(models) == 1 else f"{name}_{kind}{n}")
+                if kind == "regular":
+                    sets = [f"remesh.petal_vertices={n}"]
+                else:
+                    mesh = out / f"irregular{n}.obj"
+                    if not mesh.exists():
+                        write_obj(mesh, *irregular_mesh(asset, n))
+                    sets = [f"scene.mesh={mesh}", "remesh.symmetrize=false"]
+                run_scene(config, folder, overrides=(*overrides, *chosen, *sets))
+                runs[f"{kind} {n}"] = load(folder)
+                echo(f"{name}, {kind} {n}: {runs[f'{kind} {n}']['P'].shape[1]} vertices, "
+                     f"opening {runs[f'{kind} {n}']['opening'][-1]:.2f} deg")
+        rows += [{"model": name, **r} for r in measure(runs, f"regular {max(counts)}")]
     with open(out / "resolution.csv", "w", newline="") as f:
         writer = csv.DictWriter(f, fieldnames=list(rows[0]))
         writer.writeheader()
         writer.writerows(rows)
+    plot(rows, out / "resolution.png", f"Same surface, other meshes: {Path(config).stem}")
     return rows
+
+
+def plot(rows: list[dict], path, title: str) -> None:
+    """Each run's difference from its model's finest regular run against its vertices,
+    log-log: the opening (deg, largest over the frames) and the final shape (RMS, percent
+    of the petal length); one curve per model and triangulation (the reference, 0,
+    left out)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, 2, figsize=(10, 4.2), dpi=110)
+    keys = dict.fromkeys((r["model"], r["run"].split()[0]) for r in rows)
+    for (model, kind), style in zip(keys, ("o-", "s--", "^-", "v--"), strict=False):
+        pts = sorted((r["vertices"], r["opening_difference"], 100 * r["shape_difference"])
+                     for r in rows if r["model"] == model and r["run"].startswith(kind)
+                     and r["shape_difference"] > 0.0)
+        if not pts:
+            continue
+        n, opening, shape = zip(*pts, strict=True)
+        axes[0].loglog(n, opening, style, label=f"{model}, {kind}")
+        axes[1].loglog(n, shape, style, label=f"{model}, {kind}")
+    axes[0].axhline(1.0, color="grey", lw=0.8, ls=":")
+    axes[1].axhline(2.0, color="grey", lw=0.8, ls=":")
+    axes[0].set_ylabel("largest opening difference over the frames (deg)")
+    axes[1].set_ylabel("RMS shape difference (% of the petal length)")
+    for ax in axes:
+        ax.set_xlabel("vertices")
+        ax.legend(fontsize=8)
+    fig.suptitle(f"{title} (against each model's finest regular mesh; dotted: 1 deg, 2%)")
+    fig.tight_layout()
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, format="png")
+    plt.close(fig)
 
 
 def table(rows: list[dict]) -> list[str]:
     """The rows as a Markdown table."""
-    lines = ["| run | vertices | final opening | max opening difference | RMS shape difference |",
-             "|---|---|---|---|---|"]
+    lines = ["| model | run | vertices | final opening | max opening difference | RMS shape "
+             "difference |", "|---|---|---|---|---|---|"]
     for r in rows:
-        lines.append(f"| {r['run']} | {r['vertices']} | {r['opening']:.2f} deg | "
+        lines.append(f"| {r['model']} | {r['run']} | {r['vertices']} | {r['opening']:.2f} deg | "
                      f"{r['opening_difference']:.2f} deg | {100 * r['shape_difference']:.2f}% |")
     return lines

@@ -33,6 +33,8 @@ from pipeline.sim.terms.shell_kernels import (
 )
 from pipeline.sim.terms.shell_stencil import (
     clamped_anchors,
+    crease_angles,
+    creases,
     face_edges,
     face_opposite,
     face_pattern,
@@ -144,6 +146,9 @@ class ShellData:
     #: stencil names anchor k as vertex ``V + k``
     anchors: np.ndarray = None
     vertex_count: int = 0  #: V (stencil entries from V on are anchors)
+    #: (F, 3, 2) the stiffness and rest angle (growth 0) of the crease a face carries
+    #: across the edge opposite each corner (stiffness 0: none; :func:`creases`)
+    face_crease: np.ndarray = None
 
     @property
     def face_count(self) -> int:
@@ -159,11 +164,7 @@ class ShellData:
         model's ``pinned``) is clamped (:func:`clamped_anchors`)."""
         X = np.ascontiguousarray(vertices, dtype=np.float64)
         f = np.ascontiguousarray(faces, dtype=np.int64)
-        opp = face_stencil(X, f)
-        ghost = np.ascontiguousarray(ghost_rows(X, f, opp))
         fe = face_edges(f, model.edge_indices)
-        form = np.empty((len(f), 3))
-        second_form(X, f, opp, ghost, form)
         det0 = np.empty(len(f))
         rest_dets(fe, model.edge_rest_length, model.edge_growth, det0)
         if np.any(det0 <= 0.0):
@@ -178,6 +179,10 @@ class ShellData:
         young, bend = moduli(size, stretch_modulus, thickness, poisson, tf)
         young = np.ascontiguousarray(np.broadcast_to(young, (len(f),)), dtype=np.float64)
         bend = np.ascontiguousarray(np.broadcast_to(bend, (len(f),)), dtype=np.float64)
+        crease, opp = creases(X, f, face_stencil(X, f), bend)
+        ghost = np.ascontiguousarray(ghost_rows(X, f, np.where(crease[:, :, 0] > 0.0, -1, opp)))
+        form = np.empty((len(f), 3))
+        second_form(X, f, opp, ghost, crease, form)
         anchors = np.zeros((0, 3))
         pinned = getattr(model, "pinned", None)
         if clamp and pinned is not None and np.any(pinned):
@@ -185,9 +190,9 @@ class ShellData:
             opp[held, corner] = len(X) + np.arange(len(held))
             Xa = np.concatenate([X, anchors])
             form = np.empty((len(f), 3))
-            second_form(Xa, f, opp, ghost, form)
+            second_form(Xa, f, opp, ghost, crease, form)
         return cls(f, opp, ghost, fe, form, det0, young, bend, float(poisson), size, anchors,
-                   len(X))
+                   len(X), crease)
 
     def rest_on(self, positions, rest0, growth, beta: float = 0.0) -> ShellData:
         """This shell with ``positions`` as its rest shape at full growth (A = 1; an open
@@ -200,7 +205,11 @@ class ShellData:
         if self.anchors is not None and len(self.anchors):
             X = np.concatenate([X, self.anchors])
         form = np.empty((self.face_count, 3))
-        second_form(X, self.face_indices, self.face_opposite, self.face_ghost, form)
+        second_form(X, self.face_indices, self.face_opposite, self.face_ghost, self.face_crease,
+                    form)
+        crease = self.face_crease.copy()  # (a crease's angle stays as growth goes: curl's only)
+        crease[:, :, 1] = crease_angles(X, self.face_indices, self.face_opposite,
+                                        self.face_crease) / (1.0 - beta)
         det0, det1 = np.empty(self.face_count), np.empty(self.face_count)
         rest0 = np.ascontiguousarray(rest0, dtype=np.float64)
         growth = np.ascontiguousarray(growth, dtype=np.float64)
@@ -210,7 +219,8 @@ class ShellData:
             raise ValueError(f"{int(np.sum((det0 <= 0.0) | (det1 <= 0.0)))} faces have no "
                              "rest area")
         k = np.sqrt(np.sqrt(det0 / det1)) / (1.0 - beta)
-        return dataclasses.replace(self, face_rest_form=form * k[:, None], face_rest_det=det0)
+        return dataclasses.replace(self, face_rest_form=form * k[:, None], face_rest_det=det0,
+                                   face_crease=crease)
 
     def equivalent(self) -> tuple[float, float]:
         """The paper's (K_s, K_b) of the same sheet (mean over faces), for what still
@@ -232,14 +242,14 @@ class ShellData:
             self.face_ghost[face_mask], edge_map[self.face_edges[face_mask]],
             self.face_rest_form[face_mask], self.face_rest_det[face_mask],
             self.face_stretch[face_mask], self.face_bending[face_mask], self.poisson,
-            self.size, self.anchors, count)
+            self.size, self.anchors, count, self.face_crease[face_mask])
 
 
 #: What the dynamic integrators' step (:func:`pipeline.sim.explicit.step.advance`) takes of
 #: the shell, by name: ``on`` (False: the paper's springs, every array empty), the
 #: positions' work array ``points`` (V + anchors), the face data and the curl's ``beta``.
 KernelShell = namedtuple("KernelShell", [
-    "on", "points", "faces", "opposite", "ghost", "face_edges", "young", "bend", "nu",
+    "on", "points", "faces", "opposite", "ghost", "crease", "face_edges", "young", "bend", "nu",
     "form", "det0", "beta", "scratch"])
 
 
@@ -250,12 +260,12 @@ def kernel_shell(model, curl=None) -> KernelShell:
     if sh is None:
         return KernelShell(False, np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int64),
                            np.zeros((0, 3), dtype=np.int64), np.zeros((0, 3, 3)),
-                           np.zeros((0, 3), dtype=np.int64), np.zeros(0), np.zeros(0), 0.0,
-                           np.zeros((0, 3)), np.zeros(0), 0.0, np.zeros(KERNEL_SCRATCH))
+                           np.zeros((0, 3, 2)), np.zeros((0, 3), dtype=np.int64), np.zeros(0),
+                           np.zeros(0), 0.0, np.zeros((0, 3)), np.zeros(0), 0.0, np.zeros(KERNEL_SCRATCH))
     anchors = sh.anchors if sh.anchors is not None else np.zeros((0, 3))
     points = np.concatenate([np.zeros((model.vertex_count, 3)), anchors])
     return KernelShell(True, points, sh.face_indices, sh.face_opposite, sh.face_ghost,
-                       sh.face_edges, sh.face_stretch, sh.face_bending, sh.poisson,
+                       sh.face_crease, sh.face_edges, sh.face_stretch, sh.face_bending, sh.poisson,
                        sh.face_rest_form, sh.face_rest_det,
                        0.0 if curl is None else float(curl.beta), np.zeros(KERNEL_SCRATCH))
 
@@ -323,11 +333,12 @@ class ShellTerm(Term):
     def _args(self, faces=None):
         m, sh = self.model, self.shell
         if faces is None:
-            return (sh.face_indices, sh.face_opposite, sh.face_ghost, sh.face_edges,
+            return (sh.face_indices, sh.face_opposite, sh.face_ghost, sh.face_crease,
+                    sh.face_edges,
                     m.edge_rest_length, m.edge_growth, sh.face_stretch, sh.face_bending,
                     sh.poisson, sh.face_rest_form, sh.face_rest_det)
         return (sh.face_indices[faces], sh.face_opposite[faces], sh.face_ghost[faces],
-                sh.face_edges[faces], m.edge_rest_length, m.edge_growth,
+                sh.face_crease[faces], sh.face_edges[faces], m.edge_rest_length, m.edge_growth,
                 sh.face_stretch[faces], sh.face_bending[faces], sh.poisson,
                 sh.face_rest_form[faces], sh.face_rest_det[faces])
 

@@ -82,10 +82,15 @@ import math
 import numpy as np
 from numba import njit
 
+from pipeline.sim.terms.bending import hinge_theta_derivatives
+
 #: scratch doubles of one face's derivatives (see :func:`_views`), and of a kernel call
 #: (those and :func:`_small`'s)
 SCRATCH = 9 + 81 + 12 + 144 + 180 + 15 + 225 + 18 + 324 + 27 + 27 + 27 + 9 + 27 + 180
-KERNEL_SCRATCH = SCRATCH + 4 * 9 + 3
+#: scratch of a crease's hinge (:func:`pipeline.sim.terms.bending.hinge_theta_derivatives`:
+#: its gradient (4, 3), Hessian (4, 4, 3, 3) and work (7, 4, 3, 3))
+HINGE_SCRATCH = 12 + 144 + 252
+KERNEL_SCRATCH = SCRATCH + 4 * 9 + 3 + HINGE_SCRATCH
 
 
 @njit(cache=True, inline="always")
@@ -126,14 +131,19 @@ def _views(s):
 
 @njit(cache=True, inline="always")
 def _small(scratch):
-    """G, G^-1, Cs, Cb (3x3) and the rest second form (3,) after the face's scratch."""
+    """G, G^-1, Cs, Cb (3x3) and the rest second form (3,) after the face's scratch, then
+    a crease hinge's gradient, Hessian and work."""
     o = SCRATCH
     G = scratch[o:o + 9].reshape((3, 3))
     Gi = scratch[o + 9:o + 18].reshape((3, 3))
     Cs = scratch[o + 18:o + 27].reshape((3, 3))
     Cb = scratch[o + 27:o + 36].reshape((3, 3))
     bbar = scratch[o + 36:o + 39]
-    return G, Gi, Cs, Cb, bbar
+    o += 39
+    hg = scratch[o:o + 12].reshape((4, 3))
+    hH = scratch[o + 12:o + 156].reshape((4, 4, 3, 3))
+    hw = scratch[o + 156:o + 408].reshape((7, 4, 3, 3))
+    return G, Gi, Cs, Cb, bbar, (hg, hH, hw)
 
 
 @njit(cache=True, inline="always")
@@ -203,7 +213,7 @@ def _inverse3(G, Gi):
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def second_form(X, faces, opposite, ghost, out):
+def second_form(X, faces, opposite, ghost, crease, out):
     """The second fundamental form ``(b11, b12, b22)`` of every face into ``out (F, 3)``,
     with the arithmetic of the energy kernels (so a mesh at its own ``b`` feels no
     bending force). A face whose patch is degenerate gets 0."""
@@ -211,7 +221,7 @@ def second_form(X, faces, opposite, ghost, out):
     Gi = np.empty((3, 3))
     w = np.empty(3)
     for f in range(faces.shape[0]):
-        ok = _fit(X, faces[f], opposite[f], ghost[f], G, Gi, w)
+        ok = _fit(X, faces[f], opposite[f], ghost[f], crease[f], G, Gi, w)
         if not ok:
             out[f, 0] = 0.0
             out[f, 1] = 0.0
@@ -226,9 +236,10 @@ def second_form(X, faces, opposite, ghost, out):
 
 
 @njit(cache=True, inline="always")
-def _fit(X, v, opp, ghost, G, Gi, w):
+def _fit(X, v, opp, ghost, crease, G, Gi, w):
     """The patch's system ``G`` (and its inverse) and heights ``w`` at X; False if the
-    face or the system is degenerate."""
+    face or the system is degenerate. A crease's edge (``crease[i, 0] > 0``) is fitted as
+    a boundary edge is (its ghost row): the patch does not look across a crease."""
     q0x = X[v[0], 0]
     q0y = X[v[0], 1]
     q0z = X[v[0], 2]
@@ -253,7 +264,7 @@ def _fit(X, v, opp, ghost, G, Gi, w):
     nz = e1x * e2y - e1y * e2x
     for i in range(3):
         o = opp[i]
-        if o < 0:
+        if o < 0 or crease[i, 0] > 0.0:
             G[i, 0] = ghost[i, 0]
             G[i, 1] = ghost[i, 1]
             G[i, 2] = ghost[i, 2]
@@ -280,11 +291,14 @@ def _fit(X, v, opp, ghost, G, Gi, w):
 
 
 @njit(cache=True, inline="always", error_model="numpy")
-def _face(X, v, opp, ghost, L0s, L1s, L2s, young, nu, bend, bbar, want, views, G, Gi, Cs, Cb):
+def _face(X, v, opp, ghost, crease, L0s, L1s, L2s, young, nu, bend, bbar, curl, want, views,
+          G, Gi, Cs, Cb, hinge):
     """Energy of one face (membrane and bending); its gradient into the scratch's ``gx
     (6, 3)`` and, if ``want``, its Hessian into ``Hx (6, 6, 3, 3)`` (vertex order q0,
     q1, q2, o0, o1, o2; rows of missing opposite vertices are zero). ``bbar``: the rest
-    second fundamental form (growth and curl applied)."""
+    second fundamental form (growth and curl applied). ``crease (3, 2)``: the stiffness
+    and rest angle of a crease this face carries across the edge opposite each corner
+    (stiffness 0: none; :func:`_crease`)."""
     Ey, Eyy, EP, EPP, J, EV, EVV, gx, Hx, Jy, Jy2, Dc, Sig, SD, Z = views
     ab11, ab12, ab22, detb = _rest(L0s, L1s, L2s)
     if not detb > 0.0:  # grown lengths that break the triangle inequality: no energy
@@ -318,10 +332,11 @@ def _face(X, v, opp, ghost, L0s, L1s, L2s, young, nu, bend, bbar, want, views, G
                 EPP[r, c] = Cs[r, c]
     # bending
     det = a11 * a22 - a12 * a12
-    real = (opp[0] >= 0, opp[1] >= 0, opp[2] >= 0)
+    real = (opp[0] >= 0 and crease[0, 0] <= 0.0, opp[1] >= 0 and crease[1, 0] <= 0.0,
+            opp[2] >= 0 and crease[2, 0] <= 0.0)
     bending = det > 0.0 and bend > 0.0
     if bending:
-        bending = _fit(X, v, opp, ghost, G, Gi, Ey[:3])
+        bending = _fit(X, v, opp, ghost, crease, G, Gi, Ey[:3])
     if bending:
         w0 = Ey[0]
         w1 = Ey[1]
@@ -483,7 +498,41 @@ def _face(X, v, opp, ghost, L0s, L1s, L2s, young, nu, bend, bbar, want, views, G
     if want:
         _primitive_jacobian(X, v, opp, real, e1, e2, J)
         _vertex_hessian(EP, EPP, J, Z, EVV, Hx, real, e1, e2, X, opp, q0)
+    for i in range(3):
+        if crease[i, 0] > 0.0:
+            energy += _crease(X, v, opp, i, crease[i, 0], curl * crease[i, 1], want, gx, Hx,
+                              hinge)
     return energy
+
+
+@njit(cache=True, inline="always")
+def _crease(X, v, opp, i, k, theta0, want, gx, Hx, hinge):
+    """A crease across the edge opposite corner ``i`` (a fold too sharp for the patch
+    quadratic: see :func:`pipeline.sim.terms.shell_stencil.creases`): a hinge of the
+    edge's ends, ``q_i`` and the vertex across, ``k (1 - cos(theta - theta0))`` (the
+    paper's Eq. 3 with discrete shells' weight in ``k``). Adds its gradient (and Hessian)
+    to the face's rows; returns its energy."""
+    hg, hH, hw = hinge
+    a = (i + 1) % 3
+    b = (i + 2) % 3
+    cos_t, sin_t, ok = hinge_theta_derivatives(X, v[a], v[b], v[i], opp[i], hg, hH, hw)
+    if not ok:
+        return 0.0
+    c0 = math.cos(theta0)
+    s0 = math.sin(theta0)
+    d1 = k * (sin_t * c0 - cos_t * s0)
+    d2 = k * (cos_t * c0 + sin_t * s0)
+    row = (a, b, i, 3 + i)
+    for r in range(4):
+        for x in range(3):
+            gx[row[r], x] += d1 * hg[r, x]
+    if want:
+        for r in range(4):
+            for q in range(4):
+                for x in range(3):
+                    for y in range(3):
+                        Hx[row[r], row[q], x, y] += d2 * hg[r, x] * hg[q, y] + d1 * hH[r, q, x, y]
+    return k * (1.0 - cos_t * c0 - sin_t * s0)
 
 
 @njit(cache=True, inline="always")
@@ -755,12 +804,12 @@ def rest_dets(face_edges, rest0, growth, out):
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def shell_forces(X, faces, opposite, ghost, face_edges, rest0, growth, young, bend, nu,
+def shell_forces(X, faces, opposite, ghost, crease, face_edges, rest0, growth, young, bend, nu,
                  face_bbar, face_det0, A, curl, F, scratch):
     """Add ``-dE/dX`` of every face (membrane and bending) to ``F``; return the energy.
     ``young``, ``bend``: per face (mesh units); ``curl``: ``1 - B(t) beta``."""
     s = scratch[:SCRATCH]
-    G, Gi, Cs, Cb, bbar = _small(scratch)
+    G, Gi, Cs, Cb, bbar, hinge = _small(scratch)
     views = _views(s)
     gx = views[7]
     energy = 0.0
@@ -769,8 +818,8 @@ def shell_forces(X, faces, opposite, ghost, face_edges, rest0, growth, young, be
                                    curl, bbar)
         v = faces[f]
         opp = opposite[f]
-        energy += _face(X, v, opp, ghost[f], L0s, L1s, L2s, young[f], nu, bend[f], bbar,
-                        False, views, G, Gi, Cs, Cb)
+        energy += _face(X, v, opp, ghost[f], crease[f], L0s, L1s, L2s, young[f], nu, bend[f],
+                        bbar, curl, False, views, G, Gi, Cs, Cb, hinge)
         for k in range(6):
             idx = v[k] if k < 3 else opp[k - 3]
             if idx < 0 or idx >= F.shape[0]:  # (no vertex, or a fixed anchor)
@@ -782,19 +831,19 @@ def shell_forces(X, faces, opposite, ghost, face_edges, rest0, growth, young, be
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def shell_hessian(X, faces, opposite, ghost, face_edges, rest0, growth, young, bend, nu,
+def shell_hessian(X, faces, opposite, ghost, crease, face_edges, rest0, growth, young, bend, nu,
                   face_bbar, face_det0, A, curl, data, slots, scratch):
     """Add every face's Hessian blocks to ``data``; ``slots[f, 6 r + c]`` is the block of
     the face's vertex pair (r, c) in the order q0, q1, q2, o0, o1, o2 (-1: no vertex)."""
     s = scratch[:SCRATCH]
-    G, Gi, Cs, Cb, bbar = _small(scratch)
+    G, Gi, Cs, Cb, bbar, hinge = _small(scratch)
     views = _views(s)
     Hx = views[8]
     for f in range(faces.shape[0]):
         L0s, L1s, L2s = _face_rest(f, face_edges, rest0, growth, A, face_bbar, face_det0,
                                    curl, bbar)
-        _face(X, faces[f], opposite[f], ghost[f], L0s, L1s, L2s, young[f], nu, bend[f], bbar,
-              True, views, G, Gi, Cs, Cb)
+        _face(X, faces[f], opposite[f], ghost[f], crease[f], L0s, L1s, L2s, young[f], nu,
+              bend[f], bbar, curl, True, views, G, Gi, Cs, Cb, hinge)
         for r in range(6):
             for c in range(6):
                 slot = slots[f, 6 * r + c]
@@ -806,7 +855,7 @@ def shell_hessian(X, faces, opposite, ghost, face_edges, rest0, growth, young, b
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def shell_rounding(X, faces, opposite, ghost, face_edges, rest0, growth, young, bend, nu,
+def shell_rounding(X, faces, opposite, ghost, crease, face_edges, rest0, growth, young, bend, nu,
                    face_bbar, face_det0, A, curl, scale, scratch):
     """The size of what the force kernel adds and subtracts, per vertex into ``scale
     (V,)`` (force units), and for the energy (returned): ``eps`` times these bounds what
@@ -816,7 +865,7 @@ def shell_rounding(X, faces, opposite, ghost, face_edges, rest0, growth, young, 
     and its Hessian times the coordinates' size (a representable X is ``eps |x|`` from
     the exact equilibrium)."""
     s = scratch[:SCRATCH]
-    G, Gi, Cs, Cb, bbar = _small(scratch)
+    G, Gi, Cs, Cb, bbar, hinge = _small(scratch)
     views = _views(s)
     gx = views[7]
     Hx = views[8]
@@ -827,8 +876,8 @@ def shell_rounding(X, faces, opposite, ghost, face_edges, rest0, growth, young, 
                                    curl, bbar)
         v = faces[f]
         opp = opposite[f]
-        e = _face(X, v, opp, ghost[f], L0s, L1s, L2s, young[f], nu, bend[f], bbar, True,
-                  views, G, Gi, Cs, Cb)
+        e = _face(X, v, opp, ghost[f], crease[f], L0s, L1s, L2s, young[f], nu, bend[f], bbar,
+                  curl, True, views, G, Gi, Cs, Cb, hinge)
         size = 0.0
         for k in range(6):
             idx = v[k] if k < 3 else opp[k - 3]

@@ -12,6 +12,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from pipeline.mesh import topology
+from pipeline.mesh.hinge import dihedral_angles
 
 
 def face_opposite(faces: np.ndarray) -> np.ndarray:
@@ -57,6 +58,22 @@ def _patch_rows(X, face, others) -> np.ndarray:
     return np.stack([xi[0] * xi[1], xi[1] * l0, xi[0] * l0], axis=1)
 
 
+#: a fold sharper than this between two faces (their normals' angle, rad) is a crease
+#: (:func:`creases`)
+CREASE_ANGLE = np.radians(60.0)
+
+
+def _below_crease(X, face, others) -> np.ndarray:
+    """Which of ``others`` rise from the face's plane at less than :data:`CREASE_ANGLE`
+    (seen from the face's centroid): a stand-in across a crease would fit the fold."""
+    q0, q1, q2 = X[face]
+    n = np.cross(q1 - q0, q2 - q0)
+    n /= np.linalg.norm(n)
+    d = X[others] - (q0 + q1 + q2) / 3.0
+    h = np.abs(d @ n)
+    return h <= np.tan(CREASE_ANGLE) * np.linalg.norm(d - np.outer(d @ n, n), axis=1)
+
+
 def face_stencil(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     """``(F, 3)``: the vertices each face's patch quadratic is fitted to besides its
     corners: the vertex across each edge (:func:`face_opposite`) and, where an edge is on
@@ -84,6 +101,7 @@ def face_stencil(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
         ring = np.unique(f[incidence[face].indices].ravel())
         drop = np.r_[face, row[row >= 0]]
         cand = ring[~np.isin(ring, drop)]
+        cand = cand[_below_crease(X, face, cand)]
         missing = np.flatnonzero(row < 0)
         have = row[row >= 0]
         if len(cand) < len(missing):
@@ -106,6 +124,72 @@ def face_stencil(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
                 best, score = combo, s
         if best is not None:
             out[k, missing] = best
+    return out
+
+
+def creases(vertices: np.ndarray, faces: np.ndarray, opposite: np.ndarray,
+            bending: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The folds of the rest surface too sharp for the patch quadratic: an interior edge
+    whose two faces' normals turn more than :data:`CREASE_ANGLE` (a petal's keeled
+    midrib, a pleat). Returns ``(crease (F, 3, 2), opposite (F, 3))``.
+
+    Why: the patch is a height field over its face's plane. Across a fold of 90 deg the
+    vertex beyond the edge stands straight above the edge's line: its row of the patch
+    system tends to 0, the fitted curvature to infinity (a 90-108 deg midrib of a real
+    lily gave curvatures of 1,200 per edge, forces 1e10 times the sheet's), and no
+    equilibrium is found. A crease is instead a hinge, as in discrete shells
+    (Grinspun et al. 2003): ``k (1 - cos(theta - theta0))`` with ``k = 3 D |e|^2 / (A1 +
+    A2)`` (``D`` the two faces' mean bending modulus: the energy ``D/2 kappa^2`` of the
+    fold spread over a strip of a third of the faces' heights), carried by the face of
+    the lower index (``crease[f, i] = (k, theta0)``; 0 elsewhere), and both faces fit
+    their patch as if the surface went on flat across the edge (its ghost row; in the
+    returned ``opposite`` the other face no longer names the vertex across). A smooth
+    surface has no crease once its mesh is fine enough; a real crease stays one at
+    any resolution."""
+    X = np.asarray(vertices, dtype=np.float64)
+    f = np.asarray(faces, dtype=np.int64)
+    across = face_opposite(f)
+    crease = np.zeros((len(f), 3, 2))
+    opp = np.array(opposite, dtype=np.int64, copy=True)
+    faces_, corners = np.nonzero(across >= 0)
+    if len(faces_) == 0:
+        return crease, opp
+    a, b = f[faces_, (corners + 1) % 3], f[faces_, (corners + 2) % 3]
+    q, o = f[faces_, corners], across[faces_, corners]
+    hinges = np.ascontiguousarray(np.stack([a, b, q, o], axis=1))
+    theta = dihedral_angles(X, hinges)
+    sharp = np.abs(theta) > CREASE_ANGLE
+    if not sharp.any():
+        return crease, opp
+    normal = np.cross(X[f[:, 1]] - X[f[:, 0]], X[f[:, 2]] - X[f[:, 0]])
+    area = 0.5 * np.linalg.norm(normal, axis=1)
+    # the face across: the one that holds the edge b -> a
+    key = {(int(x), int(y)): k for k, (x, y) in enumerate(zip(
+        np.r_[f[:, 0], f[:, 1], f[:, 2]], np.r_[f[:, 1], f[:, 2], f[:, 0]], strict=True))}
+    for k in np.flatnonzero(sharp):
+        face, i = int(faces_[k]), int(corners[k])
+        other = key[(int(b[k]), int(a[k]))] % len(f)
+        if other < face:  # (the lower index carries it)
+            continue
+        e = X[b[k]] - X[a[k]]
+        stiff = 3.0 * 0.5 * (bending[face] + bending[other]) * (e @ e) / (area[face] + area[other])
+        crease[face, i] = (stiff, theta[k])
+        j = int(np.flatnonzero(f[other] == o[k])[0])  # the other face's corner across
+        opp[other, j] = -1
+    return crease, opp
+
+
+def crease_angles(vertices, faces: np.ndarray, opposite: np.ndarray,
+                  crease: np.ndarray) -> np.ndarray:
+    """``(F, 3)`` the dihedral angle at ``vertices`` of each crease a face carries (as
+    :func:`creases` measures it; 0 where none)."""
+    out = np.zeros(crease.shape[:2])
+    face, corner = np.nonzero(crease[:, :, 0] > 0.0)
+    if len(face):
+        f = np.asarray(faces, dtype=np.int64)
+        hinges = np.stack([f[face, (corner + 1) % 3], f[face, (corner + 2) % 3],
+                           f[face, corner], opposite[face, corner]], axis=1)
+        out[face, corner] = dihedral_angles(vertices, hinges)
     return out
 
 
