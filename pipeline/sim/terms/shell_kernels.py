@@ -505,6 +505,13 @@ def _face(X, v, opp, ghost, crease, L0s, L1s, L2s, young, nu, bend, bbar, curl, 
     return energy
 
 
+#: :func:`_face` as a called function (not inlined): the Hessian and rounding kernels
+#: share its one compiled body (inlined into each, the shell's kernels took 133 s to
+#: compile, the first run of any fresh clone; the force kernel, the dynamic integrators'
+#: inner loop, keeps it inlined: 30% faster)
+_face_called = njit(cache=True, nogil=True, error_model="numpy")(_face.py_func)
+
+
 @njit(cache=True, inline="always")
 def _crease(X, v, opp, i, k, theta0, want, gx, Hx, hinge):
     """A crease across the edge opposite corner ``i`` (a fold too sharp for the patch
@@ -842,8 +849,8 @@ def shell_hessian(X, faces, opposite, ghost, crease, face_edges, rest0, growth, 
     for f in range(faces.shape[0]):
         L0s, L1s, L2s = _face_rest(f, face_edges, rest0, growth, A, face_bbar, face_det0,
                                    curl, bbar)
-        _face(X, faces[f], opposite[f], ghost[f], crease[f], L0s, L1s, L2s, young[f], nu,
-              bend[f], bbar, curl, True, views, G, Gi, Cs, Cb, hinge)
+        _face_called(X, faces[f], opposite[f], ghost[f], crease[f], L0s, L1s, L2s, young[f],
+                     nu, bend[f], bbar, curl, True, views, G, Gi, Cs, Cb, hinge)
         for r in range(6):
             for c in range(6):
                 slot = slots[f, 6 * r + c]
@@ -876,8 +883,8 @@ def shell_rounding(X, faces, opposite, ghost, crease, face_edges, rest0, growth,
                                    curl, bbar)
         v = faces[f]
         opp = opposite[f]
-        e = _face(X, v, opp, ghost[f], crease[f], L0s, L1s, L2s, young[f], nu, bend[f], bbar,
-                  curl, True, views, G, Gi, Cs, Cb, hinge)
+        e = _face_called(X, v, opp, ghost[f], crease[f], L0s, L1s, L2s, young[f], nu, bend[f],
+                         bbar, curl, True, views, G, Gi, Cs, Cb, hinge)
         size = 0.0
         for k in range(6):
             idx = v[k] if k < 3 else opp[k - 3]
