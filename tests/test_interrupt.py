@@ -131,7 +131,7 @@ def test_killed_quasi_static_simulate_resumes_to_the_same_arrays(tmp_path, effec
     Newton counts, to the bit. Its state crosses the checkpoint (the secant's equilibrium
     behind, the contact's gap and sweep, each group's pattern and last factorization;
     without contact, each petal's own solver's)."""
-    whole, out = _kill_and_resume(tmp_path, ("bud", "--petals", 5, "--vertices", 1500), (
-        "simulate.integrator=quasi-static", "simulate.stages=60", "simulate.frames=61",
+    whole, out = _kill_and_resume(tmp_path, ("bud", "--petals", 4, "--vertices", 800), (
+        "simulate.integrator=quasi-static", "simulate.stages=40", "simulate.frames=41",
         "simulate.checkpoint_seconds=0.2", *effects))
     _same_run(whole, out)

@@ -24,23 +24,46 @@ height = 96
 """
 
 
-@pytest.fixture
-def tree(tmp_path):
+def _tree(path):
+    """A scratch tree of the Makefile, the code (linked) and two tiny scenes at ``path``."""
     if not (ROOT / ".venv" / ".installed").exists():
         pytest.skip("needs the project's .venv (run through `make test`)")
     stamp = (ROOT / ".venv" / ".installed").stat().st_mtime
     for name in ("Makefile", "pyproject.toml", "constraints.txt"):
-        shutil.copy2(ROOT / name, tmp_path / name)
+        shutil.copy2(ROOT / name, path / name)
         # older than the stamp, so make never reinstalls into the project's own .venv
-        os.utime(tmp_path / name, (stamp - 1, stamp - 1))
+        os.utime(path / name, (stamp - 1, stamp - 1))
     for name in ("pipeline", "stages", ".venv"):
-        (tmp_path / name).symlink_to(ROOT / name)
-    (tmp_path / "configs").mkdir()
-    (tmp_path / "assets").mkdir()
-    shutil.copy2(ROOT / "assets" / "petal.obj", tmp_path / "assets" / "petal.obj")
+        (path / name).symlink_to(ROOT / name)
+    (path / "configs").mkdir()
+    (path / "assets").mkdir()
+    shutil.copy2(ROOT / "assets" / "petal.obj", path / "assets" / "petal.obj")
     for scene, mesh in (("one", "petal.obj"), ("two", "petal.obj")):
-        (tmp_path / "configs" / f"{scene}.toml").write_text(TINY.format(mesh=mesh))
-    return tmp_path
+        (path / "configs" / f"{scene}.toml").write_text(TINY.format(mesh=mesh))
+    return path
+
+
+@pytest.fixture
+def tree(tmp_path):
+    return _tree(tmp_path)
+
+
+@pytest.fixture(scope="module")
+def _built(tmp_path_factory):
+    """A tree built once with `make -j2` (and what that make printed)."""
+    path = _tree(tmp_path_factory.mktemp("built"))
+    return path, make(path, "-j2")
+
+
+@pytest.fixture
+def built(_built, tmp_path):
+    """A copy of the built tree of its own (files keep their times: make sees it built)
+    and the first make's output."""
+    path, first = _built
+    assert first.returncode == 0, first.stderr[-2000:]
+    copy = tmp_path / "tree"
+    shutil.copytree(path, copy, symlinks=True)
+    return copy, first
 
 
 def make(tree, *args):
@@ -53,9 +76,8 @@ def stage_commands(output: str) -> list[str]:
             if ".venv/bin/bloom " in line]
 
 
-def test_make_builds_then_does_nothing_then_rebuilds_one_scene(tree):
-    first = make(tree, "-j2")
-    assert first.returncode == 0, first.stderr[-2000:]
+def test_make_builds_then_does_nothing_then_rebuilds_one_scene(built):
+    tree, first = built
     for scene in ("one", "two"):
         for artifact in ("remesh.h5", "axis.h5", "growth.h5", "sim.h5", "render/bloom.mp4",
                          "report.json", "report.png", "bloom.usdc"):
@@ -82,11 +104,11 @@ def _positions_hash(path) -> str:
         return hashlib.sha256(f["frames/positions"][()].tobytes()).hexdigest()
 
 
-def test_make_j_gives_the_same_arrays_as_a_serial_build(tree):
+def test_make_j_gives_the_same_arrays_as_a_serial_build(built):
     """Scenes `one` and `two` are the same inputs: built side by side with -j2 they give
     the same frames, and a serial rebuild from scratch (-j1) gives them again, bit for
     bit. (Not `make -B`: that would remake the venv stamp too, through the symlink.)"""
-    assert make(tree, "-j2").returncode == 0
+    tree, _ = built
     sims = [tree / "outputs" / s / "sim.h5" for s in ("one", "two")]
     parallel = [_positions_hash(p) for p in sims]
     assert parallel[0] == parallel[1]
@@ -132,13 +154,13 @@ def _datasets(f) -> list[str]:
     return names
 
 
-def test_bloom_batch_on_a_local_dask_cluster_matches_make(tree):
+def test_bloom_batch_on_a_local_dask_cluster_matches_make(built):
     """The same scenes through `make -j2` and through `bloom batch` on a local Dask
     cluster (2 workers): every artifact's arrays bit for bit, per-stage logs, and the
     USD export."""
     import h5py
 
-    assert make(tree, "-j2").returncode == 0
+    tree, _ = built
     r = subprocess.run([str(tree / ".venv" / "bin" / "bloom"), "batch", "configs/one.toml",
                         "configs/two.toml", "--out-root", "batch", "--workers", "2"],
                        cwd=tree, capture_output=True, text=True)

@@ -48,9 +48,9 @@ def test_a_bloom_against_itself_differs_by_nothing():
 
 def test_the_picture_draws_each_model_and_triangulation(tmp_path):
     """resolution.png: a curve per model and triangulation, the reference left out."""
-    rows = [{"model": m, "run": f"{k} {n}", "vertices": n, "opening": 60.0,
-             "opening_difference": d / n, "shape_difference": 0.0 if (k, n) == ("regular", 800)
-             else d / n / 100}
+    rows = [{"model": m, "run": f"{k} {n}", "reference": (k, n) == ("regular", 800),
+             "vertices": n, "opening": 60.0, "opening_difference": d / n,
+             "shape_difference": 1e-15 if (k, n) == ("regular", 800) else d / n / 100}
             for m, d in (("paper", 900.0), ("shell", 300.0)) for k in ("regular", "irregular")
             for n in (100, 200, 400, 800)]
     study.plot(rows, tmp_path / "r.png", "test")
@@ -61,4 +61,5 @@ def test_the_picture_draws_each_model_and_triangulation(tmp_path):
     # four coloured curves (matplotlib's first four colours) are on it
     for colour in ((31, 119, 180), (255, 127, 14), (44, 160, 44), (214, 39, 40)):
         assert np.any(np.all(np.abs(image.astype(int) - colour) < 10, axis=2)), colour
-    assert "| shell | irregular 100 |" in "\n".join(study.table(rows))
+    table = "\n".join(study.table(rows))
+    assert "| shell | irregular 100 |" in table and "| regular 800 | 800 | 60.00 deg | (reference)" in table

@@ -233,7 +233,8 @@ def measure(runs: dict[str, dict], reference: str) -> list[dict]:
     rows = []
     for name, r in runs.items():
         frames = min(len(r["opening"]), len(ref["opening"]))
-        rows.append({"run": name, "vertices": int(r["P"].shape[1]),
+        rows.append({"run": name, "reference": name == reference,
+                     "vertices": int(r["P"].shape[1]),
                      "opening": float(r["opening"][-1]),
                      "opening_difference": float(np.abs(r["opening"][:frames]
                                                         - ref["opening"][:frames]).max()),
@@ -290,13 +291,14 @@ def plot(rows: list[dict], path, title: str) -> None:
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from matplotlib import ticker
 
     fig, axes = plt.subplots(1, 2, figsize=(10, 4.2), dpi=110)
     keys = dict.fromkeys((r["model"], r["run"].split()[0]) for r in rows)
     for (model, kind), style in zip(keys, ("o-", "s--", "^-", "v--"), strict=False):
         pts = sorted((r["vertices"], r["opening_difference"], 100 * r["shape_difference"])
                      for r in rows if r["model"] == model and r["run"].startswith(kind)
-                     and r["shape_difference"] > 0.0)
+                     and not r["reference"])
         if not pts:
             continue
         n, opening, shape = zip(*pts, strict=True)
@@ -309,6 +311,13 @@ def plot(rows: list[dict], path, title: str) -> None:
     for ax in axes:
         ax.set_xlabel("vertices")
         ax.legend(fontsize=8)
+        # plain numbers on the log axes (the errors span about one decade: minor ticks too)
+        ax.xaxis.set_major_formatter(ticker.FormatStrFormatter("%g"))
+        ax.xaxis.set_minor_formatter(ticker.NullFormatter())
+        ax.yaxis.set_major_formatter(ticker.FormatStrFormatter("%g"))
+        ax.yaxis.set_minor_formatter(ticker.FormatStrFormatter("%g"))
+        ax.set_xticks(sorted({r["vertices"] for r in rows if r["model"] == rows[0]["model"]
+                              and r["run"].startswith("regular")}))
     fig.suptitle(f"{title} (against each model's finest regular mesh; dotted: 1 deg, 2%)")
     fig.tight_layout()
     with atomic_path(path) as tmp:
@@ -321,6 +330,8 @@ def table(rows: list[dict]) -> list[str]:
     lines = ["| model | run | vertices | final opening | max opening difference | RMS shape "
              "difference |", "|---|---|---|---|---|---|"]
     for r in rows:
+        diff = ("(reference) | (reference)" if r["reference"] else
+                f"{r['opening_difference']:.2f} deg | {100 * r['shape_difference']:.2f}%")
         lines.append(f"| {r['model']} | {r['run']} | {r['vertices']} | {r['opening']:.2f} deg | "
-                     f"{r['opening_difference']:.2f} deg | {100 * r['shape_difference']:.2f}% |")
+                     f"{diff} |")
     return lines
