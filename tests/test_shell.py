@@ -603,3 +603,20 @@ def test_a_sharp_fold_is_a_crease_with_exact_derivatives():
     F = np.zeros_like(opened)
     sh.ShellTerm(model).at(1.0).forces(opened, F)
     assert np.abs(F[~model.pinned]).max() <= 100 * EPS * scale  # (the base is held)
+
+
+def test_wrinkles_softer_rim_softens_the_rim_faces_membrane():
+    """Eq. 12's boundary_stiffness on the shell: a face's stretch modulus is scaled by
+    the mean of its edges' factors (a face with one rim edge at 0.5: 5/6), its bending
+    kept; faces off the rim are untouched."""
+    from pipeline.mesh import procedural
+    from pipeline.sim.build import Prepared
+
+    v, f, p = procedural.bud(1, 150, 0)
+    plain = Prepared.from_mesh(v, f, p).shell_model(27.3, 0.025, 1 / 3).shell
+    soft = Prepared.from_mesh(v, f, p, boundary_stiffness=0.5).shell_model(
+        27.3, 0.025, 1 / 3).shell
+    rim = (sh.face_opposite(soft.face_indices) < 0).sum(axis=1)  # rim edges per face
+    ratio = soft.face_stretch / plain.face_stretch
+    assert np.allclose(ratio, 1.0 - 0.5 * rim / 3.0, rtol=1e-12)
+    assert (rim == 1).sum() > 10 and np.array_equal(soft.face_bending, plain.face_bending)

@@ -115,11 +115,16 @@ class Prepared:
         paper's equivalent stiffnesses for what is still counted in springs (contact,
         the solver's scales). ``stretch_modulus`` and ``thickness`` are in units of the
         petal size (see :func:`pipeline.sim.terms.shell.moduli`). A fixed boundary edge (the
-        base) is clamped (:func:`pipeline.sim.terms.shell.clamped_anchors`)."""
+        base) is clamped (:func:`pipeline.sim.terms.shell.clamped_anchors`). The growth
+        map's stiffness factors per edge (wrinkles' softer rim) scale the stretch modulus
+        of the faces they border (their mean over a face's three edges)."""
         model = self.model(1.0, 1.0, mass=mass, pinned=pinned)
         data = ShellData.build(self.vertices, self.faces, model, stretch_modulus=stretch_modulus,
                                thickness=thickness, poisson=poisson, petal=self.petal,
                                vertex_thickness=self.thickness)
+        # the edges' stiffness factors (wrinkles' softer rim, Eq. 12: 1 elsewhere) soften
+        # the membrane of the faces they border, by their mean over the face's edges
+        data.face_stretch = data.face_stretch * model.edge_stiffness[data.face_edges].mean(axis=1)
         ks, kb = data.equivalent()
         model.edge_stiffness = np.full(model.edge_count, ks)
         model.hinge_stiffness = np.full(model.hinge_count, kb)
