@@ -19,7 +19,7 @@ MODELS ?= ../shared/external-meshes
 # A stage's artifacts depend on the library and on the stage's own module.
 LIB := $(wildcard pipeline/*.py pipeline/*/*.py pipeline/*/*/*.py) stages/cli.py stages/common.py
 
-.PHONY: all test test-studio lint bench accuracy stability models elastic docs venv clean clean-venv help
+.PHONY: all test test-studio test-extended lint bench accuracy stability models elastic docs venv clean clean-venv help
 all: $(SCENES:%=$(OUT)/%/render/bloom.mp4) $(SCENES:%=$(OUT)/%/report.json) $(SCENES:%=$(OUT)/%/bloom.usdc)  ## build every scene: artifacts, frames, MP4, report, USD
 
 help:  ## list the targets
@@ -38,6 +38,9 @@ test: $(INSTALLED)  ## run the test suite
 
 test-studio: $(INSTALLED)  ## the studio-sized models (../shared/external-meshes, a 100k-face flower) through the geometry stages (~8 min)
 	$(VENV)/bin/python -m pytest -m studio tests $(PYTEST_ARGS)
+
+test-extended: $(INSTALLED)  ## whole builds killed and resumed: a killed make, a lost Dask worker (~3 min)
+	$(VENV)/bin/python -m pytest -m extended tests $(PYTEST_ARGS)
 
 bench: $(INSTALLED)  ## print what each effect costs, as ratios to the bare simulation
 	$(BLOOM) bench

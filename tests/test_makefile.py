@@ -118,6 +118,7 @@ def test_make_j_gives_the_same_arrays_as_a_serial_build(built):
     assert _positions_hash(sims[0]) == parallel[0]
 
 
+@pytest.mark.extended
 def test_killed_make_then_make_gives_the_uninterrupted_arrays(tree):
     """SIGKILL the whole `make` (and its bloom simulate) mid-simulation, then `make`
     again: it resumes from the checkpoint, and the frames hash as an uninterrupted build
@@ -183,6 +184,7 @@ def test_bloom_batch_on_a_local_dask_cluster_matches_make(built):
         assert mine.stat().st_size > 0
 
 
+@pytest.mark.extended
 def test_bloom_batch_survives_a_lost_worker(tree):
     """Kill the Dask worker running a scene's simulation (and the simulation) mid-run:
     the task is retried on another worker, resumes from the checkpoint (its inputs are
