@@ -65,11 +65,18 @@ def resolution(out: str, config: str, counts: str, overrides, regular_only: bool
         numbers = tuple(int(c) for c in counts.split(","))
     except ValueError:
         raise BloomError(f"not a list of vertex counts: {counts!r}", where="--counts") from None
+    from pipeline.config import KEYS
+
+    names = tuple(m.strip() for m in models.split(",") if m.strip())
+    allowed = KEYS["simulate.model"].choices
+    for name in names:  # (before any run writes a file)
+        if name not in allowed:
+            raise BloomError(f"not an elastic model: {name!r} (one of {', '.join(allowed)})",
+                             where="--models")
     try:
         rows = study.resolution(Path(out), config, counts=numbers, overrides=overrides,
                                 kinds=("regular",) if regular_only else ("regular", "irregular"),
-                                models=tuple(m.strip() for m in models.split(",") if m.strip())
-                                or (None,), echo=click.echo)
+                                models=names or (None,), echo=click.echo)
     except ValueError as exc:
         raise BloomError(str(exc), where=config) from None
     click.echo("\n".join(study.table(rows)))

@@ -63,3 +63,14 @@ def test_the_picture_draws_each_model_and_triangulation(tmp_path):
         assert np.any(np.all(np.abs(image.astype(int) - colour) < 10, axis=2)), colour
     table = "\n".join(study.table(rows))
     assert "| shell | irregular 100 |" in table and "| regular 800 | 800 | 60.00 deg | (reference)" in table
+
+
+def test_an_unknown_model_is_one_line_and_no_run(tmp_path):
+    from click.testing import CliRunner
+
+    from stages.cli import cli
+
+    r = CliRunner().invoke(cli, ["study", "resolution", "--config", str(ROOT / "configs/petal.toml"),
+                                 "--models", "shell,springs", "--out", str(tmp_path / "r")])
+    assert r.exit_code != 0 and "--models" in r.output and "'springs'" in r.output
+    assert "Traceback" not in r.output and not (tmp_path / "r").exists()

@@ -581,6 +581,8 @@ def test_a_sharp_fold_is_a_crease_with_exact_derivatives():
         assert np.abs(F).max() <= 100 * EPS * scales[-1]
     creased = model.shell.face_crease[:, :, 0] > 0.0
     assert creased.sum() >= 5
+    # (measured without creases: curvature 13.9 per mean edge, force scale 91 times the
+    # flat petal's; with them 2e-15 and 1.005 times)
     assert np.abs(model.shell.face_rest_form).max() < 10.0  # curvature per mean edge
     assert scales[1] < 10.0 * scales[0]
     curl = fx.Curl.build(np.asarray(growth.rest_angle), beta=0.5)
@@ -595,8 +597,6 @@ def test_a_sharp_fold_is_a_crease_with_exact_derivatives():
     opened = _folded_petal(120.0)[0]
     model.shell = model.shell.rest_on(opened, model.edge_rest_length, model.edge_growth,
                                       beta=0.0)
-    F = np.zeros_like(opened)
-    sh.ShellTerm(model).at(1.0).forces(opened, F)
     scale = _force_scale(sh.ShellTerm(model).at(1.0), opened)
     # (the rest metric is still the 100 deg fold's: only the bending is at rest)
     model.shell.face_stretch[:] = 0.0

@@ -254,6 +254,9 @@ def resolution(out_dir, config, *, counts=COUNTS, overrides=(), kinds=("regular"
     asset = Path(cfg["scene.mesh"])
     if not asset.is_absolute() and cfg.path is not None:
         asset = (Path(cfg.path).parent / asset).resolve()
+    if "irregular" in kinds:  # (the same irregular meshes for every model)
+        for n in counts:
+            write_obj(out / f"irregular{n}.obj", *irregular_mesh(asset, n))
     rows = []
     for model in models:
         name = model or cfg["simulate.model"]
@@ -265,10 +268,7 @@ def resolution(out_dir, config, *, counts=COUNTS, overrides=(), kinds=("regular"
                 if kind == "regular":
                     sets = [f"remesh.petal_vertices={n}"]
                 else:
-                    mesh = out / f"irregular{n}.obj"
-                    if not mesh.exists():
-                        write_obj(mesh, *irregular_mesh(asset, n))
-                    sets = [f"scene.mesh={mesh}", "remesh.symmetrize=false"]
+                    sets = [f"scene.mesh={out / f'irregular{n}.obj'}", "remesh.symmetrize=false"]
                 run_scene(config, folder, overrides=(*overrides, *chosen, *sets))
                 runs[f"{kind} {n}"] = load(folder)
                 echo(f"{name}, {kind} {n}: {runs[f'{kind} {n}']['P'].shape[1]} vertices, "

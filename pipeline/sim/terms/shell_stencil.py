@@ -17,7 +17,13 @@ from pipeline.mesh.hinge import dihedral_angles
 
 def face_opposite(faces: np.ndarray) -> np.ndarray:
     """``(F, 3)`` the vertex across the edge opposite each corner (the third vertex of the
-    face on the other side), -1 on the boundary.
+    face on the other side), -1 on the boundary (:func:`face_across`)."""
+    return face_across(faces)[0]
+
+
+def face_across(faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(vertex (F, 3), face (F, 3))``: across the edge opposite each corner, the third
+    vertex of the face on the other side and that face; -1 on the boundary.
 
     Notes
     -----
@@ -32,13 +38,15 @@ def face_opposite(faces: np.ndarray) -> np.ndarray:
     order = np.argsort(key, kind="stable")
     pos = np.minimum(np.searchsorted(key[order], twin_key), len(key) - 1)
     found = key[order][pos] == twin_key
-    across = np.where(found, opposite[order][pos], -1)
+    vertex = np.where(found, opposite[order][pos], -1)
+    face = np.where(found, order[pos] % max(nf, 1), -1)
     # half-edge (a, b) of face f is the edge opposite corner c: corner 2; (b, c): 0; (c, a): 1
-    out = np.empty((nf, 3), dtype=np.int64)
-    out[:, 2] = across[:nf]
-    out[:, 0] = across[nf:2 * nf]
-    out[:, 1] = across[2 * nf:]
-    return out
+    out = np.empty((2, nf, 3), dtype=np.int64)
+    for k, h in enumerate((vertex, face)):
+        out[k, :, 2] = h[:nf]
+        out[k, :, 0] = h[nf:2 * nf]
+        out[k, :, 1] = h[2 * nf:]
+    return out[0], out[1]
 
 
 #: a boundary face's stand-in vertex must make its patch system at least this well
@@ -150,7 +158,7 @@ def creases(vertices: np.ndarray, faces: np.ndarray, opposite: np.ndarray,
     any resolution."""
     X = np.asarray(vertices, dtype=np.float64)
     f = np.asarray(faces, dtype=np.int64)
-    across = face_opposite(f)
+    across, beyond = face_across(f)
     crease = np.zeros((len(f), 3, 2))
     opp = np.array(opposite, dtype=np.int64, copy=True)
     faces_, corners = np.nonzero(across >= 0)
@@ -158,26 +166,20 @@ def creases(vertices: np.ndarray, faces: np.ndarray, opposite: np.ndarray,
         return crease, opp
     a, b = f[faces_, (corners + 1) % 3], f[faces_, (corners + 2) % 3]
     q, o = f[faces_, corners], across[faces_, corners]
-    hinges = np.ascontiguousarray(np.stack([a, b, q, o], axis=1))
-    theta = dihedral_angles(X, hinges)
-    sharp = np.abs(theta) > CREASE_ANGLE
-    if not sharp.any():
+    other = beyond[faces_, corners]
+    theta = dihedral_angles(X, np.stack([a, b, q, o], axis=1))
+    carry = (np.abs(theta) > CREASE_ANGLE) & (faces_ < other)  # (the lower index carries it)
+    if not carry.any():
         return crease, opp
-    normal = np.cross(X[f[:, 1]] - X[f[:, 0]], X[f[:, 2]] - X[f[:, 0]])
-    area = 0.5 * np.linalg.norm(normal, axis=1)
-    # the face across: the one that holds the edge b -> a
-    key = {(int(x), int(y)): k for k, (x, y) in enumerate(zip(
-        np.r_[f[:, 0], f[:, 1], f[:, 2]], np.r_[f[:, 1], f[:, 2], f[:, 0]], strict=True))}
-    for k in np.flatnonzero(sharp):
-        face, i = int(faces_[k]), int(corners[k])
-        other = key[(int(b[k]), int(a[k]))] % len(f)
-        if other < face:  # (the lower index carries it)
-            continue
-        e = X[b[k]] - X[a[k]]
-        stiff = 3.0 * 0.5 * (bending[face] + bending[other]) * (e @ e) / (area[face] + area[other])
-        crease[face, i] = (stiff, theta[k])
-        j = int(np.flatnonzero(f[other] == o[k])[0])  # the other face's corner across
-        opp[other, j] = -1
+    area = 0.5 * np.linalg.norm(np.cross(X[f[:, 1]] - X[f[:, 0]], X[f[:, 2]] - X[f[:, 0]]),
+                                axis=1)
+    face, i, other, o = faces_[carry], corners[carry], other[carry], o[carry]
+    e = X[b[carry]] - X[a[carry]]
+    stiff = (3.0 * 0.5 * (bending[face] + bending[other]) * np.sum(e * e, axis=1)
+             / (area[face] + area[other]))
+    crease[face, i, 0] = stiff
+    crease[face, i, 1] = theta[carry]
+    opp[other, np.argmax(f[other] == o[:, None], axis=1)] = -1  # (its corner across)
     return crease, opp
 
 
