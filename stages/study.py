@@ -9,6 +9,22 @@ import click
 
 from pipeline.errors import BloomError
 
+#: the scene of the accuracy study's resolution axis (the project's own)
+PETAL = Path(__file__).resolve().parents[1] / "configs" / "petal.toml"
+
+
+def _counts(text: str, option: str) -> tuple[int, ...]:
+    """Vertex counts given as ``a,b,c`` (each at least 50), or a one-line error naming
+    ``option``."""
+    try:
+        numbers = tuple(int(c) for c in text.split(","))
+    except ValueError:
+        numbers = ()
+    if not numbers or min(numbers) < 50:
+        raise BloomError(f"not a list of vertex counts (each at least 50): {text!r}",
+                         where=option)
+    return numbers
+
 
 @click.group("study")
 def command() -> None:
@@ -23,18 +39,32 @@ def command() -> None:
 @click.option("--vertices", default=2133, show_default=True, type=click.IntRange(min=120),
               help="Vertices of the bud (the paper's Fig. 12 lily: 2133).")
 @click.option("--quick", is_flag=True, help="Shorter dynamic runs (for tests).")
-def accuracy(out: str, petals: int, vertices: int, quick: bool) -> None:
+@click.option("--resolution", "scene", default=str(PETAL), show_default=True,
+              type=click.Path(exists=True, dir_okay=False),
+              help="The resolution axis: this scene at --resolution-counts vertices per petal, "
+                   "regular and irregular, with each elastic model (as `bloom study "
+                   "resolution`, into OUT/resolution), drawn beside the cost curves.")
+@click.option("--resolution-counts", "counts", default="150,300,600,1200", show_default=True,
+              help="Vertices per petal of the resolution axis, comma-separated.")
+@click.option("--no-resolution", is_flag=True, help="Leave the resolution axis out.")
+def accuracy(out: str, petals: int, vertices: int, quick: bool, scene: str, counts: str,
+             no_resolution: bool) -> None:
     """Run one bud with every integrator over a range of cost (growth duration, eta,
     increments) and measure each final bloom against a converged reference: RMS vertex
-    distance over petal length, and the opening angle difference."""
+    distance over petal length, and the opening angle difference. Then the resolution
+    axis: one scene at several mesh densities with the paper's springs and the shell."""
     from pipeline.studies import accuracy
 
+    numbers = _counts(counts, "--resolution-counts")
     folder = Path(out)
     if folder.exists() and not folder.is_dir():
         raise BloomError("exists and is not a folder", where=str(folder))
     folder.mkdir(parents=True, exist_ok=True)
+    axis = None if no_resolution else dict(config=scene, counts=numbers,
+                                           models=("paper", "shell"))
     try:
-        accuracy.accuracy(folder, petals=petals, vertices=vertices, quick=quick, echo=click.echo)
+        accuracy.accuracy(folder, petals=petals, vertices=vertices, quick=quick,
+                          resolution=axis, echo=click.echo)
     except RuntimeError as exc:  # a run that diverged or did not converge
         raise BloomError(f"a run of the study failed: {exc}", where=str(folder)) from None
     click.echo(f"wrote {folder / 'accuracy.csv'} and {folder / 'accuracy.png'}")
@@ -61,10 +91,7 @@ def resolution(out: str, config: str, counts: str, overrides, regular_only: bool
     (s, x)) over the petal length."""
     from pipeline.studies import resolution as study
 
-    try:
-        numbers = tuple(int(c) for c in counts.split(","))
-    except ValueError:
-        raise BloomError(f"not a list of vertex counts: {counts!r}", where="--counts") from None
+    numbers = _counts(counts, "--counts")
     from pipeline.config import KEYS
 
     names = tuple(m.strip() for m in models.split(",") if m.strip())

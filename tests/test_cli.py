@@ -342,7 +342,8 @@ def test_study_accuracy_writes_csv_and_plot(tmp_path):
     import csv
 
     out = tmp_path / "study"
-    r = invoke("study", "accuracy", "--out", out, "--petals", 1, "--vertices", 200, "--quick")
+    r = invoke("study", "accuracy", "--out", out, "--petals", 1, "--vertices", 200, "--quick",
+               "--no-resolution")
     assert r.exit_code == 0, r.output
     rows = list(csv.DictReader(open(out / "accuracy.csv")))
     assert {"integrator", "params", "steps", "wall_seconds", "error"} <= set(rows[0])

@@ -65,6 +65,30 @@ def test_the_picture_draws_each_model_and_triangulation(tmp_path):
     assert "| shell | irregular 100 |" in table and "| regular 800 | 800 | 60.00 deg | (reference)" in table
 
 
+def test_accuracy_png_carries_the_resolution_axis(tmp_path):
+    """accuracy.png with a resolution study's rows: the cost curves, then its two panels
+    (a curve per model and triangulation) to their right."""
+    from PIL import Image
+
+    from pipeline.studies import accuracy
+
+    rows = [{"integrator": "quasi-static", "wall_seconds": t, "error": e}
+            for t, e in ((1.0, 1e-2), (2.0, 1e-3))]
+    meshes = [{"model": m, "run": f"{k} {n}", "reference": (k, n) == ("regular", 800),
+               "vertices": n, "opening": 60.0, "opening_difference": d / n,
+               "shape_difference": d / n / 100}
+              for m, d in (("paper", 900.0), ("shell", 300.0))
+              for k in ("regular", "irregular") for n in (100, 200, 400, 800)]
+    accuracy.plot(rows, tmp_path / "a.png", "test")
+    accuracy.plot(rows, tmp_path / "b.png", "test", resolution=meshes)
+    alone = np.asarray(Image.open(tmp_path / "a.png").convert("RGB"))
+    image = np.asarray(Image.open(tmp_path / "b.png").convert("RGB"))
+    assert image.shape[1] > 2 * alone.shape[1]
+    right = image[:, image.shape[1] * 9 // 20:].astype(int)  # (the two resolution panels)
+    for colour in ((31, 119, 180), (255, 127, 14), (44, 160, 44), (214, 39, 40)):
+        assert np.any(np.all(np.abs(right - colour) < 10, axis=2)), colour
+
+
 def test_an_unknown_model_is_one_line_and_no_run(tmp_path):
     from click.testing import CliRunner
 

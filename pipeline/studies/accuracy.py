@@ -23,6 +23,7 @@ from __future__ import annotations
 import csv
 import time
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
@@ -258,8 +259,11 @@ def warm_up(scene: Scene, runs: list[dict]) -> None:
 
 
 def accuracy(out_dir, *, petals: int = 6, vertices: int = 2133, quick: bool = False,
-             echo=print) -> list[dict]:
-    """Run the study; write ``accuracy.csv`` and ``accuracy.png`` into ``out_dir``."""
+             resolution: dict | None = None, echo=print) -> list[dict]:
+    """Run the study; write ``accuracy.csv`` and ``accuracy.png`` into ``out_dir``.
+    ``resolution``: the arguments of a resolution study
+    (:func:`pipeline.studies.resolution.resolution`: ``config``, ``counts``, ``models``)
+    run into ``out_dir/resolution`` and drawn beside the cost curves (None: none)."""
 
     source = procedural.bud(petals, vertices, 0)
     scene = Scene.from_mesh(*source)
@@ -286,8 +290,17 @@ def accuracy(out_dir, *, petals: int = 6, vertices: int = 2133, quick: bool = Fa
         writer = csv.DictWriter(fh, fieldnames=list(rows[0]))
         writer.writeheader()
         writer.writerows(rows)
+    meshes = None
+    if resolution is not None:
+        from pipeline.studies import resolution as study
+
+        echo(f"resolution: {Path(resolution['config']).stem} at "
+             f"{', '.join(map(str, resolution['counts']))} vertices per petal, "
+             f"{', '.join(resolution['models'])}")
+        meshes = study.resolution(out_dir / "resolution", echo=echo, **resolution)
     plot(rows, out_dir / "accuracy.png",
-         f"What accuracy costs: {petals}-petal bud, {scene.model.vertex_count} vertices")
+         f"What accuracy costs: {petals}-petal bud, {scene.model.vertex_count} vertices",
+         resolution=meshes)
     return rows
 
 
@@ -358,15 +371,27 @@ def time_to_converge(scene: Scene, reference_positions, target: float = 0.01,
     return rows
 
 
-def plot(rows: list[dict], path, title: str) -> None:
-    """Error against wall seconds, log-log, one curve per integrator."""
+def plot(rows: list[dict], path, title: str, resolution: list[dict] | None = None) -> None:
+    """Error against wall seconds, log-log, one curve per integrator; with
+    ``resolution`` (a resolution study's rows), its two panels beside it: each elastic
+    model's difference from its finest mesh against the vertices."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
+    if resolution:
+        from pipeline.studies.resolution import draw
 
-    fig, ax = plt.subplots(figsize=(7, 5), dpi=110)
+        fig, axes = plt.subplots(1, 3, figsize=(18, 5), dpi=110,
+                                 gridspec_kw={"width_ratios": (1.4, 1, 1)})
+        ax = axes[0]
+        draw(axes[1:], resolution)
+        axes[1].set_title("mesh resolution: the same surface, other meshes", fontsize=9)
+        axes[2].set_title("against each model's finest regular mesh (dotted: 1 deg, 2%)",
+                          fontsize=9)
+    else:
+        fig, ax = plt.subplots(figsize=(7, 5), dpi=110)
     for name in dict.fromkeys(r["integrator"] for r in rows):
         pts = sorted((r["wall_seconds"], max(r["error"], FLOOR)) for r in rows
                      if r["integrator"] == name)

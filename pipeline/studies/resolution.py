@@ -291,9 +291,21 @@ def plot(rows: list[dict], path, title: str) -> None:
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-    from matplotlib import ticker
 
     fig, axes = plt.subplots(1, 2, figsize=(10, 4.2), dpi=110)
+    draw(axes, rows)
+    fig.suptitle(f"{title} (against each model's finest regular mesh; dotted: 1 deg, 2%)")
+    fig.tight_layout()
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, format="png")
+    plt.close(fig)
+
+
+def draw(axes, rows: list[dict]) -> None:
+    """:func:`plot`'s two panels on ``axes`` (opening, shape), also drawn beside the
+    cost curves of ``accuracy.png`` (:func:`pipeline.studies.accuracy.plot`)."""
+    from matplotlib import ticker
+
     keys = dict.fromkeys((r["model"], r["run"].split()[0]) for r in rows)
     for (model, kind), style in zip(keys, ("o-", "s--", "^-", "v--"), strict=False):
         pts = sorted((r["vertices"], r["opening_difference"], 100 * r["shape_difference"])
@@ -318,11 +330,6 @@ def plot(rows: list[dict], path, title: str) -> None:
         ax.yaxis.set_minor_formatter(ticker.FormatStrFormatter("%g"))
         ax.set_xticks(sorted({r["vertices"] for r in rows if r["model"] == rows[0]["model"]
                               and r["run"].startswith("regular")}))
-    fig.suptitle(f"{title} (against each model's finest regular mesh; dotted: 1 deg, 2%)")
-    fig.tight_layout()
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, format="png")
-    plt.close(fig)
 
 
 def table(rows: list[dict]) -> list[str]:

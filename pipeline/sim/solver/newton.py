@@ -142,6 +142,8 @@ class Newton:
     #: the energy at the step the last line search took, whose forces it left in its
     #: scratch (None: not since); the next iteration starts from them
     _accepted: float | None = field(default=None, repr=False)
+    #: a checkpoint's state of the elastic term, put back when the terms are built
+    restored: object = field(default=None, repr=False)
 
     def at(self, model: Model, effects: Effects, A: float) -> None:
         """Set the scene's terms (built once per model, :func:`~pipeline.sim.energy.build`) to growth A:
@@ -150,6 +152,8 @@ class Newton:
         if self.terms is None or self.terms.model is not model:
             self.terms = build_terms(model, effects, contact=self.contact,
                                       springs=self.springs)
+            self.terms.elastic.restore(self.restored)
+            self.restored = None
         self.terms.elastic.at(A)
 
     def assemble(self, X, groups=None) -> None:
@@ -212,11 +216,12 @@ class Newton:
         step moved it less than ``tolerance``. A converged group stays put while the
         others iterate (unless a new contact joins it to one of them).
 
-        Where a group's H is positive definite the step is Newton's. Each group is
-        factored afresh at its first iteration of the solve, then its factorization is
-        reused for as long as each step cuts its residual at least ``1/CHORD`` times
-        (a chord step: the Hessian has barely changed; a factorization is most of an
-        iteration's cost). Where H is not positive definite (the path is at a
+        Where a group's H is positive definite the step is Newton's. A group's last
+        factorization (of the equilibrium before, if it was positive definite and
+        unshifted) is reused for as long as each step is at most ``CHORD`` times the one
+        before it, the predictor's first (a chord step: the Hessian has barely changed
+        where it matters; a factorization is most of an iteration's cost); otherwise it
+        is factored afresh. Where H is not positive definite (the path is at a
         bifurcation or a snap, or the prediction is far off), the energy is first
         searched along a direction of negative curvature read from the factorization
         (so a saddle is left in one step rather than by slow amplification of the
@@ -235,7 +240,9 @@ class Newton:
         scale = 0.0
         done: set = set()  #: groups converged by their step
         stale: set = set()  #: groups whose factorization a chord step failed with
-        fresh: set = set()  #: groups factored in this solve
+        #: groups whose factorization a chord step may use (the last solve's too)
+        fresh: set = {gr.key for gr in system.groups
+                      if gr.solver is not None and gr.positive and gr.shift == 0.0}
         chord: dict = {}  #: whether a group's step reuses its factorization
         self._accepted = None
         for _ in range(self.max_iterations):
@@ -276,7 +283,8 @@ class Newton:
                 if (gr.key in fresh and gr.positive and gr.shift == 0.0
                         and gr.key not in stale):
                     trial = gr.solver.solve(-g[gr.dofs])
-                    chord[gr.key] = float(np.abs(trial).max()) <= CHORD * gr.moved
+                    size = float(np.abs(trial).max())
+                    chord[gr.key] = size <= CHORD * gr.moved or size < self.tolerance
                     if chord[gr.key]:
                         solved[gr.key] = trial  # (the step, unless g changes below)
             if not moving:

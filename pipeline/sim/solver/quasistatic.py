@@ -260,6 +260,7 @@ class QuasiStatic:
             "behind_positions": None if behind is None else behind[1],
             "energy_rounding": newton.energy_rounding,
             "reference": newton.reference,
+            "elastic": None if newton.terms is None else newton.terms.elastic.snapshot(),
             "contact": None if newton.contact is None else newton.contact.snapshot(),
             "system": None if newton.system is None else newton.system.snapshot(),
             "parts": None if self._parts is None else [p.solver.state() for p in self._parts],
@@ -276,6 +277,10 @@ class QuasiStatic:
             float(saved["behind_growth"]), np.array(saved["behind_positions"], dtype=np.float64))
         self.newton.energy_rounding = float(saved["energy_rounding"])
         self.newton.reference = float(saved["reference"])
+        if self.newton.terms is None:  # (put back when they are built)
+            self.newton.restored = saved.get("elastic")
+        else:
+            self.newton.terms.elastic.restore(saved.get("elastic"))
         if saved["parts"] is not None:  # (the solver of the whole, past its first advance)
             self._couple(model, state.positions, effects, check=False)
             if saved["contact"] is not None:

@@ -177,6 +177,13 @@ class Elastic(Term):
         self.assemble(X, self._blocks)
         return self._blocks.matrix().tocsr()
 
+    def snapshot(self):
+        """What a checkpoint keeps of this term: nothing (its rounding is of X alone)."""
+        return None
+
+    def restore(self, saved) -> None:
+        pass
+
     def rounding(self, X, per_vertex) -> float:
         """What the force kernel adds and subtracts, per vertex into ``per_vertex``; the
         energy's rounding scale (see :func:`~pipeline.sim.hessian.rounding_scale`)."""

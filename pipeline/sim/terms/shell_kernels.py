@@ -839,9 +839,11 @@ def shell_forces(X, faces, opposite, ghost, crease, face_edges, rest0, growth, y
 
 @njit(cache=True, nogil=True, error_model="numpy")
 def shell_hessian(X, faces, opposite, ghost, crease, face_edges, rest0, growth, young, bend, nu,
-                  face_bbar, face_det0, A, curl, data, slots, scratch):
+                  face_bbar, face_det0, A, curl, data, slots, rows, face_h, scratch):
     """Add every face's Hessian blocks to ``data``; ``slots[f, 6 r + c]`` is the block of
-    the face's vertex pair (r, c) in the order q0, q1, q2, o0, o1, o2 (-1: no vertex)."""
+    the face's vertex pair (r, c) in the order q0, q1, q2, o0, o1, o2 (-1: no vertex).
+    Each face's row sums of ``|H|`` go to ``face_h[rows[f]] (6,)``, for
+    :func:`shell_rounding` (``rows``: the faces' indices in the whole)."""
     s = scratch[:SCRATCH]
     G, Gi, Cs, Cb, bbar, hinge = _small(scratch)
     views = _views(s)
@@ -852,25 +854,32 @@ def shell_hessian(X, faces, opposite, ghost, crease, face_edges, rest0, growth, 
         _face_called(X, faces[f], opposite[f], ghost[f], crease[f], L0s, L1s, L2s, young[f],
                      nu, bend[f], bbar, curl, True, views, G, Gi, Cs, Cb, hinge)
         for r in range(6):
+            h = 0.0
             for c in range(6):
                 slot = slots[f, 6 * r + c]
+                for x in range(3):
+                    for y in range(3):
+                        h += abs(Hx[r, c, x, y])
                 if slot < 0:
                     continue
                 for x in range(3):
                     for y in range(3):
                         data[slot, x, y] += Hx[r, c, x, y]
+            face_h[rows[f], r] = h
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
 def shell_rounding(X, faces, opposite, ghost, crease, face_edges, rest0, growth, young, bend, nu,
-                   face_bbar, face_det0, A, curl, scale, scratch):
+                   face_bbar, face_det0, A, curl, full, face_h, scale, scratch):
     """The size of what the force kernel adds and subtracts, per vertex into ``scale
     (V,)`` (force units), and for the energy (returned): ``eps`` times these bounds what
     rounding alone leaves in the gradient and the energy (see
     :func:`pipeline.sim.terms.elastic.rounding_scale`, the springs' own). Per face: the size
     of its gradient (its terms balance across faces at an equilibrium, not within one),
     and its Hessian times the coordinates' size (a representable X is ``eps |x|`` from
-    the exact equilibrium)."""
+    the exact equilibrium). The Hessian's row sums ``|H|`` are ``face_h (F, 6)``: taken
+    here if ``full`` (each face's Hessian: ten times the force kernel's work), else those
+    :func:`shell_hessian` left at its last assembly (a bound need not be of this very X)."""
     s = scratch[:SCRATCH]
     G, Gi, Cs, Cb, bbar, hinge = _small(scratch)
     views = _views(s)
@@ -884,7 +893,15 @@ def shell_rounding(X, faces, opposite, ghost, crease, face_edges, rest0, growth,
         v = faces[f]
         opp = opposite[f]
         e = _face_called(X, v, opp, ghost[f], crease[f], L0s, L1s, L2s, young[f], nu, bend[f],
-                         bbar, curl, True, views, G, Gi, Cs, Cb, hinge)
+                         bbar, curl, full, views, G, Gi, Cs, Cb, hinge)
+        if full:
+            for k in range(6):
+                h = 0.0
+                for l in range(6):
+                    for x in range(3):
+                        for y in range(3):
+                            h += abs(Hx[k, l, x, y])
+                face_h[f, k] = h
         size = 0.0
         for k in range(6):
             idx = v[k] if k < 3 else opp[k - 3]
@@ -896,12 +913,7 @@ def shell_rounding(X, faces, opposite, ghost, crease, face_edges, rest0, growth,
             if idx < 0 or idx >= scale.shape[0]:
                 continue
             g = max(abs(gx[k, 0]), abs(gx[k, 1]), abs(gx[k, 2]))
-            h = 0.0
-            for l in range(6):
-                for x in range(3):
-                    for y in range(3):
-                        h += abs(Hx[k, l, x, y])
-            scale[idx] += g + h * size
+            scale[idx] += g + face_h[f, k] * size
             gsum += g
         energy += abs(e) + gsum * size
     return energy
