@@ -51,6 +51,15 @@ def test_summary_of_a_sound_open_bloom_gives_its_distance_to_the_model():
                     "5.0 deg)")
 
 
+def test_an_open_bloom_that_ends_off_its_model_is_unsound():
+    X = np.stack([two_triangles(False)] * 2)
+    line = report.summary(X, FACES, np.array([[0.0, 0.0], [60.0, 71.8]]),
+                          distance_to_model=0.268)
+    assert line == ("unsound: 0 of 2 frames with an intersection (checked exactly); last "
+                    "frame 0.27 petal lengths (RMS) from the model (over 0.01: not back on "
+                    "it); every petal opened (least 60.0 deg)")
+
+
 def test_petal_names_come_from_the_parts_or_else_from_the_binding():
     petal = np.array([0, 0, 0, 1, 1, 1])
     assert report.petal_names(petal, np.array([b"Circle.003", b"stem"]),

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import logging
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -84,55 +85,91 @@ def run(growth_h5: str | Path, out: str | Path, cfg: Config, *, overwrite: bool 
                                 max_edge=max_edge,
                                 pushback=sim["integrator"] != "quasi-static")
 
-        model_positions, bud_info = None, {}
-        if start.start == "open":
-            model_positions = np.asarray(v)
-            v, model, rest_angle, params, bud_info = open_start(
-                cfg, model, model_positions, rest_angle, params, build_effects, petal, base,
-                prep.s, prep.x, prep.flower_axis, where, faces=prep.faces, plane=prep.plane)
-        petals = prep.frames(v)
-        if model_positions is not None:  # the model is the open flower: it says which way is out
-            petals = petals.opening_toward(model_positions)
-        if cfg["growth.keys"]:
-            control = Control.keyed(cfg["growth.keys"], frames, steps, h)
-        else:
-            control = Control(cfg["growth.schedule"], cfg["growth.ramp"] * steps * h)
-        integrator = make_integrator(sim["integrator"], sim["eta"], sim["damping"],
-                                     sim["speed_limit"], sim["stages"], sim["tolerance"],
-                                     sim["substeps"], sim["inertia"])
-        if hasattr(integrator, "petal"):  # (it names the petal of each rescue in the log)
-            integrator.petal = np.asarray(petal)
-        if shell and model_positions is not None:  # (the found bud breaks the symmetry)
-            integrator.perturbation = 0.0
-        elif shell and hasattr(integrator, "nudge") and sim["imperfection"] > 0.0:
-            # a bud that is not perfectly symmetric, the same at any resolution, from the
-            # first growth on (a random nudge per vertex picks a branch per mesh)
-            integrator.nudge = prep.imperfection(sim["imperfection"])
-        effects = build_effects(v)
-        state = State.at_rest(model, v, control)
-        effects.constrain(state.forces)
         inputs = artifact.input_hashes(cfg, growth_h5)
         ckpt = checkpoint.path_for(out)
-        key = checkpoint.fingerprint(cfg.to_json(), inputs)
-        resumed = (checkpoint.load(ckpt, key, state, effects, integrator, model) if resume
-                   else None)
-        resumed_step = state.step
-        if resumed is not None:
-            log.info("resuming from step %d (%s)", state.step, ckpt)
-        saver = _Saver(ckpt, key, effects, integrator, sim["checkpoint_seconds"])
-        log.info("%d vertices (%d fixed), %d springs, %d hinges; %d steps of h = %g, %d frames; "
-                 "effects: %s", model.vertex_count, int(model.pinned.sum()), model.edge_count,
-                 model.hinge_count, steps, h, frames, ", ".join(effects.names) or "none")
-        if effects.connections is not None:
-            log.info("%d connection springs between petals", len(effects.connections.pairs))
-        with Progress(steps, "simulate", progress) as bar:
+        model_positions = np.asarray(v) if start.start == "open" else None
+        bud_model, bud_angle, bud_params = model, rest_angle, params
+
+        def bloom(lifted: bool) -> _Bloom:
+            """The run from the bud (an open start: found with the closing lift or
+            without, :func:`~pipeline.sim.reverse.open_start`), resumed from its checkpoint
+            if asked (each search its own)."""
+            v0, model, rest_angle, params, bud_info = v, bud_model, bud_angle, bud_params, {}
+            if model_positions is not None:
+                v0, model, rest_angle, params, bud_info = open_start(
+                    cfg, model, model_positions, rest_angle, params, build_effects, petal,
+                    base, prep.s, prep.x, prep.flower_axis, where, faces=prep.faces,
+                    plane=prep.plane, lifted=lifted)
+            petals = prep.frames(v0)
+            if model_positions is not None:  # the model is the open flower: it says which way is out
+                petals = petals.opening_toward(model_positions)
+            if cfg["growth.keys"]:
+                control = Control.keyed(cfg["growth.keys"], frames, steps, h)
+            else:
+                control = Control(cfg["growth.schedule"], cfg["growth.ramp"] * steps * h)
+            integrator = make_integrator(sim["integrator"], sim["eta"], sim["damping"],
+                                         sim["speed_limit"], sim["stages"], sim["tolerance"],
+                                         sim["substeps"], sim["inertia"])
+            if hasattr(integrator, "petal"):  # (it names the petal of each rescue in the log)
+                integrator.petal = np.asarray(petal)
+            if shell and model_positions is not None:  # (the found bud breaks the symmetry)
+                integrator.perturbation = 0.0
+            elif shell and hasattr(integrator, "nudge") and sim["imperfection"] > 0.0:
+                # a bud that is not perfectly symmetric, the same at any resolution, from the
+                # first growth on (a random nudge per vertex picks a branch per mesh)
+                integrator.nudge = prep.imperfection(sim["imperfection"])
+            effects = build_effects(v0)
+            state = State.at_rest(model, v0, control)
+            effects.constrain(state.forces)
+            path = ckpt if lifted else ckpt.with_name(ckpt.name + "-unlifted")
+            key = checkpoint.fingerprint(cfg.to_json(),
+                                         inputs if lifted else {**inputs, "bud search": "own path"})
+            resumed = (checkpoint.load(path, key, state, effects, integrator, model) if resume
+                       else None)
+            resumed_step = state.step
+            if resumed is not None:
+                log.info("resuming from step %d (%s)", state.step, path)
+            saver = _Saver(path, key, effects, integrator, sim["checkpoint_seconds"])
+            log.info("%d vertices (%d fixed), %d springs, %d hinges; %d steps of h = %g, %d "
+                     "frames; effects: %s", model.vertex_count, int(model.pinned.sum()),
+                     model.edge_count, model.hinge_count, steps, h, frames,
+                     ", ".join(effects.names) or "none")
+            if effects.connections is not None:
+                log.info("%d connection springs between petals", len(effects.connections.pairs))
+            with Progress(steps, "simulate", progress) as bar:
+                try:
+                    rec, wall = integrate(model, state, control, integrator, steps=steps,
+                                          frames=frames, h=h, petals=petals, effects=effects,
+                                          progress=bar.update, resume=resumed,
+                                          checkpoint=saver)
+                except (Diverged, NotConverged, ValueError, RuntimeError) as exc:
+                    path.unlink(missing_ok=True)  # a failed run's checkpoint would fail again
+                    raise _refusal(exc, sim, steps, petal, where) from None
+            distance = (None if model_positions is None else
+                        distance_to_model(np.asarray(rec.positions[-1]), model_positions,
+                                          petal, base))
+            return _Bloom(v0, bud_info, effects, rec, wall, resumed, resumed_step, distance)
+
+        run_ = bloom(lifted=True)
+        if (run_.distance is not None and run_.distance > report.OFF_MODEL
+                and sim["integrator"] == "quasi-static"):
+            # the forward path from the bud the lift picked lands on another equilibrium:
+            # the model's own path back (no lift) may lead to a bud that returns to it
+            log.warning("the bloom ends %.3g petal lengths (RMS) from the model (over %g): "
+                        "its bud is on another branch; searching again along the model's own "
+                        "path (no closing lift)", run_.distance, report.OFF_MODEL)
             try:
-                rec, wall = integrate(model, state, control, integrator, steps=steps,
-                                      frames=frames, h=h, petals=petals, effects=effects,
-                                      progress=bar.update, resume=resumed, checkpoint=saver)
-            except (Diverged, NotConverged, ValueError, RuntimeError) as exc:
-                ckpt.unlink(missing_ok=True)  # a failed run's checkpoint would fail again
-                raise _refusal(exc, sim, steps, petal, where) from None
+                other = bloom(lifted=False)
+            except BloomError as exc:
+                log.warning("no bud without the lift: %s", exc)
+            else:
+                better = other.distance < run_.distance
+                log.info("without the lift the bloom ends %.3g petal lengths from the model: "
+                         "%s", other.distance, "kept" if better else "the first one kept")
+                if better:
+                    run_ = other
+        v, bud_info, effects, rec, wall = run_.bud, run_.bud_info, run_.effects, run_.rec, run_.wall
+        resumed, resumed_step = run_.resumed, run_.resumed_step
         diag = rec.arrays()
         positions = np.asarray(rec.positions)
         if not np.all(np.isfinite(positions)):
@@ -154,8 +191,7 @@ def run(growth_h5: str | Path, out: str | Path, cfg: Config, *, overwrite: bool 
             attrs["resumed_from_step"] = resumed_step
         attrs["growth_start"], attrs["growth_start_rule"] = start.start, start.reason
         if model_positions is not None:
-            attrs["distance_to_model"] = distance_to_model(positions[-1], model_positions,
-                                                           petal, base)
+            attrs["distance_to_model"] = run_.distance
             attrs.update(bud_info)
             log.info("last frame %.3g petal lengths (RMS) from the model",
                      attrs["distance_to_model"])
@@ -194,6 +230,7 @@ def run(growth_h5: str | Path, out: str | Path, cfg: Config, *, overwrite: bool 
                 artifact.put(h5, "effects/connections/broken_step", c.broken_step,
                              "(C,) step at which each spring broke, -1 if intact")
     ckpt.unlink(missing_ok=True)
+    ckpt.with_name(ckpt.name + "-unlifted").unlink(missing_ok=True)
     log.info("wrote %s", out)
 
 
@@ -317,6 +354,22 @@ def _refusal(exc: Exception, sim: dict, steps: int, petal, where: str) -> BloomE
     key = getattr(exc, "key", None) or (  # (contact.ContactError names its key)
         "effects.collisions" if "collision" in str(exc) else "simulate")
     return BloomError(f"{key}: {exc}", where=where)
+
+
+@dataclass
+class _Bloom:
+    """One run of :func:`run`'s: its bud, the bud search's figures, the effects, the
+    frames, wall seconds, the checkpoint it resumed from and the last frame's distance
+    to the model (an open start; else None)."""
+
+    bud: np.ndarray
+    bud_info: dict
+    effects: object
+    rec: object
+    wall: float
+    resumed: object
+    resumed_step: int
+    distance: float | None
 
 
 class _Saver:

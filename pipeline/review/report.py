@@ -26,6 +26,9 @@ from pipeline.sim.terms.contact import frame_intersections
 NEEDS = ("mesh/petal", "growth/hinges", "axis/s", "axis/x", "diagnostics/opening_angle_per_petal")
 #: a petal whose opening at the last frame is under this (degrees) did not open
 NOT_OPEN = 5.0
+#: an open start's last frame further than this from the model (RMS, in petal lengths)
+#: did not bloom back onto it
+OFF_MODEL = 0.01
 
 
 def crossings(X, faces, petal) -> int:
@@ -99,8 +102,8 @@ def soundness(positions: np.ndarray, faces: np.ndarray, opening_per_petal: np.nd
 def summary_line(sound: dict) -> str:
     """The one-line verdict of :func:`soundness`, e.g. "sound: 0 of 121 frames with an
     intersection (checked exactly); last frame 1.6e-13 petal lengths from the model; every
-    petal opened (least 21.3 deg)"; "unsound:" when a frame has an intersection or a petal
-    did not open."""
+    petal opened (least 21.3 deg)"; "unsound:" when a frame has an intersection, a petal
+    did not open, or an open start's last frame is off the model (over :data:`OFF_MODEL`)."""
     left = sound.get("left") or []
     checked = "checked exactly"
     if left:
@@ -108,9 +111,10 @@ def summary_line(sound: dict) -> str:
                     + ", ".join(left[:6]) + (" ..." if len(left) > 6 else ""))
     parts = [f"{sound['intersecting_frames']} of {sound['frames']} frames with an intersection "
              f"({checked})"]
+    off = sound["distance_to_model"] is not None and sound["distance_to_model"] > OFF_MODEL
     if sound["distance_to_model"] is not None:
         parts.append(f"last frame {sound['distance_to_model']:.2g} petal lengths (RMS) from "
-                     "the model")
+                     "the model" + (f" (over {OFF_MODEL:g}: not back on it)" if off else ""))
     final = sound["opening_final_per_petal"]
     if sound["not_opened"]:
         shown = ", ".join(f"{d['name']} {d['opening']:+.1f} deg" for d in sound["not_opened"][:6])
@@ -119,7 +123,7 @@ def summary_line(sound: dict) -> str:
                      f"{NOT_OPEN:g} deg): {shown}" + (f" and {more} more" if more > 0 else ""))
     elif final:
         parts.append(f"every petal opened (least {min(final):.1f} deg)")
-    sound_ = sound["intersecting_frames"] == 0 and not sound["not_opened"]
+    sound_ = sound["intersecting_frames"] == 0 and not sound["not_opened"] and not off
     return ("sound: " if sound_ else "unsound: ") + "; ".join(parts)
 
 

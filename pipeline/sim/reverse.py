@@ -246,15 +246,22 @@ CLOSE_TRIES = 2
 
 
 def _find_bud_closing(cfg, close, model, positions, rest_angle, params, build_effects, petal,
-                      base, s, x, flower_axis, faces, plane):
+                      base, s, x, flower_axis, faces, plane, lifted=True):
     """:func:`open_start`'s bud search at ``close`` (``growth.close``): the bud, the solver,
-    and the model, rest angles and effect parameters that grow from it back to the mesh."""
+    and the model, rest angles and effect parameters that grow from it back to the mesh.
+    ``lifted``: the path starts from the model nudged toward closing (else from the model
+    itself, along its own path)."""
     beta = 0.0
     if cfg["effects.curl.enabled"] is True:
         params = params.but(curl={"beta": close * params.curl.beta})
         rest_angle = open_rest_angle(rest_angle, params.curl.beta)
         beta = params.curl.beta
     model = open_model(model, close, positions, beta)
+    if not lifted:
+        bud, solver = find_bud(model, positions, build_effects(positions),
+                               stages=cfg["simulate.stages"], tolerance=cfg["simulate.tolerance"],
+                               petal=np.asarray(petal), beta=beta)
+        return bud, solver, model, rest_angle, params
     _, up = flower_axis_or_guess(positions, flower_axis)
     size = LIFT * petal_lengths(positions, petal, base).mean()
     if faces is not None and plane is not None:
@@ -276,22 +283,26 @@ def _find_bud_closing(cfg, close, model, positions, rest_angle, params, build_ef
 
 
 def open_start(cfg, model: Model, positions, rest_angle, params: Params, build_effects, petal,
-               base, s, x, flower_axis, where: str, *, faces=None, plane=None):
+               base, s, x, flower_axis, where: str, *, faces=None, plane=None,
+               lifted: bool = True):
     """``growth.start = "open"``: the model at A = 1, the bud at A = 0. Returns the bud's
     positions, the model, rest angles and effect parameters that grow from it back to
     the mesh, and figures for the artifact (``bud_seconds``, ``bud_newton_iterations``,
     ``bud_distance``, ``bud_close``: the growth.close it closed by, halved where the
     full one found no equilibrium). ``build_effects(positions)`` builds the scene's effects at
     ``positions``. With ``faces`` and ``plane`` (each petal's center plane) a lift that
-    would fold a triangle is mended (:func:`unfolded_lift`). Raises :class:`BloomError`
-    naming the key to change."""
+    would fold a triangle is mended (:func:`unfolded_lift`). ``lifted``: the path to the
+    bud starts from the model nudged toward closing (:func:`closing_lift`: it picks the
+    branch where a flat petal could close either way), else from the model itself (its
+    own path: the one a bloom from that bud retraces, where it has no fork). Raises
+    :class:`BloomError` naming the key to change."""
     close = cfg["growth.close"]
     clock = time.perf_counter()
     for attempt in range(CLOSE_TRIES + 1):
         try:
             found = _find_bud_closing(cfg, close, model, positions, rest_angle, params,
                                       build_effects, petal, base, s, x, flower_axis, faces,
-                                      plane)
+                                      plane, lifted)
             break
         except NotConverged as exc:
             if attempt == CLOSE_TRIES:
