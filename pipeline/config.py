@@ -173,7 +173,9 @@ SCHEMA: dict[str, Any] = {
                      choices=("auto", "bud", "open")),
         "close": Key(float, 1.0, "growth.start = open: how far to close, a scale on the "
                      "growth ratios of the backward path (0: the bud is the model; 1: the "
-                     "growth curve undone in full)", low=0.0),
+                     "growth curve undone in full); left unset, a bud under 20 deg more "
+                     "closed than the model is searched again closing twice as far (up to "
+                     "4)", low=0.0),
     },
     "simulate": {
         "steps": Key(int, 200_000, "number of time steps", low=1),

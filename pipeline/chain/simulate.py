@@ -90,6 +90,12 @@ def run(growth_h5: str | Path, out: str | Path, cfg: Config, *, overwrite: bool 
         model_positions = np.asarray(v) if start.start == "open" else None
         bud_model, bud_angle, bud_params = model, rest_angle, params
 
+        def closed_by(bud) -> float:
+            """How much more closed ``bud`` is than the model: the mean over petals of
+            the opening angle's change (deg)."""
+            frames_ = prep.frames(bud).opening_toward(model_positions)
+            return float(np.mean(np.abs(frames_.opening_angles(model_positions))))
+
         def bloom(lifted: bool) -> _Bloom:
             """The run from the bud (an open start: found with the closing lift or
             without, :func:`~pipeline.sim.reverse.open_start`), resumed from its checkpoint
@@ -99,7 +105,7 @@ def run(growth_h5: str | Path, out: str | Path, cfg: Config, *, overwrite: bool 
                 v0, model, rest_angle, params, bud_info = open_start(
                     cfg, model, model_positions, rest_angle, params, build_effects, petal,
                     base, prep.s, prep.x, prep.flower_axis, where, faces=prep.faces,
-                    plane=prep.plane, lifted=lifted)
+                    plane=prep.plane, lifted=lifted, closed_by=closed_by)
             petals = prep.frames(v0)
             if model_positions is not None:  # the model is the open flower: it says which way is out
                 petals = petals.opening_toward(model_positions)

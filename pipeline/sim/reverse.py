@@ -239,6 +239,14 @@ def distance_to_model(positions, model_positions, petal, base) -> float:
     return float(np.sqrt(np.mean(d ** 2)) / petal_lengths(model_positions, petal, base).mean())
 
 
+#: growth.start = open with growth.close left at its default: a bud whose petals are less
+#: than this much more closed than the model (degrees, the mean over petals of the
+#: opening angle's change) is searched again closing twice as far, up to
+#: :data:`MOST_CLOSE` times the default (a flat petal, whose rim's growth undone curls
+#: it across far more than it closes: dimontel's bud, 8.7 deg at 1, 111.9 at 3)
+CLOSED = 20.0
+MOST_CLOSE = 4.0
+
 #: growth.start = open: where the path to the bud finds no equilibrium (a petal that
 #: crumples as it closes: a rose's rolled rim), it is tried again closing half as far,
 #: this many times, before the run is refused
@@ -284,7 +292,7 @@ def _find_bud_closing(cfg, close, model, positions, rest_angle, params, build_ef
 
 def open_start(cfg, model: Model, positions, rest_angle, params: Params, build_effects, petal,
                base, s, x, flower_axis, where: str, *, faces=None, plane=None,
-               lifted: bool = True):
+               lifted: bool = True, closed_by=None):
     """``growth.start = "open"``: the model at A = 1, the bud at A = 0. Returns the bud's
     positions, the model, rest angles and effect parameters that grow from it back to
     the mesh, and figures for the artifact (``bud_seconds``, ``bud_newton_iterations``,
@@ -294,8 +302,11 @@ def open_start(cfg, model: Model, positions, rest_angle, params: Params, build_e
     would fold a triangle is mended (:func:`unfolded_lift`). ``lifted``: the path to the
     bud starts from the model nudged toward closing (:func:`closing_lift`: it picks the
     branch where a flat petal could close either way), else from the model itself (its
-    own path: the one a bloom from that bud retraces, where it has no fork). Raises
-    :class:`BloomError` naming the key to change."""
+    own path: the one a bloom from that bud retraces, where it has no fork).
+    ``closed_by(bud)``: how much more closed a bud is than the model (degrees); with
+    growth.close at its default, a bud under :data:`CLOSED` is searched again closing
+    twice as far (up to :data:`MOST_CLOSE` times). Raises :class:`BloomError` naming the
+    key to change."""
     close = cfg["growth.close"]
     clock = time.perf_counter()
     for attempt in range(CLOSE_TRIES + 1):
@@ -320,6 +331,21 @@ def open_start(cfg, model: Model, positions, rest_angle, params: Params, build_e
             raise BloomError(f"{exc.key}: finding the bud: {exc}", where=where) from None
         except ValueError as exc:
             raise BloomError(f"growth.start: finding the bud: {exc}", where=where) from None
+    if closed_by is not None and "growth.close" not in cfg.given and close == cfg["growth.close"]:
+        turned = closed_by(found[0])
+        while turned < CLOSED and 2.0 * close <= MOST_CLOSE * cfg["growth.close"]:
+            log.info("growth.start = open: the bud at growth.close = %g is %.1f deg more "
+                     "closed than the model (under %g); closing twice as far", close, turned,
+                     CLOSED)
+            try:
+                again = _find_bud_closing(cfg, 2.0 * close, model, positions, rest_angle,
+                                          params, build_effects, petal, base, s, x,
+                                          flower_axis, faces, plane, lifted)
+            except (NotConverged, ContactError, ValueError) as exc:
+                log.info("growth.start = open: no bud at growth.close = %g (%s); the one at "
+                         "%g kept", 2.0 * close, str(exc).split(";")[0], close)
+                break
+            close, found, turned = 2.0 * close, again, closed_by(again[0])
     bud, solver, model, rest_angle, params = found
     seconds = time.perf_counter() - clock
     moved = distance_to_model(bud, positions, petal, base)
