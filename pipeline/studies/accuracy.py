@@ -298,9 +298,11 @@ def accuracy(out_dir, *, petals: int = 6, vertices: int = 2133, quick: bool = Fa
              f"{', '.join(map(str, resolution['counts']))} vertices per petal, "
              f"{', '.join(resolution['models'])}")
         meshes = study.resolution(out_dir / "resolution", echo=echo, **resolution)
+    if meshes:
+        meshes = [{**r, "scene": Path(resolution["config"]).stem} for r in meshes]
     plot(rows, out_dir / "accuracy.png",
-         f"What accuracy costs: {petals}-petal bud, {scene.model.vertex_count} vertices",
-         resolution=meshes)
+         f"What accuracy costs: {petals}-petal bud, {scene.model.vertex_count} vertices, "
+         "the paper's springs", resolution=meshes)
     return rows
 
 
@@ -387,7 +389,8 @@ def plot(rows: list[dict], path, title: str, resolution: list[dict] | None = Non
                                  gridspec_kw={"width_ratios": (1.4, 1, 1)})
         ax = axes[0]
         draw(axes[1:], resolution)
-        axes[1].set_title("mesh resolution: the same surface, other meshes", fontsize=9)
+        axes[1].set_title(f"mesh resolution: {resolution[0].get('scene', 'one')} scene, "
+                          "the same surface at other densities", fontsize=9)
         axes[2].set_title("against each model's finest regular mesh (dotted: 1 deg, 2%)",
                           fontsize=9)
     else:
