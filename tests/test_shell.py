@@ -205,6 +205,31 @@ def test_forces_are_reproducible_to_the_bit_and_parts_assemble_as_the_whole(peta
     assert np.array_equal(blocks.data, whole)
 
 
+def test_the_rounding_bound_reads_the_last_assembly_until_it_is_forgotten(petal):
+    """The solver's rounding bound (each face's |H| row sums times the coordinates'
+    size, plus its gradient) takes the Hessians from the last assembly: after an
+    assembly at X it is the same bits as one taken at X itself. An assembly at a
+    crushed state (a triangle collapsed to a sliver: |H| out of scale) would make it a bound of
+    that state, not of X, until :meth:`forget` (a failed Newton solve calls it: the
+    path goes back), and then it is X's own again."""
+    v, _, model, X, curl = petal
+    term = sh.ShellTerm(model, curl).at(0.3)
+    blocks = sh.ShellBlocks.build(model)
+    fresh, again = np.empty(len(X)), np.empty(len(X))
+    e_fresh = term.rounding(X, fresh, fresh=True)
+    term.assemble(X, blocks)
+    assert term.rounding(X, again) == e_fresh and np.array_equal(again, fresh)
+    face = model.shell.face_indices[len(model.shell.face_indices) // 2]
+    crushed = X.copy()
+    mid = 0.5 * (crushed[face[1]] + crushed[face[2]])
+    crushed[face[0]] = mid + 1e-3 * (crushed[face[0]] - mid)  # (a sliver: 1e-3 of its height)
+    term.assemble(crushed, blocks)
+    term.rounding(X, again)
+    assert np.all(again[face] > 10.0 * fresh[face])  # (measured: 77-222 times)
+    term.forget()
+    assert term.rounding(X, again) == e_fresh and np.array_equal(again, fresh)
+
+
 def test_pattern_holds_every_block_a_face_touches():
     v, f, p, axes, growth = prepared(1, 60)
     opp = sh.face_opposite(f)

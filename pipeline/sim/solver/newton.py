@@ -203,6 +203,15 @@ class Newton:
         return energy
 
     def solve(self, model, state, effects, A: float) -> Failure | None:
+        """:meth:`_solve`; where it fails, the elastic term forgets what its rounding
+        bound read from this solve's assemblies (the path goes back to where it was: an
+        iterate's Hessian, a collapsing triangle's, is no bound there)."""
+        failure = self._solve(model, state, effects, A)
+        if failure is not None:
+            self.terms.elastic.forget()
+        return failure
+
+    def _solve(self, model, state, effects, A: float) -> Failure | None:
         """Newton iterations at growth A; None when converged, else why not.
 
         The pieces (petals) are grouped: those a contact or a connection spring joins
@@ -255,7 +264,11 @@ class Newton:
             self.residuals.append(residual)
             scale, self.energy_rounding = self.rounding(X)
             rounding = ROUNDING_FACTOR * EPS * scale
-            if self.reference > 0.0 and self.sheet[0] > OUT_OF_SCALE * self.reference:
+            if residual <= rounding or self._out_of_scale():
+                # (the bound read from the last assembly decides nothing: taken afresh)
+                scale, self.energy_rounding = self.rounding(X, fresh=True)
+                rounding = ROUNDING_FACTOR * EPS * scale
+            if self._out_of_scale():
                 # (before the test at rounding: that level has gone out of scale too)
                 return Failure(residual, scale, "degenerate", self.factor_inertia(),
                                vertex=self.sheet[1], out_of_scale=self.sheet[0] / self.reference)
@@ -354,10 +367,15 @@ class Newton:
                        vertex=_largest(self.constrained(-scratch)) if self._accepted is not None
                        else -1)
 
+    def _out_of_scale(self) -> bool:
+        """Whether the sheet's force scale at the last iterate is :data:`OUT_OF_SCALE`
+        times where the path started (a triangle collapsed)."""
+        return self.reference > 0.0 and self.sheet[0] > OUT_OF_SCALE * self.reference
+
     def sheet_scale(self, X) -> float:
         """The sheet's force scale at X (the elastic kernel's, largest over the free
         vertices: :meth:`rounding`), at the growth last set."""
-        self.rounding(X)
+        self.rounding(X, fresh=True)
         return self.sheet[0]
 
     def factor_inertia(self, lost=None) -> str:
@@ -367,17 +385,18 @@ class Newton:
             return "singular"
         return "definite" if all(g.positive for g in groups) else "indefinite"
 
-    def rounding(self, X) -> tuple[float, float]:
+    def rounding(self, X, fresh: bool = False) -> tuple[float, float]:
         """The force scale (the largest, over the vertices, of what the force kernel adds
         and subtracts there: :func:`~pipeline.sim.terms.elastic.rounding_scale`) and the rounding level of
         the energy. ``eps`` times the force scale bounds the gradient that rounding
         alone leaves (of coordinates, lengths, angles and sums), on any machine: a
         residual below it is no reason to iterate. Both scale with the stiffnesses and
-        with the mesh's size, as the forces do."""
+        with the mesh's size, as the forces do. ``fresh``: the elastic term's bound of
+        X itself (the shell's reads the Hessians of the last assembly otherwise)."""
         per_vertex = self._scale_work
         if per_vertex is None or len(per_vertex) != len(X):
             per_vertex = self._scale_work = np.empty(len(X))
-        energy = self.terms.elastic.rounding(X, per_vertex)
+        energy = self.terms.elastic.rounding(X, per_vertex, fresh=fresh)
         free = ~self.system.pinned
         if free.any():  # (the sheet's own: what a collapsed triangle drives out of scale)
             worst = int(np.argmax(np.where(free, per_vertex, -np.inf)))

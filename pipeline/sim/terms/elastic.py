@@ -184,7 +184,10 @@ class Elastic(Term):
     def restore(self, saved) -> None:
         pass
 
-    def rounding(self, X, per_vertex) -> float:
+    def forget(self) -> None:
+        """(Nothing kept from one evaluation to the next: see the shell's.)"""
+
+    def rounding(self, X, per_vertex, fresh: bool = False) -> float:
         """What the force kernel adds and subtracts, per vertex into ``per_vertex``; the
         energy's rounding scale (see :func:`~pipeline.sim.hessian.rounding_scale`)."""
         s, b = self.stretch, self.bending

@@ -385,18 +385,24 @@ class ShellTerm(Term):
         self.assemble(X, self._blocks)
         return self._blocks.matrix().tocsr()
 
-    def rounding(self, X, per_vertex) -> float:
+    def rounding(self, X, per_vertex, fresh: bool = False) -> float:
         """The force scale per vertex and the energy's (:func:`shell_rounding`). Each
-        face's Hessian is taken here the first time only; after that, the row sums
-        of ``|H|`` that the last assembly left are used (a bound of the rounding need
-        not be of this very X: the Hessian moves little from one Newton iterate to the
-        next, and the gradient's part is of X), which cuts this from ten force
-        evaluations' work to one."""
-        full = self.face_h is None
+        face's Hessian is taken here if ``fresh``, the first time, or after
+        :meth:`forget`; otherwise the row sums of ``|H|`` that the last assembly left
+        are used (a bound of the rounding need not be of this very X: the Hessian
+        moves little from one Newton iterate to the next, and the gradient's part is of
+        X), which cuts this from ten force evaluations' work to one. The solver takes
+        it fresh where it decides on it (converged at rounding, a collapsed triangle)."""
+        full = fresh or self.face_h is None
         energy = shell_rounding(self._with_anchors(X), *self._args(), self.A, self.curl, full,
                                 self._h, per_vertex, self._scratch)
         self.face_h = self._h
         return energy
+
+    def forget(self) -> None:
+        """Drop the row sums the assemblies left (the next :meth:`rounding` takes its
+        own): the path went back to a state they are not of."""
+        self.face_h = None
 
     def snapshot(self):
         """What a checkpoint keeps of this term: the row sums :meth:`rounding` reads."""
