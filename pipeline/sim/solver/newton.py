@@ -29,6 +29,10 @@ from pipeline.sim.terms.inertia import Inertia
 
 #: how far (mesh units) a search along a direction of negative curvature may go
 DESCENT = 2.0
+#: its first length (1e-3 times 2^6): the best is 0.03-0.26 in 80% of the searches on
+#: the real models (hallgeirl's 530: median 0.128), so a search from 1e-3 spent 8.4
+#: energies each, most of them on lengths that are never the best
+DESCENT_FIRST = 0.064
 
 #: a gradient component below this many times ``eps`` times the force scale (the size of
 #: what the force kernel adds and subtracts at that vertex,
@@ -466,20 +470,40 @@ class Newton:
 
     def descend(self, X, scratch, energy, d) -> float:
         """Move X along the downhill negative-curvature direction ``d``
-        (:meth:`downhill`), by the length (doubling from 1e-3, at most
-        :data:`DESCENT` mesh units) that lowers the energy most; returns the energy
-        there."""
+        (:meth:`downhill`), by the length that lowers the energy most among 1e-3 times
+        powers of 2 (at most :data:`DESCENT` mesh units): from :data:`DESCENT_FIRST`,
+        doubled while the energy falls, or else halved until it falls below X's and on
+        while it falls (down to 1e-3); returns the energy there."""
         base = X.copy()
-        best, best_length, length = energy, 0.0, 1e-3
         top = DESCENT  # (no further than contact allows)
         if self.contact is not None:
             top *= self.contact.max_step(base, base + top * d)
-        while length <= top:
+
+        def at(length):
             X[:] = base + length * d
-            trial = self.energy(X, scratch)
-            if trial >= best:
-                break
-            best, best_length = trial, length
-            length *= 2.0
+            return self.energy(X, scratch)
+
+        best, best_length = energy, 0.0
+        length = DESCENT_FIRST
+        while length > top and length >= 2e-3:
+            length *= 0.5
+        if length <= top:
+            trial = at(length)
+            if trial < best:  # longer while it falls
+                best, best_length = trial, length
+                while 2.0 * length <= top:
+                    length *= 2.0
+                    trial = at(length)
+                    if trial >= best:
+                        break
+                    best, best_length = trial, length
+            else:  # shorter until it falls, then on while it falls
+                while length >= 2e-3:
+                    length *= 0.5
+                    trial = at(length)
+                    if trial < best:
+                        best, best_length = trial, length
+                    elif best_length > 0.0:
+                        break
         X[:] = base + best_length * d
         return best
