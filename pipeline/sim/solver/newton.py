@@ -232,9 +232,9 @@ class Newton:
         Where a group's H is positive definite the step is Newton's. A group's last
         factorization (of the equilibrium before, if it was positive definite and
         unshifted) is reused for as long as each step is at most ``CHORD`` times the one
-        before it, the predictor's first (a chord step: the Hessian has barely changed
-        where it matters; a factorization is most of an iteration's cost); otherwise it
-        is factored afresh. Where H is not positive definite (the path is at a
+        before it, the predictor's first, or under ``tolerance`` (the group converges
+        with it) (a chord step: the Hessian has barely changed where it matters; a
+        factorization is most of an iteration's cost); otherwise it is factored afresh. Where H is not positive definite (the path is at a
         bifurcation or a snap, or the prediction is far off), the energy is first
         searched along a direction of negative curvature read from the factorization
         (so a saddle is left in one step rather than by slow amplification of the
