@@ -216,19 +216,21 @@ def test_dimontels_petal_opens_with_the_default_config(tmp_path):
 
 @needs_shared
 def test_an_open_petal_whose_lifted_bud_blooms_elsewhere_is_searched_again(tmp_path):
-    """ericrius1's petal, default config: the bud the closing lift picks (0.70 petal
-    lengths from the model, at growth.close 0.5) blooms forward onto another equilibrium,
-    0.27 petal lengths from the model, and the run called that sound. Now the stage sees
-    it, searches again along the model's own path (no lift: a bud 0.79 away at
-    growth.close 1), and that bloom ends on the model."""
+    """ericrius1's petal, default config: the bud the closing lift picked (0.70 petal
+    lengths from the model, at growth.close 0.5) bloomed forward onto another
+    equilibrium, 0.27 petal lengths from the model, and the run called that sound. Now
+    a bloom off its model, or a lifted search that finds no bud (as this one does since
+    the descents start at 0.064), searches along the model's own path (no lift: a bud
+    0.79 away at growth.close 1), and that bloom ends on the model."""
     src = str(EXTERNAL / "ericrius1_petal.obj")
     for stage, dst in (("remesh", "r.h5"), ("axis", "a.h5"), ("growth", "g.h5"),
                        ("simulate", "s.h5")):
         r = CliRunner().invoke(cli, [stage, src, "--out", str(tmp_path / dst)])
         assert r.exit_code == 0, r.output
         src = str(tmp_path / dst)
-    assert "searching again along the model's own path" in r.output
+    assert "the model's own path" in r.output
     with h5py.File(tmp_path / "s.h5") as h:
+        assert h.attrs["bud_path"] == "own" and h.attrs["bud_close"] == 1.0
         assert h.attrs["distance_to_model"] < 1e-3
         assert h.attrs["bud_distance"] > 0.5
         assert h["diagnostics/opening_angle_per_petal"][-1, 0] > 20.0

@@ -158,7 +158,7 @@ def run(growth_h5: str | Path, out: str | Path, cfg: Config, *, overwrite: bool 
 
         run_ = bloom(lifted=True)
         if (run_.distance is not None and run_.distance > report.OFF_MODEL
-                and sim["integrator"] == "quasi-static"):
+                and sim["integrator"] == "quasi-static" and run_.bud_info["bud_path"] == "lifted"):
             # the forward path from the bud the lift picked lands on another equilibrium:
             # the model's own path back (no lift) may lead to a bud that returns to it
             log.warning("the bloom ends %.3g petal lengths (RMS) from the model (over %g): "

@@ -297,8 +297,10 @@ def open_start(cfg, model: Model, positions, rest_angle, params: Params, build_e
     positions, the model, rest angles and effect parameters that grow from it back to
     the mesh, and figures for the artifact (``bud_seconds``, ``bud_newton_iterations``,
     ``bud_distance``, ``bud_close``: the growth.close it closed by, halved where the
-    full one found no equilibrium). ``build_effects(positions)`` builds the scene's effects at
-    ``positions``. With ``faces`` and ``plane`` (each petal's center plane) a lift that
+    full one found no equilibrium; ``bud_path``: lifted or own, the path it took; with
+    the lift, no bud down to the last halving tries the model's own path).
+    ``build_effects(positions)`` builds the scene's effects at ``positions``. With
+    ``faces`` and ``plane`` (each petal's center plane) a lift that
     would fold a triangle is mended (:func:`unfolded_lift`). ``lifted``: the path to the
     bud starts from the model nudged toward closing (:func:`closing_lift`: it picks the
     branch where a flat petal could close either way), else from the model itself (its
@@ -316,6 +318,13 @@ def open_start(cfg, model: Model, positions, rest_angle, params: Params, build_e
                                       plane, lifted)
             break
         except NotConverged as exc:
+            if attempt == CLOSE_TRIES and lifted:  # the model's own path, before refusing
+                log.warning("growth.start = open: with the closing lift the path to the bud "
+                            "found no equilibrium down to growth.close = %g; searching along "
+                            "the model's own path", close)
+                return open_start(cfg, model, positions, rest_angle, params, build_effects,
+                                  petal, base, s, x, flower_axis, where, faces=faces,
+                                  plane=plane, lifted=False, closed_by=closed_by)
             if attempt == CLOSE_TRIES:
                 tried = (f" (tried closing down to growth.close = {close:g})"
                          if CLOSE_TRIES else "")
@@ -353,4 +362,5 @@ def open_start(cfg, model: Model, positions, rest_angle, params: Params, build_e
              "petal lengths (RMS) from the model", seconds, solver.iterations, moved)
     return bud, model, rest_angle, params, {"bud_seconds": seconds,
                                             "bud_newton_iterations": solver.iterations,
-                                            "bud_distance": moved, "bud_close": close}
+                                            "bud_distance": moved, "bud_close": close,
+                                            "bud_path": "lifted" if lifted else "own"}

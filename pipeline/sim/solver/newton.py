@@ -29,9 +29,8 @@ from pipeline.sim.terms.inertia import Inertia
 
 #: how far (mesh units) a search along a direction of negative curvature may go
 DESCENT = 2.0
-#: its first length (1e-3 times 2^6): the best is 0.03-0.26 in 80% of the searches on
-#: the real models (hallgeirl's 530: median 0.128), so a search from 1e-3 spent 8.4
-#: energies each, most of them on lengths that are never the best
+#: its first length (1e-3 times 2^6): the best is 0.03-0.26 in 80% of hallgeirl's 530
+#: searches (from 1e-3 each took 8.4 energies, most on lengths never the best)
 DESCENT_FIRST = 0.064
 
 #: a gradient component below this many times ``eps`` times the force scale (the size of
@@ -234,7 +233,8 @@ class Newton:
         unshifted) is reused for as long as each step is at most ``CHORD`` times the one
         before it, the predictor's first, or under ``tolerance`` (the group converges
         with it) (a chord step: the Hessian has barely changed where it matters; a
-        factorization is most of an iteration's cost); otherwise it is factored afresh. Where H is not positive definite (the path is at a
+        factorization is most of an iteration's cost); otherwise it is factored afresh.
+        Where H is not positive definite (the path is at a
         bifurcation or a snap, or the prediction is far off), the energy is first
         searched along a direction of negative curvature read from the factorization
         (so a saddle is left in one step rather than by slow amplification of the
@@ -479,31 +479,18 @@ class Newton:
         if self.contact is not None:
             top *= self.contact.max_step(base, base + top * d)
 
-        def at(length):
-            X[:] = base + length * d
-            return self.energy(X, scratch)
-
-        best, best_length = energy, 0.0
-        length = DESCENT_FIRST
-        while length > top and length >= 2e-3:
+        best, best_length, grow = energy, 0.0, None
+        length, low = DESCENT_FIRST, DESCENT_FIRST / 64.0  # (1e-3, on the lattice)
+        while length > top and length > low:
             length *= 0.5
-        if length <= top:
-            trial = at(length)
-            if trial < best:  # longer while it falls
+        while low <= length <= top:
+            X[:] = base + length * d
+            trial = self.energy(X, scratch)
+            if trial < best:
                 best, best_length = trial, length
-                while 2.0 * length <= top:
-                    length *= 2.0
-                    trial = at(length)
-                    if trial >= best:
-                        break
-                    best, best_length = trial, length
-            else:  # shorter until it falls, then on while it falls
-                while length >= 2e-3:
-                    length *= 0.5
-                    trial = at(length)
-                    if trial < best:
-                        best, best_length = trial, length
-                    elif best_length > 0.0:
-                        break
+            elif grow or best_length > 0.0:
+                break
+            grow = (trial < energy) if grow is None else grow
+            length *= 2.0 if grow else 0.5
         X[:] = base + best_length * d
         return best
