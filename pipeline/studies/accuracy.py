@@ -298,11 +298,10 @@ def accuracy(out_dir, *, petals: int = 6, vertices: int = 2133, quick: bool = Fa
              f"{', '.join(map(str, resolution['counts']))} vertices per petal, "
              f"{', '.join(resolution['models'])}")
         meshes = study.resolution(out_dir / "resolution", echo=echo, **resolution)
-    if meshes:
-        meshes = [{**r, "scene": Path(resolution["config"]).stem} for r in meshes]
     plot(rows, out_dir / "accuracy.png",
          f"What accuracy costs: {petals}-petal bud, {scene.model.vertex_count} vertices, "
-         "the paper's springs", resolution=meshes)
+         "the paper's springs", resolution=meshes,
+         scene=None if resolution is None else Path(resolution["config"]).stem)
     return rows
 
 
@@ -373,10 +372,12 @@ def time_to_converge(scene: Scene, reference_positions, target: float = 0.01,
     return rows
 
 
-def plot(rows: list[dict], path, title: str, resolution: list[dict] | None = None) -> None:
+def plot(rows: list[dict], path, title: str, resolution: list[dict] | None = None,
+         scene: str | None = None) -> None:
     """Error against wall seconds, log-log, one curve per integrator; with
-    ``resolution`` (a resolution study's rows), its two panels beside it: each elastic
-    model's difference from its finest mesh against the vertices."""
+    ``resolution`` (a resolution study's rows, of the scene named ``scene``), its two
+    panels beside it: each elastic model's difference from its finest mesh against the
+    vertices."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -389,7 +390,7 @@ def plot(rows: list[dict], path, title: str, resolution: list[dict] | None = Non
                                  gridspec_kw={"width_ratios": (1.4, 1, 1)})
         ax = axes[0]
         draw(axes[1:], resolution)
-        axes[1].set_title(f"mesh resolution: {resolution[0].get('scene', 'one')} scene, "
+        axes[1].set_title(f"mesh resolution: {scene or 'one'} scene, "
                           "the same surface at other densities", fontsize=9)
         axes[2].set_title("against each model's finest regular mesh (dotted: 1 deg, 2%)",
                           fontsize=9)

@@ -308,9 +308,9 @@ class ShellTerm(Term):
         self._scratch = np.zeros(KERNEL_SCRATCH)
         self._blocks = None
         #: each face's row sums of |H| (:func:`shell_rounding`), as the last assembly or
-        #: full rounding left them; None: none taken yet
-        self.face_h = None
+        #: full rounding left them
         self._h = np.zeros((self.shell.face_count, 6))
+        self._h_taken = False  #: whether ``_h`` holds every face's (else: take them)
         self._rows = np.arange(self.shell.face_count)
         anchors = self.shell.anchors
         self._points = None if anchors is None or len(anchors) == 0 else np.zeros(
@@ -393,22 +393,22 @@ class ShellTerm(Term):
         moves little from one Newton iterate to the next, and the gradient's part is of
         X), which cuts this from ten force evaluations' work to one. The solver takes
         it fresh where it decides on it (converged at rounding, a collapsed triangle)."""
-        full = fresh or self.face_h is None
+        full = fresh or not self._h_taken
         energy = shell_rounding(self._with_anchors(X), *self._args(), self.A, self.curl, full,
                                 self._h, per_vertex, self._scratch)
-        self.face_h = self._h
+        self._h_taken = True
         return energy
 
     def forget(self) -> None:
         """Drop the row sums the assemblies left (the next :meth:`rounding` takes its
         own): the path went back to a state they are not of."""
-        self.face_h = None
+        self._h_taken = False
 
     def snapshot(self):
         """What a checkpoint keeps of this term: the row sums :meth:`rounding` reads."""
-        return None if self.face_h is None else self.face_h.copy()
+        return self._h.copy() if self._h_taken else None
 
     def restore(self, saved) -> None:
         if saved is not None:
             self._h[:] = saved
-            self.face_h = self._h
+            self._h_taken = True
