@@ -11,6 +11,7 @@ share per-pair records and are only meaningful together."""
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from itertools import chain
 
 import numpy as np
 import scipy.sparse as sp
@@ -209,7 +210,7 @@ def separate(vertices: np.ndarray, faces: np.ndarray, petal: np.ndarray, gap: fl
             reason = reason or why
             break
         rows = _overlap_rows(X, F, E, petal, crossing, area, length, max_move, gap, sides)
-        rows += [r for _, _, _, r in near]
+        rows += [(ids[None], grad[None], np.array([need])) for _, _, _, (ids, grad, need) in near]
         D = _solve(X, graph, rows, petal, spread / edge)
         X = X + D
         reach = np.linalg.norm(X - X0, axis=1) / length[petal]
@@ -412,66 +413,88 @@ def _overlap_rows(X, F, E, petal, crossing, area, length, max_move, gap, sides) 
     normals = vertex_normals(X, F)
     rim = _rim(F, E, petal)
     ea, fb = petal[E[crossing[:, 0], 0]], petal[F[crossing[:, 1], 0]]
+    found = []
     for a, b in _pair_list(crossing, E, F, petal):
         reach = max_move * (length[a] + length[b])
         mine = crossing[((ea == a) & (fb == b)) | ((ea == b) & (fb == a))]
-        seeds = np.unique(np.r_[E[mine[:, 0]].ravel(), F[mine[:, 1]].ravel()])
         recs = [_records(X, F, petal, normals, rim, p, q, reach) for p, q in ((a, b), (b, a))]
         # each record's side in a's terms: +1 where a lies on the side of b's normals
         for k, r in enumerate(recs):
             r["says"] = np.sign(r["s"]) if k == 0 else -np.sign(r["s"]) * np.sign(r["kappa"])
-            r["joined"] = _joined(E[rim["edge_rows"][a if k == 0 else b]], r, seeds)
+        found.append((a, b, mine, recs))
+    _joined(E, F, rim, found)
+    for a, b, mine, recs in found:
         if (a, b) not in sides:  # the side most of the overlap is on (a tie: b's normal side)
             weight = [sum(float(area[r["vertex"][r["joined"] & (r["says"] == sg)]].sum())
                           for r in recs) for sg in (1.0, -1.0)]
             sides[(a, b)] = 1.0 if weight[0] >= weight[1] else -1.0
         side = sides[(a, b)]
         for k, r in enumerate(recs):
-            v = r["vertex"]
-            wrong = r["joined"] & (r["says"] != side)
-            # the side of the other petal this one belongs on, by the other's normal
-            want = np.where(wrong, side if k == 0 else -side * np.sign(r["kappa"]),
-                            np.sign(r["s"]))
-            for i in np.flatnonzero(wrong | (r["d"] < gap)):
-                if wrong[i] or r["over"][i]:
-                    direction, have = want[i] * r["n"][i], want[i] * r["s"][i]
-                else:  # beside the other's rim, too close: straight away from it
-                    u = r["dv"][i]
-                    norm = np.linalg.norm(u)
-                    if not norm > 0.0:
-                        continue
-                    direction, have = u / norm, norm
-                need = PUSH * gap - have
-                if need > 0.0:
-                    ids = np.r_[v[i], F[r["face"][i]]]
-                    grad = np.vstack([direction, -r["bary"][i][:, None] * direction])
-                    rows.append((ids, grad, need))
-        # every crossing asks too, its edge's end on the wrong side across the face's plane
-        # (an edge through a petal's rim may have neither end over or under it)
-        for e, f in mine:
-            tri = X[F[f]]
-            nf = np.cross(tri[1] - tri[0], tri[2] - tri[0])
-            nf /= max(np.linalg.norm(nf), 1e-300)
-            want = side
-            if petal[E[e, 0]] != a:  # the side of a that b belongs on, by a's normal
-                want = -side * (1.0 if normals[E[e, 0]] @ nf >= 0.0 else -1.0)
-            ends = X[E[e]]
-            t = (ends - tri[0]) @ nf
-            cut = ends[0] + (ends[1] - ends[0]) * (t[0] / (t[0] - t[1]) if t[0] != t[1] else 0.5)
-            bary = _plane_bary(cut, tri)
-            for k in range(2):
-                need = PUSH * gap - want * t[k]
-                if need > 0.0:
-                    rows.append((np.r_[E[e, k], F[f]],
-                                 np.vstack([want * nf, -bary[:, None] * want * nf]), need))
-    return rows
+            rows.append(_push_rows(r, F, side if k == 0 else None, side, gap))
+        rows.append(_crossing_rows(X, F, E, petal, normals, mine, a, side, gap))
+    return [block for block in rows if len(block[2])]
+
+
+def _push_rows(r, F, mine, side, gap):
+    """The rows of the records ``r`` of one petal against the other (a block: ``ids``
+    (m, 4), ``grad`` (m, 4, 3), ``need`` (m,)): each vertex on the wrong side (``side`` is
+    the side of ``b`` that ``a`` belongs on; ``mine`` is ``side`` for ``a``'s records,
+    None for ``b``'s) across to ``PUSH`` gaps on its side, and each vertex nearer than the
+    gap away: along the other's normal where it is over or under it, else straight away
+    from it."""
+    wrong = r["joined"] & (r["says"] != side)
+    # the side of the other petal this one belongs on, by the other's normal
+    belongs = mine if mine is not None else -side * np.sign(r["kappa"])
+    want = np.where(wrong, belongs, np.sign(r["s"]))
+    pick = np.flatnonzero(wrong | (r["d"] < gap))
+    normal = wrong[pick] | r["over"][pick]
+    u = r["dv"][pick]
+    norm = np.linalg.norm(u, axis=1)
+    w = want[pick]
+    direction = np.where(normal[:, None], w[:, None] * r["n"][pick],
+                         u / np.where(norm > 0.0, norm, 1.0)[:, None])
+    have = np.where(normal, w * r["s"][pick], norm)
+    need = PUSH * gap - have
+    keep = (normal | (norm > 0.0)) & (need > 0.0)
+    pick, direction, need = pick[keep], direction[keep], need[keep]
+    ids = np.column_stack([r["vertex"][pick], F[r["face"][pick]]])
+    grad = np.concatenate([direction[:, None], -r["bary"][pick][:, :, None] * direction[:, None]],
+                          axis=1)
+    return ids, grad, need
+
+
+def _crossing_rows(X, F, E, petal, normals, mine, a, side, gap):
+    """Every crossing ``(edge, face)`` of ``mine`` asks too (a block of rows, as
+    :func:`_push_rows`): its edge's ends on the wrong side across the face's plane (an
+    edge through a petal's rim may have neither end over or under it)."""
+    e, f = mine[:, 0], mine[:, 1]
+    tri = X[F[f]]
+    nf = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    nf /= np.maximum(np.linalg.norm(nf, axis=1), 1e-300)[:, None]
+    # the side of the face's petal the edge's belongs on: a's side of b; b's side of a,
+    # by a's normal
+    flip = np.where(np.einsum("ij,ij->i", normals[E[e, 0]], nf) >= 0.0, 1.0, -1.0)
+    want = np.where(petal[E[e, 0]] != a, -side * flip, side)
+    ends = X[E[e]]
+    t = np.einsum("ikj,ij->ik", ends - tri[:, :1], nf)
+    same = t[:, 0] == t[:, 1]
+    frac = np.where(same, 0.5, t[:, 0] / np.where(same, 1.0, t[:, 0] - t[:, 1]))
+    cut = ends[:, 0] + (ends[:, 1] - ends[:, 0]) * frac[:, None]
+    bary = _plane_bary(cut, tri)
+    need = PUSH * gap - want[:, None] * t  # (n, 2): each end of each crossing's edge
+    d = want[:, None] * nf
+    ids = np.stack([np.column_stack([E[e, k], F[f]]) for k in range(2)], axis=1)
+    grad = np.concatenate([d[:, None], -bary[:, :, None] * d[:, None]], axis=1)
+    ask = need > 0.0  # (in the order of the crossings, each edge's first end then its second)
+    return ids[ask], np.broadcast_to(grad[:, None], (len(e), 2, 4, 3))[ask], need[ask]
 
 
 def _rim(F, E, petal) -> dict:
     """The mesh's boundary: ``vertex (V,) bool``, and ``edges``, sorted keys ``i * count + j``
     (i < j) of its boundary edges; and each petal's vertices, faces and edges
     (``verts``, ``faces``, ``edge_rows``: lists by petal, ascending), so that a pair's
-    records look at its two petals only, not the whole mesh."""
+    records look at its two petals only, not the whole mesh; ``near``, each petal's
+    look-up for closest points (:func:`_records` fills it: once a round, not once a pair)."""
     count = len(petal)
     edges, _, uses = unique_edges(F)
     rim = edges[uses == 1]
@@ -480,7 +503,7 @@ def _rim(F, E, petal) -> dict:
     n = int(petal.max()) + 1
     return {"vertex": vertex, "edges": np.sort(rim[:, 0] * count + rim[:, 1]), "count": count,
             "verts": _by(petal, n), "faces": _by(petal[F[:, 0]], n),
-            "edge_rows": _by(petal[E[:, 0]], n)}
+            "edge_rows": _by(petal[E[:, 0]], n), "near": {}}
 
 
 def _by(label, count: int) -> list[np.ndarray]:
@@ -490,42 +513,59 @@ def _by(label, count: int) -> list[np.ndarray]:
     return [order[bounds[k]:bounds[k + 1]] for k in range(count)]
 
 
-def _joined(E, r, seeds) -> np.ndarray:
-    """(n,) bool, per record of ``r``: over or under the other petal and joined to a
-    crossing (a vertex of ``seeds``) through the edges ``E`` (its petal's), by vertices
-    over or under the other petal on the same side."""
-    v = r["vertex"][r["over"]]
-    if not len(v):
-        return np.zeros(len(r["vertex"]), dtype=bool)
-    says = r["says"][r["over"]]
-    slot = np.full(max(int(E.max()), int(v.max())) + 1, -1, dtype=np.int64)
-    slot[v] = np.arange(len(v))
-    i, j = slot[E[:, 0]], slot[E[:, 1]]
-    keep = (i >= 0) & (j >= 0)
-    i, j = i[keep], j[keep]
-    keep = says[i] == says[j]
-    g = sp.coo_matrix((np.ones(int(keep.sum())), (i[keep], j[keep])), shape=(len(v), len(v)))
-    _, label = connected_components(g, directed=False)
-    seeded = np.zeros(label.max() + 1, dtype=bool)
-    mine = np.isin(v, seeds)
-    seeded[label[mine]] = True
-    out = np.zeros(len(r["vertex"]), dtype=bool)
-    out[r["over"]] = seeded[label]
-    return out
+def _joined(E, F, rim, found) -> None:
+    """Sets each record's ``joined`` (n,) bool, of every pair in ``found`` (``(a, b,
+    crossings, records)``): over or under the other petal and joined to a crossing (an
+    end of one of the pair's crossings) through its petal's edges, by vertices over or
+    under the other petal on the same side. (One graph for all records: one search.)"""
+    rows, cols, seeded, first = [], [], [], [0]
+    for a, b, mine, recs in found:
+        seeds = np.unique(np.r_[E[mine[:, 0]].ravel(), F[mine[:, 1]].ravel()])
+        for p, r in zip((a, b), recs, strict=True):
+            v = r["vertex"][r["over"]]  # (ascending: the records are in vertex order)
+            says = r["says"][r["over"]]
+            e = E[rim["edge_rows"][p]]
+            i = np.minimum(np.searchsorted(v, e), max(len(v) - 1, 0))
+            keep = (v[i[:, 0]] == e[:, 0]) & (v[i[:, 1]] == e[:, 1]) if len(v) else \
+                np.zeros(len(e), dtype=bool)
+            i = i[keep]
+            i = i[says[i[:, 0]] == says[i[:, 1]]]
+            rows.append(i[:, 0] + first[-1])
+            cols.append(i[:, 1] + first[-1])
+            seeded.append(np.isin(v, seeds))
+            first.append(first[-1] + len(v))
+    n = first[-1]
+    seeded = np.concatenate(seeded) if seeded else np.zeros(0, dtype=bool)
+    if n:
+        rows, cols = np.concatenate(rows), np.concatenate(cols)
+        graph = sp.coo_matrix((np.ones(len(rows)), (rows, cols)), shape=(n, n))
+        label = connected_components(graph, directed=False)[1]
+        hit = np.zeros(label.max() + 1, dtype=bool)
+        hit[label[seeded]] = True
+        seeded = hit[label]
+    k = 0
+    for _, _, _, recs in found:
+        for r in recs:
+            r["joined"] = np.zeros(len(r["vertex"]), dtype=bool)
+            r["joined"][r["over"]] = seeded[first[k]:first[k + 1]]
+            k += 1
 
 
 def _plane_bary(point, tri) -> np.ndarray:
-    """Barycentric coordinates of ``point``'s projection on the plane of ``tri``, clamped
-    to the triangle (non-negative, summing to 1)."""
-    e0, e1, p = tri[1] - tri[0], tri[2] - tri[0], point - tri[0]
-    d00, d01, d11 = e0 @ e0, e0 @ e1, e1 @ e1
+    """(n, 3) barycentric coordinates of each ``point`` (n, 3)'s projection on the plane
+    of its triangle ``tri`` (n, 3, 3), clamped to the triangle (non-negative, summing to
+    1; the centre for a degenerate triangle)."""
+    e0, e1, p = tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0], point - tri[:, 0]
+    dot = lambda x, y: np.einsum("ij,ij->i", x, y)  # noqa: E731
+    d00, d01, d11 = dot(e0, e0), dot(e0, e1), dot(e1, e1)
     denom = d00 * d11 - d01 * d01
-    if not denom > 0.0:
-        return np.full(3, 1.0 / 3.0)
-    v = (d11 * (p @ e0) - d01 * (p @ e1)) / denom
-    w = (d00 * (p @ e1) - d01 * (p @ e0)) / denom
-    out = np.clip(np.array([1.0 - v - w, v, w]), 0.0, None)
-    return out / out.sum()
+    good = denom > 0.0
+    denom = np.where(good, denom, 1.0)
+    v = (d11 * dot(p, e0) - d01 * dot(p, e1)) / denom
+    w = (d00 * dot(p, e1) - d01 * dot(p, e0)) / denom
+    out = np.clip(np.column_stack([1.0 - v - w, v, w]), 0.0, None)
+    out = np.where(good[:, None], out, 1.0 / 3.0)
+    return out / out.sum(axis=1, keepdims=True)
 
 
 def _records(X, F, petal, normals, rim, a, b, reach) -> dict:
@@ -536,30 +576,21 @@ def _records(X, F, petal, normals, rim, a, b, reach) -> dict:
     closest point is not on ``b``'s rim, ``rim`` of :func:`_rim`), and ``kappa``: the
     cosine between ``a``'s normal at the vertex and ``n``."""
     va, fb = rim["verts"][a], rim["faces"][b]
-    used = np.unique(F[fb])
-    tri = X[F[fb]]
-    longest = float(np.linalg.norm(tri - tri[:, [1, 2, 0]], axis=2).max())
-    tree = cKDTree(X[used])
-    # the closest point on b lies in a triangle with a corner within d0 + longest (d0:
-    # the nearest vertex of b), and no nearer than d0 - longest: those vertices of a that
-    # can be within reach, against the triangles that can hold their closest point
-    d0, _ = tree.query(X[va])
+    if b not in rim["near"]:
+        tri = X[F[fb]]
+        rim["near"][b] = (float(np.linalg.norm(tri - tri[:, [1, 2, 0]], axis=2).max()),
+                          cKDTree(X[np.unique(F[fb])]), cKDTree(tri.mean(axis=1)))
+    longest, corners, centres = rim["near"][b]
+    # the closest point on b is no further than the nearest corner (d0), in a triangle
+    # whose every point, its centre too, is within ``longest`` of it: those vertices of a
+    # that can be within reach, against the triangles whose centres are within d0 + longest
+    d0, _ = corners.query(X[va])
     can = d0 - longest <= reach
     va, d0 = va[can], d0[can]
-    near = tree.query_ball_point(X[va], (d0 + longest) * (1 + 1e-9))
-    count = np.fromiter((len(x) for x in near), dtype=np.int64, count=len(near))
-    hits = sp.csr_matrix((np.ones(int(count.sum()), dtype=np.int8),
-                          np.fromiter((k for x in near for k in x), dtype=np.int64,
-                                      count=int(count.sum())),
-                          np.r_[0, np.cumsum(count)]), shape=(len(va), len(used)))
-    slot = np.searchsorted(used, F[fb])
-    incident = sp.csr_matrix((np.ones(slot.size, dtype=np.int8),
-                              (slot.ravel(), np.repeat(np.arange(len(fb)), 3))),
-                             shape=(len(used), len(fb)))
-    pairs = (hits @ incident).tocoo()
-    order = np.lexsort((pairs.col, pairs.row))
-    r, f, bary, d = nearest_among(X[va], X, F, pairs.row[order].astype(np.int64),
-                                  fb[pairs.col[order]].astype(np.int64))
+    near = centres.query_ball_point(X[va], (d0 + longest) * (1 + 1e-9))
+    count = np.fromiter(map(len, near), dtype=np.int64, count=len(near))
+    cand = np.fromiter(chain.from_iterable(near), dtype=np.int64, count=int(count.sum()))
+    r, f, bary, d = nearest_among(X[va], X, F, np.repeat(np.arange(len(va)), count), fb[cand])
     keep = d <= reach
     r, f, bary, d = r[keep], f[keep], bary[keep], d[keep]
     v = va[r]
@@ -593,13 +624,14 @@ def _records(X, F, petal, normals, rim, a, b, reach) -> dict:
 def _solve(X, graph, rows, petal, spread) -> np.ndarray:
     """The smallest, smoothest move ``D (V, 3)`` that does what ``rows`` ask.
 
-    Each row ``(ids (k,), grad (k, 3), need)`` asks ``sum_j grad_j . D[ids_j] = need``,
-    with weight ``WEIGHT``. Against the rows, per vertex ``i`` of spread ``l`` (its
-    petal's, in mean edges): ``l^2 |(L D)_i|^2`` (bending: ``L`` is the mesh's graph
-    Laplacian), ``|D_i - D_j|^2`` per edge (stretching) and ``|D_i|^2 / l^2`` (the pull
-    back), so that a move fades over about ``l`` edges. Only the vertices within four
-    spreads of one asked to move are free; the others stay where they are."""
-    asked = np.unique(np.concatenate([r[0] for r in rows]))
+    ``rows`` is a list of blocks ``(ids (m, k), grad (m, k, 3), need (m,))``, each row of
+    which asks ``sum_j grad_j . D[ids_j] = need``, with weight ``WEIGHT``. Against the
+    rows, per vertex ``i`` of spread ``l`` (its petal's, in mean edges): ``l^2 |(L D)_i|^2``
+    (bending: ``L`` is the mesh's graph Laplacian), ``|D_i - D_j|^2`` per edge
+    (stretching) and ``|D_i|^2 / l^2`` (the pull back), so that a move fades over about
+    ``l`` edges. Only the vertices within four spreads of one asked to move are free; the
+    others stay where they are."""
+    asked = np.unique(np.concatenate([ids.ravel() for ids, _, _ in rows]))
     hops = np.ceil(4.0 * float(spread.max()))
     reach = dijkstra(graph, indices=asked, unweighted=True, limit=hops, min_only=True)
     free = np.flatnonzero(np.isfinite(reach))
@@ -612,18 +644,20 @@ def _solve(X, graph, rows, petal, spread) -> np.ndarray:
     A = (sp.diags(scale) @ (cols.T @ cols) @ sp.diags(scale) + lap[free][:, free]
          + sp.diags(1.0 / scale ** 2))
     A = sp.kron(A, sp.identity(3), format="csr")
-    sizes = np.array([len(r[0]) for r in rows])
-    row_of = np.repeat(np.arange(len(rows)), 3 * sizes)
-    vertex = np.concatenate([r[0] for r in rows])
+    first = np.cumsum([0] + [len(need) for _, _, need in rows])
+    row_of = np.concatenate([np.repeat(np.arange(len(need)) + first[k], 3 * ids.shape[1])
+                             for k, (ids, _, need) in enumerate(rows)])
+    vertex = np.concatenate([ids.ravel() for ids, _, _ in rows])
     col = (3 * slot[vertex][:, None] + np.arange(3)).ravel()
-    val = np.concatenate([np.asarray(r[1], dtype=np.float64).ravel() for r in rows])
-    J = sp.csr_matrix((val, (row_of, col)), shape=(len(rows), 3 * n))
-    need = np.array([r[2] for r in rows], dtype=np.float64)
+    val = np.concatenate([np.asarray(grad, dtype=np.float64).ravel() for _, grad, _ in rows])
+    J = sp.csr_matrix((val, (row_of, col)), shape=(first[-1], 3 * n))
+    need = np.concatenate([need for _, _, need in rows]).astype(np.float64)
     # (on a studio model this solve is much of a round. The matrix is symmetric positive
     # definite: SuperLU in its symmetric mode (a minimum-degree ordering of A + A^T, no
     # pivoting off the diagonal) solves the rose bed's first, 74,781 unknowns, in 4.4 s
     # against 15.0 s by its default column ordering, to the same residual (2e-15);
-    # qdldl's LDL^T and Jacobi-preconditioned CG were no faster than the default)
+    # qdldl's LDL^T and Jacobi-preconditioned CG were no faster than the default, nor
+    # five factorizations, one per rose of the bed, than one of all: 5.9 s against 6.5)
     lu = splu((A + WEIGHT * (J.T @ J)).tocsc(), permc_spec="MMD_AT_PLUS_A",
               diag_pivot_thresh=0.0, options={"SymmetricMode": True})
     d = lu.solve(WEIGHT * (J.T @ need))
