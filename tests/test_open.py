@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import h5py
 import numpy as np
 import pytest
@@ -184,3 +186,40 @@ def test_an_open_shell_is_its_own_rest_state_and_blooms_back_to_itself():
     state = State.at_rest(model, bud, control)
     QuasiStatic(perturbation=0.0).advance(model, state, control, 10, 1.0)
     assert reverse.distance_to_model(state.positions, v, petal, axes.base) < 1e-6
+
+
+def test_a_sliver_whose_edges_grow_unevenly_keeps_an_area_at_the_bud(caplog):
+    """A shell triangle whose edges' growth ratios would leave it no triangle at the bud
+    (a rose's remeshed sliver, 17/18/145 deg, its long edge growing least: the rose bed's
+    run stopped on "2 faces have no rest area") has its ratios evened out toward their
+    mean, logged; every other triangle keeps its ratios, bit for bit."""
+    from pipeline.sim.build import Prepared
+    from pipeline.sim.terms.shell_kernels import rest_dets
+
+    sliver = np.array([[0, 1, 2]])
+    full = np.array([0.32864504, 0.165094, 0.17986026])  # (the rose's, opposite q0, q1, q2)
+    growth, changed = reverse.even_growth(sliver, full, np.array([0.05, 0.2, 0.05]))
+    det0, det1 = np.empty(1), np.empty(1)
+    rest_dets(sliver, full / (1.0 + growth), growth, det0)
+    rest_dets(sliver, full, np.zeros(3), det1)
+    assert changed == [0]
+    assert det0[0] * (1.0 + growth.mean()) ** 4 >= reverse.EVEN * det1[0]
+    assert growth.mean() == pytest.approx(0.1, rel=1e-12)  # (evened toward, not cut)
+
+    v, f, petal, axes, growth = open_petal()
+    opened = Prepared.of(v, f, petal, axes, growth).shell_model(27.3, 0.013, 1 / 3)
+    fe = opened.shell.face_edges
+    steep = np.array(opened.edge_growth)
+    steep[fe[40, 1:]] = 3.0  # (two edges of a triangle grow by 4x, its third not at all)
+    with caplog.at_level("INFO", logger="bloom"):
+        model = reverse.open_model(dataclasses.replace(opened, edge_growth=steep), 1.0, v,
+                                   petal=petal)
+    assert "sliver triangle(s) of petal(s) 0" in caplog.text
+    det0 = np.empty(len(fe))
+    rest_dets(fe, model.edge_rest_length, model.edge_growth, det0)
+    assert np.all(det0 > 0.0)
+    # (only the triangle and the ones around it: the edges changed are all within them)
+    ring = np.unique(f[np.any(np.isin(f, opened.shell.face_indices[40]), axis=1)])
+    changed = np.flatnonzero(model.edge_growth != steep)
+    assert 0 < len(changed) <= 12
+    assert np.all(np.isin(model.edge_indices[changed], ring))
