@@ -6,8 +6,9 @@ to find where petals pass through each other (:mod:`pipeline.mesh.separate`)."""
 
 from __future__ import annotations
 
+from itertools import chain
+
 import numpy as np
-import scipy.sparse as sp
 from numba import njit
 from scipy.spatial import cKDTree
 
@@ -77,42 +78,50 @@ def _nearest_kernel(q, X, F, rows, cand, face, bary, dist, has):
             bary[r, 0], bary[r, 1], bary[r, 2] = u, v, w
 
 
+class Triangles:
+    """Some triangles of a mesh (``ids`` of ``faces``), ready for closest-point queries:
+    :meth:`nearest`. Exact: the closest point is no further than the nearest corner
+    (d0), in a triangle every point of which, its centre too, is within the longest edge
+    of it; so every triangle whose centre is within ``d0 + longest`` is measured (a k-d
+    tree of corners, one of centres)."""
+
+    def __init__(self, vertices: np.ndarray, faces: np.ndarray, ids: np.ndarray):
+        self.X = np.ascontiguousarray(vertices, dtype=np.float64)
+        self.F = np.ascontiguousarray(faces, dtype=np.int64)
+        self.ids = np.asarray(ids, dtype=np.int64)
+        if len(self.ids) == 0:
+            raise ValueError("no triangles to bind to")
+        tri = self.X[self.F[self.ids]]
+        self.longest = float(np.max(np.linalg.norm(tri - tri[:, [1, 2, 0]], axis=2)))
+        self.corners = cKDTree(self.X[np.unique(self.F[self.ids])])
+        self.centres = cKDTree(tri.mean(axis=1))
+
+    def nearest(self, q: np.ndarray, reach: float = np.inf):
+        """The nearest point of these triangles to each of ``q`` (n, 3) that can be within
+        ``reach``: ``(row, face, bary, distance)`` as :func:`nearest_among` (``row`` into
+        ``q``; a point further than ``reach`` may be among them, none nearer is left out)."""
+        q = np.asarray(q, dtype=np.float64)
+        d0, _ = self.corners.query(q)
+        can = np.flatnonzero(d0 - self.longest <= reach)
+        near = self.centres.query_ball_point(q[can], (d0[can] + self.longest) * (1 + 1e-9))
+        count = np.fromiter(map(len, near), dtype=np.int64, count=len(near))
+        cand = np.fromiter(chain.from_iterable(near), dtype=np.int64, count=int(count.sum()))
+        return nearest_among(q, self.X, self.F, np.repeat(can, count), self.ids[cand])
+
+
 def closest_points(points: np.ndarray, vertices: np.ndarray, faces: np.ndarray,
                    allowed: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """For each point, the closest point on the triangles ``faces`` (only those where
-    ``allowed``, a ``(F,) bool``): ``(face (n,), bary (n, 3))``. Ties go to the lower
-    face index, so the answer does not depend on the search's order.
-
-    Exact: the closest vertex is at distance d0, so the closest point lies in a
-    triangle with a vertex within ``d0 + longest edge`` of the point; all of those are
-    measured."""
-
+    ``allowed``, a ``(F,) bool``): ``(face (n,), bary (n, 3))``, exact (:class:`Triangles`).
+    Ties go to the lower face index, so the answer does not depend on the search's order."""
     P = np.asarray(points, dtype=np.float64)
-    X = np.asarray(vertices, dtype=np.float64)
     F = np.asarray(faces, dtype=np.int64)
-    ids = np.flatnonzero(np.ones(len(F), dtype=bool) if allowed is None else allowed)
-    if len(ids) == 0:
-        raise ValueError("no triangles to bind to")
-    used = np.unique(F[ids])
-    tree = cKDTree(X[used])
-    longest = float(np.max(np.linalg.norm(X[F[ids]] - X[F[ids][:, [1, 2, 0]]], axis=2)))
-    # the allowed triangles at each of the tree's vertices
-    slot = np.searchsorted(used, F[ids])
-    incident = sp.csr_matrix((np.ones(slot.size, dtype=np.int8), (slot.ravel(), np.repeat(ids, 3))),
-                             shape=(len(used), len(F)))
+    found = Triangles(vertices, F, np.flatnonzero(np.ones(len(F), dtype=bool)
+                                                  if allowed is None else allowed))
     face = np.empty(len(P), dtype=np.int64)
     bary = np.empty((len(P), 3))
     for lo in range(0, len(P), CHUNK):
-        q = P[lo:lo + CHUNK]
-        d0, _ = tree.query(q)
-        near = tree.query_ball_point(q, (d0 + longest) * (1 + 1e-9))
-        count = np.fromiter((len(v) for v in near), dtype=np.int64, count=len(near))
-        hits = sp.csr_matrix((np.ones(count.sum(), dtype=np.int8),
-                              np.fromiter((k for v in near for k in v), dtype=np.int64,
-                                          count=int(count.sum())),
-                              np.r_[0, np.cumsum(count)]), shape=(len(q), len(used)))
-        pairs = (hits @ incident).tocoo()
-        r, f, b, _ = nearest_among(q, X, F, pairs.row.astype(np.int64), pairs.col.astype(np.int64))
+        r, f, b, _ = found.nearest(P[lo:lo + CHUNK])
         face[lo + r], bary[lo + r] = f, b
     return face, bary
 

@@ -11,7 +11,6 @@ share per-pair records and are only meaningful together."""
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from itertools import chain
 
 import numpy as np
 import scipy.sparse as sp
@@ -19,7 +18,8 @@ from scipy.sparse.csgraph import connected_components, dijkstra
 from scipy.sparse.linalg import splu
 from scipy.spatial import cKDTree
 
-from pipeline.mesh.nearest import nearest_among
+from pipeline.mesh.ipc import ipctk as one_thread
+from pipeline.mesh.nearest import Triangles
 from pipeline.mesh.topology import face_normals, unique_edges, vertex_normals
 
 #: no vertex moves further than this fraction of its petal's length
@@ -135,7 +135,7 @@ def separate(vertices: np.ndarray, faces: np.ndarray, petal: np.ndarray, gap: fl
     vertices: crossings through ipctk's BVH, closest points through a k-d tree per pair
     of petals that cross, and one sparse solve over the vertices near a move.
     """
-    import ipctk
+    ipctk = one_thread()
 
     X0 = np.array(vertices, dtype=np.float64)
     F = np.ascontiguousarray(faces, dtype=np.int64)
@@ -288,7 +288,7 @@ def _patches(petal, count: int, pairs) -> np.ndarray:
 def _crossings(X, F, E, petal) -> np.ndarray:
     """(k, 2) the (edge, face) pairs of different petals where the edge passes through the
     face (ipctk's exact test, the one ``has_intersections`` makes), sorted."""
-    import ipctk
+    ipctk = one_thread()
 
     Xf = np.asfortranarray(X)
     broad = ipctk.LBVH()
@@ -315,7 +315,7 @@ def crossed_pairs(X, F, patch) -> list[tuple[int, int]]:
     """The pairs of patches (``patch`` (V,): each vertex's) with an edge of one through a
     triangle of the other (ipctk's exact test), sorted: one pass over the mesh (a BVH),
     not a test per pair."""
-    import ipctk
+    ipctk = one_thread()
 
     F = np.ascontiguousarray(F, dtype=np.int64)
     E = np.asarray(ipctk.edges(np.asfortranarray(F, dtype=np.int32)), dtype=np.int64)
@@ -326,7 +326,7 @@ def crossed_pairs(X, F, patch) -> list[tuple[int, int]]:
 def _folded(X, F, petal) -> list[int]:
     """The petals that pass through themselves (ipctk's exact test, each petal alone,
     on its own vertices: the work grows with the mesh, not with petals times vertices)."""
-    import ipctk
+    ipctk = one_thread()
 
     Xf = np.asfortranarray(X)
     F32 = np.asfortranarray(F, dtype=np.int32)
@@ -357,7 +357,7 @@ def _near(mesh, X, petal, gap, crossing):
     (not through each other) and nearer than ``KEEP`` gaps: ``[(a, b, distance, row)]``,
     the row asking them to ``PUSH`` gaps apart, or to keep their distance when further
     (see :func:`_solve`). Pairs of petals that cross are :func:`_overlap_rows`'s."""
-    import ipctk
+    ipctk = one_thread()
 
     Xf = np.asfortranarray(X)
     found = ipctk.NormalCollisions()
@@ -577,20 +577,8 @@ def _records(X, F, petal, normals, rim, a, b, reach) -> dict:
     cosine between ``a``'s normal at the vertex and ``n``."""
     va, fb = rim["verts"][a], rim["faces"][b]
     if b not in rim["near"]:
-        tri = X[F[fb]]
-        rim["near"][b] = (float(np.linalg.norm(tri - tri[:, [1, 2, 0]], axis=2).max()),
-                          cKDTree(X[np.unique(F[fb])]), cKDTree(tri.mean(axis=1)))
-    longest, corners, centres = rim["near"][b]
-    # the closest point on b is no further than the nearest corner (d0), in a triangle
-    # whose every point, its centre too, is within ``longest`` of it: those vertices of a
-    # that can be within reach, against the triangles whose centres are within d0 + longest
-    d0, _ = corners.query(X[va])
-    can = d0 - longest <= reach
-    va, d0 = va[can], d0[can]
-    near = centres.query_ball_point(X[va], (d0 + longest) * (1 + 1e-9))
-    count = np.fromiter(map(len, near), dtype=np.int64, count=len(near))
-    cand = np.fromiter(chain.from_iterable(near), dtype=np.int64, count=int(count.sum()))
-    r, f, bary, d = nearest_among(X[va], X, F, np.repeat(np.arange(len(va)), count), fb[cand])
+        rim["near"][b] = Triangles(X, F, fb)
+    r, f, bary, d = rim["near"][b].nearest(X[va], reach)
     keep = d <= reach
     r, f, bary, d = r[keep], f[keep], bary[keep], d[keep]
     v = va[r]
@@ -699,7 +687,7 @@ def _vertex_areas(X, F) -> np.ndarray:
 
 
 def _min_distance(mesh, X, reach) -> float:
-    import ipctk
+    ipctk = one_thread()
 
     Xf = np.asfortranarray(X)
     found = ipctk.NormalCollisions()

@@ -22,7 +22,7 @@ collision detection (:meth:`Contact.max_step`), so no iterate ever comes closer 
   the same pressure against distance at any resolution).
 - The Hessian is ipctk's, projected to positive semi-definite per contact (it adds no
   negative curvature of its own; the elastic Hessian stays exact).
-- ipctk runs on one thread, set once (:func:`_ipctk`): the artifacts must be
+- ipctk runs on one thread, set once (:func:`pipeline.mesh.ipc.ipctk`): the artifacts must be
   bit-reproducible, and ipctk's threads are not. Its parallel sums depend on the
   scheduling, and so, it was measured, does the rest: with its broad phase and CCD in two
   threads, the same 14-petal open flower found its bud in 818, 813, 819 and 807 Newton
@@ -40,6 +40,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import scipy.sparse as sp
 
+from pipeline.mesh.ipc import ipctk as one_thread
 from pipeline.mesh.separate import crossed_pairs, patch_groups
 from pipeline.sim.terms.term import Term
 
@@ -50,20 +51,6 @@ class ContactError(RuntimeError):
     def __init__(self, message: str, key: str = "effects.collisions"):
         self.key = key
         super().__init__(message)
-
-
-_SET = False  #: whether ipctk has been put on one thread (:func:`_ipctk`)
-
-
-def _ipctk():
-    """ipctk, on one thread (set at the first call only: the call is not free)."""
-    global _SET
-    import ipctk
-
-    if not _SET:
-        ipctk.set_num_threads(1)
-        _SET = True
-    return ipctk
 
 
 def _canonical(collisions) -> None:
@@ -124,7 +111,7 @@ class Contact(Term):
         ``own``: a petal keeps off itself too (its triangles that share no vertex), where
         the start allows it (:func:`_own_contact`); False: between petals only (``petal``
         then holds patches that join petals left through each other)."""
-        ipctk = _ipctk()
+        ipctk = one_thread()
         X = np.asfortranarray(positions, dtype=np.float64)
         F = np.asfortranarray(faces, dtype=np.int32)
         mesh = ipctk.CollisionMesh(X, ipctk.edges(F), F)
@@ -143,7 +130,7 @@ class Contact(Term):
         """Refuse a bud the barrier cannot start from: petals through each other, or
         touching; names the petal pairs. Petals closer than the gap (but apart) make the
         gap half their distance (logged)."""
-        ipctk = _ipctk()
+        ipctk = one_thread()
         X = np.asfortranarray(X, dtype=np.float64)
         if ipctk.has_intersections(self.mesh, X):
             pairs = self.intersecting_pairs(X)
@@ -172,7 +159,7 @@ class Contact(Term):
     def _regap(self, gap: float) -> None:
         """Keep ``gap`` (band as wide), with the barrier as stiff at its band's middle as
         before."""
-        ipctk = _ipctk()
+        ipctk = one_thread()
         stiffness = self.kappa * barrier_curvature(self.gap + 0.5 * self.band, self.gap,
                                                    self.band)
         self.gap = self.band = float(gap)
@@ -187,7 +174,7 @@ class Contact(Term):
 
     def close_pairs(self, X, distance: float) -> list[tuple[int, int, float]]:
         """Petal pairs closer than ``distance`` at X, with their smallest distance."""
-        ipctk = _ipctk()
+        ipctk = one_thread()
         X = np.asfortranarray(X, dtype=np.float64)
         found = ipctk.NormalCollisions()
         found.build(self.mesh, X, distance)
@@ -210,7 +197,7 @@ class Contact(Term):
 
     def restore(self, saved: dict) -> None:
         """Put back a :meth:`snapshot`: the same gap, and the same sweep's candidates."""
-        ipctk = _ipctk()
+        ipctk = one_thread()
         self.gap, self.band, self.kappa = (float(saved[k]) for k in ("gap", "band", "kappa"))
         self.potential = ipctk.BarrierPotential(self.band, self.kappa)
         self.collisions, self._at, self.candidates = None, None, None
@@ -230,7 +217,7 @@ class Contact(Term):
         position or move inside the boxes are those a full broad phase would give, at
         a narrow phase's cost: one sweep serves a growth increment's iterations as
         long as they stay in it."""
-        ipctk = _ipctk()
+        ipctk = one_thread()
         low = np.asfortranarray(np.minimum(X0, X1) - margin, dtype=np.float64)
         high = np.asfortranarray(np.maximum(X0, X1) + margin, dtype=np.float64)
         self.candidates = ipctk.Candidates()
@@ -243,7 +230,7 @@ class Contact(Term):
 
     def _active(self, X):
         if self._at is None or not np.array_equal(self._at, X):
-            ipctk = _ipctk()
+            ipctk = one_thread()
             self.collisions = ipctk.NormalCollisions()
             if self._swept(X):
                 self.collisions.build(self.candidates, self.mesh, X, self.band, self.gap)
@@ -269,7 +256,7 @@ class Contact(Term):
         """The barrier's Hessian at X (3V x 3V), each contact's projected to positive
         semi-definite (``project``, as the solver takes it) or exact; None when no pair
         is within the band."""
-        ipctk = _ipctk()
+        ipctk = one_thread()
         X = np.asfortranarray(X, dtype=np.float64)
         active = self._active(X)
         if len(active) == 0:
@@ -315,7 +302,7 @@ def _own_contact(mesh, X, petal, reach: float) -> bool:
     passes through itself there, and no two of its primitives that share no vertex are
     within the barrier's ``reach`` (they would feel it at rest; a sliver can). Otherwise
     contact is between petals only, and the log says why."""
-    ipctk = _ipctk()
+    ipctk = one_thread()
     why = ""
     if ipctk.has_intersections(mesh, X):
         why = "a petal, or two, pass through themselves or each other"
@@ -348,7 +335,7 @@ def frame_intersections(frames, faces, petal=None, patch=None) -> list[bool]:
     each other as modelled: remesh could not move them apart) may pass through each
     other, and through themselves; the others are checked against every petal and
     against themselves."""
-    ipctk = _ipctk()
+    ipctk = one_thread()
     F = np.asfortranarray(faces, dtype=np.int32)
     E = ipctk.edges(F)
     groups = patch_groups(petal, patch) if petal is not None and patch is not None else []
