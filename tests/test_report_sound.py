@@ -60,6 +60,41 @@ def test_an_open_bloom_that_ends_off_its_model_is_unsound():
                     "it); every petal opened (least 60.0 deg)")
 
 
+def test_an_open_bloom_from_a_bud_that_hangs_open_the_other_way_is_unsound():
+    """The rose bed's roses, their lifted bud searches failed, found a bud along their
+    own path whose petals hang down over the sepals (leaning further from the axis than
+    the model's cups): the run then closes them. Back on the model, every petal "opened"
+    by the model's own measure, yet it is no bloom."""
+    X = np.stack([two_triangles(False)] * 2)
+    sound = report.soundness(X, FACES, np.array([[0.0, 0.0], [30.0, 40.0]]),
+                             distance_to_model=3e-9, bud_closed=-12.25)
+    assert sound["bud_closed"] == -12.25
+    assert report.summary_line(sound) == (
+        "unsound: 0 of 2 frames with an intersection (checked exactly); last frame 3e-09 "
+        "petal lengths (RMS) from the model; the bud is 12.2 deg more open than the model "
+        "(its petals lean further from the axis: the bloom closes them); every petal "
+        "opened (least 30.0 deg)")
+    closed = report.soundness(X, FACES, np.array([[0.0, 0.0], [30.0, 40.0]]),
+                              distance_to_model=3e-9, bud_closed=25.0)
+    assert report.summary_line(closed).startswith("sound: ")
+
+
+def test_a_petal_leans_from_its_own_flower_axis():
+    """measure.leans: the chord from a petal's base to its tip against its flower's axis;
+    two flowers with axes of their own (a bed), one petal each: upright along its axis
+    (0 deg), out flat (90), hanging down (135)."""
+    from pipeline.flower.measure import leans
+
+    X = np.array([[0.0, 0.0, 0.0], [0.0, 0.0, 1.0],  # petal 0: base, tip straight up
+                  [5.0, 0.0, 0.0], [6.0, 0.0, 0.0],  # petal 1: out flat
+                  [9.0, 0.0, 0.0], [10.0, 0.0, -1.0]])  # petal 2: hanging down
+    petal = np.array([0, 0, 1, 1, 2, 2])
+    base = np.array([True, False] * 3)
+    axes = np.array([[0, 0, 0, 0, 0, 1.0], [5, 0, 0, 0, 0, 2.0], [9, 0, 0, 0, 0, 1.0]])
+    np.testing.assert_allclose(leans(X, petal, base, np.array([1, 3, 5]), axes),
+                               [0.0, 90.0, 135.0], atol=1e-12)
+
+
 def test_petal_names_come_from_the_parts_or_else_from_the_binding():
     petal = np.array([0, 0, 0, 1, 1, 1])
     assert report.petal_names(petal, np.array([b"Circle.003", b"stem"]),

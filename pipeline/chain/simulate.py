@@ -22,7 +22,7 @@ from pipeline.chain import carried_attrs
 from pipeline.config import KEYS, Config
 from pipeline.errors import BloomError
 from pipeline.flower import stagger
-from pipeline.flower.measure import Start, bloom_start, petals_within_reach
+from pipeline.flower.measure import Start, bloom_start, leans, petals_within_reach
 from pipeline.mesh.separate import patch_groups
 from pipeline.progress import Progress
 from pipeline.review import report
@@ -90,9 +90,16 @@ def run(growth_h5: str | Path, out: str | Path, cfg: Config, *, overwrite: bool 
         model_positions = np.asarray(v) if start.start == "open" else None
         bud_model, bud_angle, bud_params = model, rest_angle, params
 
+        axes = prep.petal_axes()
+
         def closed_by(bud) -> float:
-            """How much more closed ``bud`` is than the model: the mean over petals of
-            the opening angle's change (deg)."""
+            """How much more closed ``bud`` is than the model (deg, the mean over petals):
+            in a flower, how much less its petals lean from their flower's axis
+            (negative: they lean further, hanging open the other way); a lone petal, by
+            how far its opening angle turns."""
+            if np.all(np.isfinite(axes)):
+                return float(np.mean(leans(model_positions, petal, base, prep.tip, axes)
+                                     - leans(bud, petal, base, prep.tip, axes)))
             frames_ = prep.frames(bud).opening_toward(model_positions)
             return float(np.mean(np.abs(frames_.opening_angles(model_positions))))
 
@@ -199,6 +206,9 @@ def run(growth_h5: str | Path, out: str | Path, cfg: Config, *, overwrite: bool 
         if model_positions is not None:
             attrs["distance_to_model"] = run_.distance
             attrs.update(bud_info)
+            attrs["bud_closed"] = closed_by(v)
+            log.info("the bud is %.1f deg more closed than the model (mean over petals)",
+                     attrs["bud_closed"])
             log.info("last frame %.3g petal lengths (RMS) from the model",
                      attrs["distance_to_model"])
         names = report.petal_names(petal, src["mesh/part_names"], src["mesh/part"]) \
@@ -207,6 +217,7 @@ def run(growth_h5: str | Path, out: str | Path, cfg: Config, *, overwrite: bool 
         sound = report.soundness(positions, prep.faces,
                                  diag.get("opening_angle_per_petal", np.zeros((len(positions), 0))),
                                  distance_to_model=attrs.get("distance_to_model"),
+                                 bud_closed=attrs.get("bud_closed"),
                                  petal_names=names, petal=petal, patch=prep.patch,
                                  intersecting=frame_intersections(seen, prep.faces, petal,
                                                                   prep.patch))

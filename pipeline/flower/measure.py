@@ -75,6 +75,26 @@ class PetalFrames:
         return np.degrees(np.arctan2(out, along))
 
 
+def leans(X, petal, base, tips, axes) -> np.ndarray:
+    """``(P,)`` how far each petal leans from its flower's axis: the angle in degrees
+    between its chord (its base's centre to its tip) and the axis's direction (from the
+    receptacle toward the tips), ``axes`` ``(P, 6)`` each petal's flower's point and
+    direction (nan for none: nan). A bud's petals lean less than the open flower's; a
+    bud found backward whose petals hang down leans more."""
+    X = np.asarray(X, dtype=np.float64)
+    petal = np.asarray(petal)
+    count = len(tips)
+    base = np.asarray(base, dtype=bool)
+    total = np.zeros((count, 3))
+    np.add.at(total, petal[base], X[base])
+    n = np.bincount(petal[base], minlength=count)[:, None]
+    chord = X[np.asarray(tips)] - total / np.maximum(n, 1)
+    a = np.asarray(axes, dtype=np.float64)[:, 3:]
+    cos = np.einsum("ij,ij->i", chord, a) / (np.linalg.norm(chord, axis=1)
+                                              * np.linalg.norm(a, axis=1))
+    return np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))
+
+
 def _away(where, chord, length: float, flower_axis) -> np.ndarray | None:
     """The way a petal opens, as the flower tells it: away from the axis and down it,
     ``r - a`` (``r`` the unit direction from the axis to the petal, ``a`` the axis's),

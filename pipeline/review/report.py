@@ -50,7 +50,8 @@ def crossings(X, faces, petal) -> int:
 
 def soundness(positions: np.ndarray, faces: np.ndarray, opening_per_petal: np.ndarray, *,
               distance_to_model: float | None = None, petal_names: list[str] | None = None,
-              intersecting: list[bool] | None = None, petal=None, patch=None) -> dict:
+              intersecting: list[bool] | None = None, petal=None, patch=None,
+              bud_closed: float | None = None) -> dict:
     """Whether a bloom is sound, from its arrays.
 
     Parameters
@@ -68,6 +69,9 @@ def soundness(positions: np.ndarray, faces: np.ndarray, opening_per_petal: np.nd
     petal, patch : (V,) each vertex's petal and contact patch (sim.h5's ``mesh/petal``
         and ``mesh/patch``), or None: petals that share a patch were left through each
         other as modelled, and their crossings are not counted (``left``: those pairs).
+    bud_closed : an open start's bud: how much more closed than the model it is (sim.h5's
+        ``bud_closed``, degrees; negative: its petals hang open the other way, and the
+        bloom closes them), or None.
 
     Returns
     -------
@@ -96,6 +100,7 @@ def soundness(positions: np.ndarray, faces: np.ndarray, opening_per_petal: np.nd
         "not_opened": [{"petal": int(p), "name": names[p], "opening": float(final[p])}
                        for p in np.flatnonzero(closed)],
         "left": left,
+        "bud_closed": None if bud_closed is None else float(bud_closed),
     }
 
 
@@ -103,7 +108,8 @@ def summary_line(sound: dict) -> str:
     """The one-line verdict of :func:`soundness`, e.g. "sound: 0 of 121 frames with an
     intersection (checked exactly); last frame 1.6e-13 petal lengths from the model; every
     petal opened (least 21.3 deg)"; "unsound:" when a frame has an intersection, a petal
-    did not open, or an open start's last frame is off the model (over :data:`OFF_MODEL`)."""
+    did not open, an open start's last frame is off the model (over :data:`OFF_MODEL`),
+    or its bud is no more closed than the model (``bud_closed`` <= 0: the bloom closes)."""
     left = sound.get("left") or []
     checked = "checked exactly"
     if left:
@@ -115,6 +121,10 @@ def summary_line(sound: dict) -> str:
     if sound["distance_to_model"] is not None:
         parts.append(f"last frame {sound['distance_to_model']:.2g} petal lengths (RMS) from "
                      "the model" + (f" (over {OFF_MODEL:g}: not back on it)" if off else ""))
+    backward = (sound.get("bud_closed") is not None and sound["bud_closed"] <= 0.0)
+    if backward:  # (the bud hangs open the other way: the "bloom" closes the flower)
+        parts.append(f"the bud is {-sound['bud_closed']:.1f} deg more open than the model "
+                     "(its petals lean further from the axis: the bloom closes them)")
     final = sound["opening_final_per_petal"]
     if sound["not_opened"]:
         shown = ", ".join(f"{d['name']} {d['opening']:+.1f} deg" for d in sound["not_opened"][:6])
@@ -123,7 +133,8 @@ def summary_line(sound: dict) -> str:
                      f"{NOT_OPEN:g} deg): {shown}" + (f" and {more} more" if more > 0 else ""))
     elif final:
         parts.append(f"every petal opened (least {min(final):.1f} deg)")
-    sound_ = sound["intersecting_frames"] == 0 and not sound["not_opened"] and not off
+    sound_ = (sound["intersecting_frames"] == 0 and not sound["not_opened"] and not off
+              and not backward)
     return ("sound: " if sound_ else "unsound: ") + "; ".join(parts)
 
 
@@ -189,8 +200,10 @@ def compute(sim) -> dict:
                     else frame_intersections(X, faces, petal, patch))
     diag = {k: sim[f"diagnostics/{k}"] for k in ("opening_angle_per_petal", "kinetic_energy")}
     distance = sim.attrs.get("distance_to_model")
+    closed = sim.attrs.get("bud_closed")
     sound = soundness(X, faces, diag["opening_angle_per_petal"],
                       distance_to_model=None if distance is None else float(distance),
+                      bud_closed=None if closed is None else float(closed),
                       petal_names=_names(sim, petal, faces), intersecting=intersecting,
                       petal=petal, patch=patch)
     report = {

@@ -52,6 +52,9 @@ class Prepared:
     #: (V,) each vertex's flower in a file of many (remesh's ``flower/petal_flower``), or
     #: None: one flower
     flower: np.ndarray | None = None
+    #: (K, 6) each flower's axis, point and direction (``flower/axis``), or None: one
+    #: flower, :attr:`flower_axis`
+    flower_axes: np.ndarray | None = None
 
     @classmethod
     def from_artifact(cls, src) -> Prepared:
@@ -64,7 +67,8 @@ class Prepared:
                    src["mesh/thickness"] if "mesh/thickness" in src else None,
                    src["mesh/patch"] if "mesh/patch" in src else None,
                    np.asarray(src["flower/petal_flower"])[np.asarray(src["mesh/petal"])]
-                   if "flower/petal_flower" in src else None)
+                   if "flower/petal_flower" in src else None,
+                   np.asarray(src["flower/axis"]) if "flower/axis" in src else None)
 
     @classmethod
     def of(cls, vertices, faces, petal, axes, growth) -> Prepared:
@@ -157,6 +161,15 @@ class Prepared:
         length = np.empty(len(edges))
         edge_lengths(np.ascontiguousarray(self.vertices, dtype=np.float64), edges, length)
         return float((length * (1.0 + np.maximum(np.asarray(self.alpha), 0.0))).max())
+
+    def petal_axes(self) -> np.ndarray:
+        """``(P, 6)`` each petal's flower's axis (nan for a lone petal)."""
+        count = len(self.tip)
+        if self.flower is not None and self.flower_axes is not None:
+            of = np.zeros(count, dtype=np.int64)
+            of[np.asarray(self.petal)] = np.asarray(self.flower)
+            return np.asarray(self.flower_axes, dtype=np.float64)[of]
+        return np.broadcast_to(np.asarray(self.flower_axis, dtype=np.float64), (count, 6))
 
     def frames(self, positions=None):
         """The petal frames the opening angle is measured in, at ``positions`` (default
