@@ -59,7 +59,8 @@ def triangle_angles(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     out = np.empty(p.shape[:2])
     for k in range(3):
         a, b = p[:, (k + 1) % 3] - p[:, k], p[:, (k + 2) % 3] - p[:, k]
-        out[:, k] = np.arctan2(np.linalg.norm(np.cross(a, b), axis=1), np.einsum("ij,ij->i", a, b))
+        out[:, k] = np.arctan2(np.linalg.norm(topology.cross(a, b), axis=1),
+                                 np.einsum("ij,ij->i", a, b))
     return np.degrees(out)
 
 

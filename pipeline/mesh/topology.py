@@ -111,11 +111,22 @@ def edge_graph(vertices: np.ndarray, edges: np.ndarray) -> sp.csr_matrix:
     return g.tocsr()
 
 
+def cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """``(n, 3)`` the cross products of the rows of ``a`` and ``b``: np.cross's arithmetic
+    (the same bits) without its axis handling, which is most of its time on the small
+    arrays of a petal's remesh (a rose bed's 250 petals called it 86,000 times)."""
+    out = np.empty(np.broadcast_shapes(a.shape, b.shape))
+    out[:, 0] = a[:, 1] * b[:, 2] - a[:, 2] * b[:, 1]
+    out[:, 1] = a[:, 2] * b[:, 0] - a[:, 0] * b[:, 2]
+    out[:, 2] = a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]
+    return out
+
+
 def face_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     """``(F, 3)`` area-weighted normals (length = 2 x area)."""
     v = np.asarray(vertices, dtype=np.float64)
     f = np.asarray(faces, dtype=np.int64)
-    return np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
+    return cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
 
 
 def vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
