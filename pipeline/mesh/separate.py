@@ -429,22 +429,21 @@ def _overlap_rows(X, F, E, petal, crossing, area, length, max_move, gap, sides) 
                           for r in recs) for sg in (1.0, -1.0)]
             sides[(a, b)] = 1.0 if weight[0] >= weight[1] else -1.0
         side = sides[(a, b)]
-        for k, r in enumerate(recs):
-            rows.append(_push_rows(r, F, side if k == 0 else None, side, gap))
+        for k, r in enumerate(recs):  # (the side of the other each belongs on, by its normal)
+            belongs = side if k == 0 else -side * np.sign(r["kappa"])
+            rows.append(_push_rows(r, F, belongs, side, gap))
         rows.append(_crossing_rows(X, F, E, petal, normals, mine, a, side, gap))
     return [block for block in rows if len(block[2])]
 
 
-def _push_rows(r, F, mine, side, gap):
+def _push_rows(r, F, belongs, side, gap):
     """The rows of the records ``r`` of one petal against the other (a block: ``ids``
-    (m, 4), ``grad`` (m, 4, 3), ``need`` (m,)): each vertex on the wrong side (``side`` is
-    the side of ``b`` that ``a`` belongs on; ``mine`` is ``side`` for ``a``'s records,
-    None for ``b``'s) across to ``PUSH`` gaps on its side, and each vertex nearer than the
-    gap away: along the other's normal where it is over or under it, else straight away
-    from it."""
+    (m, 4), ``grad`` (m, 4, 3), ``need`` (m,)): each vertex on the wrong side (``side``:
+    the side of ``b`` that ``a`` belongs on, the records' ``says`` in a's terms) across to
+    ``PUSH`` gaps on the side of the other it ``belongs`` on (by the other's normal: a
+    scalar, or one per record), and each vertex nearer than the gap away: along the
+    other's normal where it is over or under it, else straight away from it."""
     wrong = r["joined"] & (r["says"] != side)
-    # the side of the other petal this one belongs on, by the other's normal
-    belongs = mine if mine is not None else -side * np.sign(r["kappa"])
     want = np.where(wrong, belongs, np.sign(r["s"]))
     pick = np.flatnonzero(wrong | (r["d"] < gap))
     normal = wrong[pick] | r["over"][pick]
@@ -471,8 +470,8 @@ def _crossing_rows(X, F, E, petal, normals, mine, a, side, gap):
     tri = X[F[f]]
     nf = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
     nf /= np.maximum(np.linalg.norm(nf, axis=1), 1e-300)[:, None]
-    # the side of the face's petal the edge's belongs on: a's side of b; b's side of a,
-    # by a's normal
+    # the side of the face's petal that the edge's belongs on: a's side of b, or b's side
+    # of a (by a's normal)
     flip = np.where(np.einsum("ij,ij->i", normals[E[e, 0]], nf) >= 0.0, 1.0, -1.0)
     want = np.where(petal[E[e, 0]] != a, -side * flip, side)
     ends = X[E[e]]
