@@ -81,9 +81,10 @@ def _nearest_kernel(q, X, F, rows, cand, face, bary, dist, has):
 class Triangles:
     """Some triangles of a mesh (``ids`` of ``faces``), ready for closest-point queries:
     :meth:`nearest`. Exact: the closest point is no further than the nearest corner
-    (d0), in a triangle every point of which, its centre too, is within the longest edge
-    of it; so every triangle whose centre is within ``d0 + longest`` is measured (a k-d
-    tree of corners, one of centres)."""
+    (d0), in a triangle whose centre is within ``radius`` of every point of it (its
+    corners' largest distance from the centre, the largest over the triangles); so every
+    triangle whose centre is within ``d0 + radius`` is measured (a k-d tree of corners,
+    one of centres)."""
 
     def __init__(self, vertices: np.ndarray, faces: np.ndarray, ids: np.ndarray):
         self.X = np.ascontiguousarray(vertices, dtype=np.float64)
@@ -92,9 +93,10 @@ class Triangles:
         if len(self.ids) == 0:
             raise ValueError("no triangles to bind to")
         tri = self.X[self.F[self.ids]]
-        self.longest = float(np.max(np.linalg.norm(tri - tri[:, [1, 2, 0]], axis=2)))
+        centre = tri.mean(axis=1)
+        self.radius = float(np.max(np.linalg.norm(tri - centre[:, None], axis=2)))
         self.corners = cKDTree(self.X[np.unique(self.F[self.ids])])
-        self.centres = cKDTree(tri.mean(axis=1))
+        self.centres = cKDTree(centre)
 
     def nearest(self, q: np.ndarray, reach: float = np.inf):
         """The nearest point of these triangles to each of ``q`` (n, 3) that can be within
@@ -102,8 +104,9 @@ class Triangles:
         ``q``; a point further than ``reach`` may be among them, none nearer is left out)."""
         q = np.asarray(q, dtype=np.float64)
         d0, _ = self.corners.query(q)
-        can = np.flatnonzero(d0 - self.longest <= reach)
-        near = self.centres.query_ball_point(q[can], (d0[can] + self.longest) * (1 + 1e-9))
+        # (no corner within reach + radius: every point of every triangle is beyond reach)
+        can = np.flatnonzero(d0 - 2.0 * self.radius <= reach)
+        near = self.centres.query_ball_point(q[can], (d0[can] + self.radius) * (1 + 1e-9))
         count = np.fromiter(map(len, near), dtype=np.int64, count=len(near))
         cand = np.fromiter(chain.from_iterable(near), dtype=np.int64, count=int(count.sum()))
         return nearest_among(q, self.X, self.F, np.repeat(can, count), self.ids[cand])
