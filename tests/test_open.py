@@ -223,3 +223,26 @@ def test_a_sliver_whose_edges_grow_unevenly_keeps_an_area_at_the_bud(caplog):
     changed = np.flatnonzero(model.edge_growth != steep)
     assert 0 < len(changed) <= 12
     assert np.all(np.isin(model.edge_indices[changed], ring))
+
+
+def test_closing_twice_as_far_keeps_the_first_bud_unless_the_second_is_more_closed(monkeypatch):
+    """With growth.close left unset, a bud under CLOSED deg more closed is searched again
+    closing twice as far; the second is kept only if it is more closed (hallgeirl's at
+    2 hung open the other way, -6.6 deg, and bloomed worse than the one at 1)."""
+    from types import SimpleNamespace
+
+    X = np.zeros((4, 3))
+    X[:, 0] = np.arange(4.0)
+    petal, base = np.zeros(4, dtype=np.int64), np.array([True, False, False, False])
+
+    def found_at(cfg, close, *args, **kwargs):
+        bud = X + np.array([0.0, 0.0, close])  # (the bud says which close found it)
+        return bud, SimpleNamespace(iterations=1), "model", "angles", "params"
+
+    monkeypatch.setattr(reverse, "_find_bud_closing", found_at)
+    cfg = type("Cfg", (), {"given": set(), "__getitem__": lambda self, key: 1.0})()
+    for closed, kept in (({1.0: 10.0, 2.0: -6.6}, 1.0), ({1.0: 10.0, 2.0: 30.0}, 2.0),
+                         ({1.0: 10.0, 2.0: 15.0, 4.0: 12.0}, 2.0)):
+        out = reverse.open_start(cfg, None, X, None, None, None, petal, base, None, None,
+                                 None, "here", closed_by=lambda bud, c=closed: c[bud[0, 2]])
+        assert out[-1]["bud_close"] == kept

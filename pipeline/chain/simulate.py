@@ -93,15 +93,19 @@ def run(growth_h5: str | Path, out: str | Path, cfg: Config, *, overwrite: bool 
         axes = prep.petal_axes()
 
         def closed_by(bud) -> float:
-            """How much more closed ``bud`` is than the model (deg, the mean over petals):
-            in a flower, how much less its petals lean from their flower's axis
-            (negative: they lean further, hanging open the other way); a lone petal, by
-            how far its opening angle turns."""
-            if np.all(np.isfinite(axes)):
-                return float(np.mean(leans(model_positions, petal, base, prep.tip, axes)
-                                     - leans(bud, petal, base, prep.tip, axes)))
+            """How much more closed ``bud`` is than the model: the mean over petals of
+            the opening angle's change (deg)."""
             frames_ = prep.frames(bud).opening_toward(model_positions)
             return float(np.mean(np.abs(frames_.opening_angles(model_positions))))
+
+        def leans_less(bud) -> float | None:
+            """In a flower, how much less ``bud``'s petals lean from their flower's axis
+            than the model's (deg, the mean over petals; negative: they lean further,
+            hanging open the other way, and the bloom closes them); None for a lone petal."""
+            if not np.all(np.isfinite(axes)):
+                return None
+            return float(np.mean(leans(model_positions, petal, base, prep.tip, axes)
+                                 - leans(bud, petal, base, prep.tip, axes)))
 
         def bloom(lifted: bool) -> _Bloom:
             """The run from the bud (an open start: found with the closing lift or
@@ -206,9 +210,11 @@ def run(growth_h5: str | Path, out: str | Path, cfg: Config, *, overwrite: bool 
         if model_positions is not None:
             attrs["distance_to_model"] = run_.distance
             attrs.update(bud_info)
-            attrs["bud_closed"] = closed_by(v)
-            log.info("the bud is %.1f deg more closed than the model (mean over petals)",
-                     attrs["bud_closed"])
+            less = leans_less(v)
+            if less is not None:
+                attrs["bud_closed"] = less
+                log.info("the bud's petals lean %.1f deg less from the flower's axis than the "
+                         "model's (mean over petals)", less)
             log.info("last frame %.3g petal lengths (RMS) from the model",
                      attrs["distance_to_model"])
         names = report.petal_names(petal, src["mesh/part_names"], src["mesh/part"]) \

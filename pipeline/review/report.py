@@ -69,9 +69,10 @@ def soundness(positions: np.ndarray, faces: np.ndarray, opening_per_petal: np.nd
     petal, patch : (V,) each vertex's petal and contact patch (sim.h5's ``mesh/petal``
         and ``mesh/patch``), or None: petals that share a patch were left through each
         other as modelled, and their crossings are not counted (``left``: those pairs).
-    bud_closed : an open start's bud: how much more closed than the model it is (sim.h5's
-        ``bud_closed``, degrees; negative: its petals hang open the other way, and the
-        bloom closes them), or None.
+    bud_closed : an open start's bud in a flower: how much less its petals lean from
+        their flower's axis than the model's (sim.h5's ``bud_closed``, degrees, the mean
+        over petals; negative: they hang open the other way, and the bloom closes them),
+        or None.
 
     Returns
     -------

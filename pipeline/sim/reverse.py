@@ -409,7 +409,14 @@ def open_start(cfg, model: Model, positions, rest_angle, params: Params, build_e
                 log.info("growth.start = open: no bud at growth.close = %g (%s); the one at "
                          "%g kept", 2.0 * close, str(exc).split(";")[0], close)
                 break
-            close, found, turned = 2.0 * close, again, closed_by(again[0])
+            more = closed_by(again[0])
+            if not more > turned:  # (closing further found a bud no more closed: hallgeirl's
+                # at 2 hangs open the other way, -6.6 deg)
+                log.info("growth.start = open: the bud at growth.close = %g is %.1f deg more "
+                         "closed than the model, no more than at %g; the one at %g kept",
+                         2.0 * close, more, close, close)
+                break
+            close, found, turned = 2.0 * close, again, more
     bud, solver, model, rest_angle, params = found
     seconds = time.perf_counter() - clock
     moved = distance_to_model(bud, positions, petal, base)

@@ -122,6 +122,9 @@ def judge(row: Row, h) -> None:
             failed.append(f"ends {row.distance:.3g} petal lengths from the model")
         if not row.opened >= MORE_CLOSED:
             failed.append(f"bud only {row.opened:.1f} deg more closed")
+        lean = h.attrs.get("bud_closed")
+        if lean is not None and not float(lean) > 0.0:
+            failed.append(f"bud hangs open the other way ({float(lean):.1f} deg)")
     elif row.petals == 1:
         if not row.opened >= LONE_OPENS:
             failed.append(f"opens {row.opened:.1f} deg")
