@@ -91,7 +91,7 @@ class Triangles:
         self.F = np.ascontiguousarray(faces, dtype=np.int64)
         self.ids = np.asarray(ids, dtype=np.int64)
         if len(self.ids) == 0:
-            raise ValueError("no triangles to bind to")
+            raise ValueError("no triangles to find the nearest point on")
         tri = self.X[self.F[self.ids]]
         centre = tri.mean(axis=1)
         self.radius = float(np.max(np.linalg.norm(tri - centre[:, None], axis=2)))

@@ -468,7 +468,7 @@ def _crossing_rows(X, F, E, petal, normals, mine, a, side, gap):
     edge through a petal's rim may have neither end over or under it)."""
     e, f = mine[:, 0], mine[:, 1]
     tri = X[F[f]]
-    nf = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    nf = face_normals(X, F[f])
     nf /= np.maximum(np.linalg.norm(nf, axis=1), 1e-300)[:, None]
     # the side of the face's petal that the edge's belongs on: a's side of b, or b's side
     # of a (by a's normal)

@@ -66,7 +66,8 @@ def even_growth(face_edges, full, growth):
     are ``full`` long at A = 1 keeps, at A = 0 (``full / (1 + growth)``), a rest area
     within a factor :data:`EVEN` of what its edges' mean growth gives: the ratios of a
     triangle outside it are halved toward their mean, until none is. Returns the ratios
-    and the triangles changed (sorted); the input's own when none is outside."""
+    (a copy, equal to the input where no triangle is outside) and the triangles changed
+    (sorted)."""
     from pipeline.sim.terms.shell_kernels import rest_dets
 
     growth = np.array(growth, dtype=np.float64)
