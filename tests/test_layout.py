@@ -110,3 +110,18 @@ def test_the_makefile_runs_the_one_stage_list():
         assert f"$(BLOOM) {s.name} " in rule, s
         assert ("--config" in rule) == s.config, s
         assert ("--resume" in rule) == s.resume, s
+
+
+def test_every_package_is_in_the_distribution():
+    """A wheel (``pip install .``, not ``-e``) carries every package of the library and
+    the command line: pyproject.toml finds them by pattern, and each one matches."""
+    import fnmatch
+    import tomllib
+
+    setup = tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["setuptools"]
+    patterns = setup["packages"]["find"]["include"]
+    packages = [".".join(p.parent.relative_to(ROOT).parts)
+                for top in ("pipeline", "stages") for p in (ROOT / top).rglob("__init__.py")]
+    assert len(packages) > 8
+    missing = [p for p in packages if not any(fnmatch.fnmatch(p, pat) for pat in patterns)]
+    assert not missing, f"packages a wheel would leave out: {missing}"
