@@ -381,7 +381,7 @@ def test_threads_give_the_same_arrays_as_one(monkeypatch, effects):
     import threading
     from concurrent.futures import ThreadPoolExecutor
 
-    from pipeline.sim.solver import pieces as qs_module
+    from pipeline.sim import threads as qs_module
 
     scene = accuracy.Scene.bud(6, 300)
     threads = set()

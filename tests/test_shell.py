@@ -205,6 +205,30 @@ def test_forces_are_reproducible_to_the_bit_and_parts_assemble_as_the_whole(peta
     assert np.array_equal(blocks.data, whole)
 
 
+def test_petals_in_threads_give_the_forces_and_rounding_of_one_call(monkeypatch):
+    """A flower's forces and rounding bound are taken petal by petal in threads
+    (:meth:`ShellTerm._apart`): the forces and the per-vertex bound are the same bits as
+    one call over the whole mesh, the energies equal to rounding, and the pieces are the
+    petals."""
+    _, model = _shell_scene(4, 600)
+    v = prepared(4, 600)[0]
+    X = v + 0.01 * np.sin(7.0 * v[:, [1, 2, 0]])
+    out = {}
+    for threads in (False, True):
+        monkeypatch.setattr(sh, "PIECES_FROM", 0 if threads else 10 ** 9)
+        term = sh.ShellTerm(model).at(0.4)
+        F, scale = np.zeros_like(X), np.full(len(X), 5.0)  # (stale values to overwrite)
+        energy = term.forces(X, F)
+        bound = term.rounding(X, scale, fresh=True)
+        out[threads] = (energy, F, bound, scale, term._apart())
+    (e1, F1, b1, s1, none), (e2, F2, b2, s2, pieces) = out[False], out[True]
+    assert none is None and len(pieces) == 4
+    assert sum(len(p[0]) for p in pieces) == model.shell.face_count
+    assert np.array_equal(F1, F2) and np.array_equal(s1, s2)
+    assert e2 == pytest.approx(e1, rel=1e-12) and b2 == pytest.approx(b1, rel=1e-12)
+    assert np.abs(F1).max() > 0.0
+
+
 def test_the_rounding_bound_reads_the_last_assembly_until_it_is_forgotten(petal):
     """The solver's rounding bound (each face's |H| row sums times the coordinates'
     size, plus its gradient) takes the Hessians from the last assembly: after an

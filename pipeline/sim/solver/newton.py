@@ -21,11 +21,11 @@ from pipeline.sim.effects import Effects
 from pipeline.sim.energy import Terms
 from pipeline.sim.energy import build as build_terms
 from pipeline.sim.model import Model
-from pipeline.sim.solver.pieces import _map
 from pipeline.sim.solver.system import System
 from pipeline.sim.terms.connections import Springs
 from pipeline.sim.terms.contact import Contact
 from pipeline.sim.terms.inertia import Inertia
+from pipeline.sim.threads import parallel_map
 
 #: how far (mesh units) a search along a direction of negative curvature may go
 DESCENT = 2.0
@@ -168,7 +168,7 @@ class Newton:
         elastic = self.terms.elastic
         parts = [p for gr in (s.groups if groups is None else groups) for p in gr.parts]
         if len(parts) > 1:  # (pieces touch blocks apart: they are assembled in threads)
-            _map(lambda p: elastic.assemble(X, H, p), parts)
+            parallel_map(lambda p: elastic.assemble(X, H, p), parts)
         elif parts:
             elastic.assemble(X, H, parts[0])
         constrain(H.indptr, H.indices, H.data, s.pinned, s.plane_row, s.normals)
@@ -312,7 +312,7 @@ class Newton:
             if factored:
                 self.assemble(X, factored)
             downs = []  # (the groups' directions of negative curvature)
-            for gr, (positive, down) in zip(factored, _map(system.factor, factored), strict=True):
+            for gr, (positive, down) in zip(factored, parallel_map(system.factor, factored), strict=True):
                 fresh.add(gr.key)
                 stale.discard(gr.key)
                 if not positive:
@@ -341,7 +341,7 @@ class Newton:
                             return None, rejected
                     return mu, rejected
 
-                for _gr, (mu, rejected) in zip(lost, _map(shift, lost), strict=True):
+                for _gr, (mu, rejected) in zip(lost, parallel_map(shift, lost), strict=True):
                     self.counts.shifted += rejected
                     if mu is None:
                         return Failure(residual, scale, "shift", self.factor_inertia(),

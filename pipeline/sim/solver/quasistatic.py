@@ -75,13 +75,14 @@ from pipeline.flower import axis
 from pipeline.sim.effects import NO_EFFECTS, Effects
 from pipeline.sim.model import Control, Model, State
 from pipeline.sim.solver.newton import Counters, Failure, Newton, NotConverged
-from pipeline.sim.solver.pieces import _map, split
+from pipeline.sim.solver.pieces import split
 from pipeline.sim.solver.rescue import EXTRA_HALVINGS, RESCUES, Rescue, log_rescues, snap, step_through
 from pipeline.sim.solver.system import System
 from pipeline.sim.terms.connections import Springs
 from pipeline.sim.terms.contact import Contact
 from pipeline.sim.terms.inertia import Inertia
 from pipeline.sim.terms.shell import contact_stiffness
+from pipeline.sim.threads import parallel_map
 
 log = logging.getLogger("bloom")
 
@@ -179,7 +180,7 @@ class QuasiStatic:
                     r.vertex = int(part.vertices[r.vertex]) if r.vertex >= 0 else -1
 
         try:
-            _map(follow, self._parts)
+            parallel_map(follow, self._parts)
         finally:  # (in the petals' order: the same log every run)
             for part in self._parts:
                 self.rescued.extend(part.solver.rescued)

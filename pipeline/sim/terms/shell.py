@@ -22,6 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.sparse as sp
 
+from pipeline.mesh import topology
 from pipeline.sim.blocks import Part
 from pipeline.sim.terms.shell_kernels import (
     KERNEL_SCRATCH,
@@ -42,6 +43,7 @@ from pipeline.sim.terms.shell_stencil import (
     ghost_rows,
 )
 from pipeline.sim.terms.term import Term
+from pipeline.sim.threads import parallel_map
 
 
 def petal_size(vertices, faces, petal=None) -> float:
@@ -293,6 +295,11 @@ class ShellBlocks:
         return sp.bsr_matrix((self.data, self.indices, self.indptr), shape=(n, n))
 
 
+#: faces from which a mesh of several pieces has its forces taken piece by piece in
+#: threads (:meth:`ShellTerm._apart`; below, the pool costs more than it saves)
+PIECES_FROM = 1000
+
+
 class ShellTerm(Term):
     """The shell's energy (membrane and bending) as a term (:class:`~pipeline.sim.terms.term.Term`'s
     interface, and :class:`~pipeline.sim.terms.elastic.Elastic`'s: ``assemble`` into the
@@ -312,6 +319,7 @@ class ShellTerm(Term):
         self._h = np.zeros((self.shell.face_count, 6))
         self._h_taken = False  #: whether ``_h`` holds every face's (else: take them)
         self._rows = np.arange(self.shell.face_count)
+        self._pieces = None  #: :meth:`_apart`'s, found at the first use
         anchors = self.shell.anchors
         self._points = None if anchors is None or len(anchors) == 0 else np.zeros(
             (model.vertex_count + len(anchors), 3))
@@ -347,9 +355,30 @@ class ShellTerm(Term):
                 sh.face_stretch[faces], sh.face_bending[faces], sh.poisson,
                 sh.face_rest_form[faces], sh.face_rest_det[faces])
 
+    def _apart(self) -> list | None:
+        """The mesh's pieces (petals: no face's stencil reaches another's), each as
+        ``(faces, kernel arguments, scratch)``, for the force and rounding kernels to
+        run on at once in threads; None for one piece or a small mesh (one call is
+        cheaper than the pool). Each vertex's sum runs over its faces in the same order
+        as in one call, so the forces are the same bits; the energy is the pieces' sum."""
+        if self._pieces is None:
+            self._pieces = []
+            faces = self.shell.face_indices
+            if len(faces) >= PIECES_FROM and self.model.vertex_count:
+                label = topology.components(faces, self.model.vertex_count)[faces[:, 0]]
+                if label.max() > 0:
+                    self._pieces = [(f, self._args(f), np.zeros(KERNEL_SCRATCH))
+                                    for f in (np.flatnonzero(label == k)
+                                              for k in range(label.max() + 1))]
+        return self._pieces or None
+
     def forces(self, X, F) -> float:
-        return shell_forces(self._with_anchors(X), *self._args(), self.A, self.curl, F,
-                            self._scratch)
+        P = self._with_anchors(X)
+        pieces = self._apart()
+        if pieces is None:
+            return shell_forces(P, *self._args(), self.A, self.curl, F, self._scratch)
+        return sum(parallel_map(
+            lambda p: shell_forces(P, *p[1], self.A, self.curl, F, p[2]), pieces))
 
     def energy(self, X) -> float:
         return self.forces(X, np.zeros_like(X, dtype=np.float64))
@@ -394,8 +423,16 @@ class ShellTerm(Term):
         X), which cuts this from ten force evaluations' work to one. The solver takes
         it fresh where it decides on it (converged at rounding, a collapsed triangle)."""
         full = fresh or not self._h_taken
-        energy = shell_rounding(self._with_anchors(X), *self._args(), self.A, self.curl, full,
-                                self._h, per_vertex, self._scratch)
+        P = self._with_anchors(X)
+        per_vertex[:] = 0.0
+        pieces = self._apart()
+        if pieces is None:
+            energy = shell_rounding(P, *self._args(), self.A, self.curl, full, self._rows,
+                                    self._h, per_vertex, self._scratch)
+        else:
+            energy = sum(parallel_map(
+                lambda p: shell_rounding(P, *p[1], self.A, self.curl, full, p[0], self._h,
+                                         per_vertex, p[2]), pieces))
         self._h_taken = True
         return energy
 

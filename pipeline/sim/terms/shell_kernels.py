@@ -870,22 +870,23 @@ def shell_hessian(X, faces, opposite, ghost, crease, face_edges, rest0, growth, 
 
 @njit(cache=True, nogil=True, error_model="numpy")
 def shell_rounding(X, faces, opposite, ghost, crease, face_edges, rest0, growth, young, bend, nu,
-                   face_bbar, face_det0, A, curl, full, face_h, scale, scratch):
+                   face_bbar, face_det0, A, curl, full, rows, face_h, scale, scratch):
     """The size of what the force kernel adds and subtracts, per vertex into ``scale
     (V,)`` (force units), and for the energy (returned): ``eps`` times these bounds what
     rounding alone leaves in the gradient and the energy (see
     :func:`pipeline.sim.terms.elastic.rounding_scale`, the springs' own). Per face: the size
     of its gradient (its terms balance across faces at an equilibrium, not within one),
     and its Hessian times the coordinates' size (a representable X is ``eps |x|`` from
-    the exact equilibrium). The Hessian's row sums ``|H|`` are ``face_h (F, 6)``: taken
-    here if ``full`` (each face's Hessian: ten times the force kernel's work), else those
-    :func:`shell_hessian` left at its last assembly (a bound need not be of this very X)."""
+    the exact equilibrium). The Hessian's row sums ``|H|`` are ``face_h[rows[f]] (6,)``:
+    taken here if ``full`` (each face's Hessian: ten times the force kernel's work), else
+    those :func:`shell_hessian` left at its last assembly (a bound need not be of this
+    very X). ``scale`` is added to (the caller zeroes it), so that pieces no face joins
+    can each add theirs at once."""
     s = scratch[:SCRATCH]
     G, Gi, Cs, Cb, bbar, hinge = _small(scratch)
     views = _views(s)
     gx = views[7]
     Hx = views[8]
-    scale[:] = 0.0
     energy = 0.0
     for f in range(faces.shape[0]):
         L0s, L1s, L2s = _face_rest(f, face_edges, rest0, growth, A, face_bbar, face_det0,
@@ -901,7 +902,7 @@ def shell_rounding(X, faces, opposite, ghost, crease, face_edges, rest0, growth,
                     for x in range(3):
                         for y in range(3):
                             h += abs(Hx[k, l, x, y])
-                face_h[f, k] = h
+                face_h[rows[f], k] = h
         size = 0.0
         for k in range(6):
             idx = v[k] if k < 3 else opp[k - 3]
@@ -913,7 +914,7 @@ def shell_rounding(X, faces, opposite, ghost, crease, face_edges, rest0, growth,
             if idx < 0 or idx >= scale.shape[0]:
                 continue
             g = max(abs(gx[k, 0]), abs(gx[k, 1]), abs(gx[k, 2]))
-            scale[idx] += g + face_h[f, k] * size
+            scale[idx] += g + face_h[rows[f], k] * size
             gsum += g
         energy += abs(e) + gsum * size
     return energy
