@@ -113,3 +113,24 @@ def _blender_sees_the_asset(mesh, sim, usd, frame):
         # metersPerUnit 0.01: Blender scales the objects, not their local points
         np.testing.assert_allclose(seen["points"], last, atol=1e-5 * np.abs(last).max())
     return got
+
+
+@pytest.mark.skipif(not _has_bpy(), reason="bpy (Blender as a module) is not installed")
+def test_blender_imports_a_bush_of_staggered_flowers(tmp_path):
+    """Three flowers of one file, each from its own bud and staggered (issue 29), in one
+    USD: Blender sees a mesh per petal, and at the first frame, at the latest flower's
+    start and at the end, the points the run and the stagger say."""
+    from tests.test_flowers import staggered_bush_frames, staggered_bush_usd
+
+    usd, sim, starts = staggered_bush_usd(tmp_path)
+    want = staggered_bush_frames(sim, starts)
+    frames = [0, int(starts.max()), 4 + int(starts.max())]
+    r = subprocess.run([sys.executable, str(ROOT / "tests" / "blender" / "evaluated_points.py"),
+                        str(usd), ",".join(map(str, frames))], capture_output=True, text=True,
+                       timeout=300)
+    got = json.loads(next(x for x in r.stdout.splitlines() if x.startswith("JSON"))[4:])
+    assert len(got["names"]) == 15
+    assert not np.allclose(want[frames[0]], want[frames[-1]])
+    for t in frames:
+        np.testing.assert_allclose(np.asarray(got["points"][str(t)]), want[t],
+                                   atol=1e-5 * np.abs(want).max())

@@ -270,9 +270,9 @@ def test_a_staggered_flower_is_the_run_shifted_holding_its_bud_and_its_end():
     assert out[:, 1, 0].tolist() == [0, 0, 0, 1, 2, 3]  # holds its bud 2 frames
 
 
-def test_many_flowers_come_back_staggered_in_one_usd(tmp_path):
-    from pxr import Usd
-
+def staggered_bush_usd(tmp_path):
+    """Three flowers of five petals through every stage (short) and exported staggered
+    (scene.stagger 6, seed 1) to one USD of the sheets: ``(usd, sim.h5, start frames)``."""
     mesh = _bush_obj(tmp_path)
     short = ["--set", "simulate.steps=400", "--set", "simulate.frames=5",
              "--set", "growth.start=bud", "--set", "effects.collisions.enabled=false"]
@@ -287,23 +287,41 @@ def test_many_flowers_come_back_staggered_in_one_usd(tmp_path):
                                  "scene.stagger=6", "--set", "scene.stagger_seed=1",
                                  "--set", "export.mesh=sheet"])
     assert r.exit_code == 0, r.output
-    from pipeline.flower.stagger import staggered, start_frames
-    from pipeline.io.export import read_usd_points
+    from pipeline.flower.stagger import start_frames
 
-    starts = start_frames(3, 6, 1)
-    stage = Usd.Stage.Open(str(usd))
-    assert stage.GetEndTimeCode() == 4 + starts.max()  # the run's 5 frames, then the latest
-    with h5py.File(paths["s"]) as h:
+    return usd, paths["s"], start_frames(3, 6, 1)
+
+
+def staggered_bush_frames(sim, starts):
+    """What the staggered bush's USD holds: each frame's points in the USD's order (a
+    mesh per petal, in order), at the input's scale."""
+    from pipeline.flower.stagger import staggered
+
+    with h5py.File(sim) as h:
         run, petal = h["frames/positions"][()], h["mesh/petal"][()]
         scale = h.attrs["scale"]
-    flower = petal // 5
-    order = np.argsort(petal, kind="stable")  # the USD's meshes: one per petal, in order
-    want = staggered(run / scale, flower, starts)
+    order = np.argsort(petal, kind="stable")
+    return staggered(run / scale, petal // 5, starts)[:, order]
+
+
+def test_many_flowers_come_back_staggered_in_one_usd(tmp_path):
+    from pxr import Usd
+
+    from pipeline.io.export import read_usd_points
+
+    usd, sim, starts = staggered_bush_usd(tmp_path)
+    stage = Usd.Stage.Open(str(usd))
+    assert stage.GetEndTimeCode() == 4 + starts.max()  # the run's 5 frames, then the latest
+    want = staggered_bush_frames(sim, starts)
     for t in (0, int(starts.max()), 4 + int(starts.max())):
         got = read_usd_points(usd, float(t))
-        np.testing.assert_allclose(got, want[t][order], rtol=1e-6, atol=1e-6 * np.abs(want).max())
+        np.testing.assert_allclose(got, want[t], rtol=1e-6, atol=1e-6 * np.abs(want).max())
+    with h5py.File(sim) as h:
+        bud, petal = h["frames/positions"][0] / h.attrs["scale"], h["mesh/petal"][()]
+    flower = (petal // 5)[np.argsort(petal, kind="stable")]
     late = int(np.argmax(starts))  # at its start frame the latest flower still holds its bud
-    np.testing.assert_array_equal(want[starts[late]][flower == late], (run[0] / scale)[flower == late])
+    np.testing.assert_array_equal(want[starts[late]][flower == late],
+                                  bud[np.argsort(petal, kind="stable")][flower == late])
 
 
 def test_the_flowers_of_a_file_are_problems_apart_however_near():
