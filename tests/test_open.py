@@ -155,6 +155,44 @@ def test_a_bud_search_that_finds_no_equilibrium_closes_half_as_far(tmp_path, mon
     assert not (tmp_path / "t.h5").exists()
 
 
+def test_a_bloom_that_leaves_its_branch_is_the_path_back_played_forward(tmp_path, monkeypatch):
+    """Where the forward run from the bud finds no equilibrium (the path forward folds off
+    the branch the bud was found on), the bloom of an open model is the model's own path
+    to its bud, played forward: logged, recorded as bloom_path, the last frame the model
+    itself, the first the bud (more closed), growth and the solver's counts rising."""
+    from pipeline.chain import simulate as chain
+    from pipeline.sim.solver.newton import NotConverged
+
+    v, f, p = procedural.open_flower(3, 600, 0)
+    mesh = tmp_path / "open.obj"
+    procedural.write_obj(mesh, v, f, p, "an open flower")
+    out = {k: tmp_path / f"{k}.h5" for k in ("r", "a", "g", "s")}
+    for stage, src, dst in (("remesh", mesh, "r"), ("axis", out["r"], "a"), ("growth", out["a"], "g")):
+        assert CliRunner().invoke(cli, [stage, str(src), "--out", str(out[dst])]).exit_code == 0
+    real = chain.integrate
+
+    def folds(model, state, control, integrator, **kwargs):
+        real(model, state, control, integrator, **{**kwargs, "frames": 2, "steps": 1})
+        raise NotConverged(0, 0.3, 1.0, scale=1.0, vertex=len(v) - 1)
+
+    monkeypatch.setattr(chain, "integrate", folds)
+    r = CliRunner().invoke(cli, ["simulate", str(out["g"]), "--out", str(out["s"]), "--set",
+                                 "growth.start=open", "--set", "simulate.frames=9"])
+    assert r.exit_code == 0, r.output
+    assert "played forward" in r.output and "A = 0.3 (petal 2)" in r.output
+    with h5py.File(out["s"]) as h:
+        assert h.attrs["bloom_path"] == "retraced" and h.attrs["bud_path"] == "own"
+        X = h["frames/positions"][()]
+        assert len(X) == 9 and h.attrs["distance_to_model"] < 1e-12
+        np.testing.assert_array_equal(h["open/bud"][()], X[0])
+        d = h["diagnostics"]
+        growth, opening = d["growth"][()], d["opening_angle"][()]
+        assert growth[0] == 0.0 and growth[-1] == 1.0 and np.all(np.diff(growth) >= 0.0)
+        assert np.all(np.diff(d["newton_iterations"][()]) >= 0) and d["newton_iterations"][-1] > 0
+        assert opening[-1] - opening[0] > 10.0 and not d["intersecting"][()].any()
+        assert h.attrs["summary"].startswith("sound")
+
+
 def test_an_open_shell_is_its_own_rest_state_and_blooms_back_to_itself():
     """The shell (``simulate.model = shell``) from an open model: at A = 1 the mesh is at
     rest, curvature included (with and without curl), and not at A = 0; the bud found

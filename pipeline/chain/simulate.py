@@ -32,7 +32,7 @@ from pipeline.sim.effects import Params
 from pipeline.sim.explicit.semi_implicit import Diverged
 from pipeline.sim.integrators import make_integrator
 from pipeline.sim.model import Control, State
-from pipeline.sim.reverse import distance_to_model, open_start, petal_lengths
+from pipeline.sim.reverse import distance_to_model, open_start, petal_lengths, retrace
 from pipeline.sim.run import run as integrate
 from pipeline.sim.solver.newton import NotConverged
 from pipeline.sim.terms.contact import frame_intersections
@@ -124,11 +124,15 @@ def run(growth_h5: str | Path, out: str | Path, cfg: Config, *, overwrite: bool 
                 control = Control.keyed(cfg["growth.keys"], frames, steps, h)
             else:
                 control = Control(cfg["growth.schedule"], cfg["growth.ramp"] * steps * h)
-            integrator = make_integrator(sim["integrator"], sim["eta"], sim["damping"],
-                                         sim["speed_limit"], sim["stages"], sim["tolerance"],
-                                         sim["substeps"], sim["inertia"])
-            if hasattr(integrator, "petal"):  # (it names the petal of each rescue in the log)
-                integrator.petal = np.asarray(petal)
+            def fresh_integrator():
+                made = make_integrator(sim["integrator"], sim["eta"], sim["damping"],
+                                       sim["speed_limit"], sim["stages"], sim["tolerance"],
+                                       sim["substeps"], sim["inertia"])
+                if hasattr(made, "petal"):  # (it names the petal of each rescue in the log)
+                    made.petal = np.asarray(petal)
+                return made
+
+            integrator = fresh_integrator()
             if shell and model_positions is not None:  # (the found bud breaks the symmetry)
                 integrator.perturbation = 0.0
             elif shell and hasattr(integrator, "nudge") and sim["imperfection"] > 0.0:
@@ -153,6 +157,7 @@ def run(growth_h5: str | Path, out: str | Path, cfg: Config, *, overwrite: bool 
                      ", ".join(effects.names) or "none")
             if effects.connections is not None:
                 log.info("%d connection springs between petals", len(effects.connections.pairs))
+            failed = None
             with Progress(steps, "simulate", progress) as bar:
                 try:
                     rec, wall = integrate(model, state, control, integrator, steps=steps,
@@ -161,7 +166,35 @@ def run(growth_h5: str | Path, out: str | Path, cfg: Config, *, overwrite: bool 
                                           checkpoint=saver)
                 except (Diverged, NotConverged, ValueError, RuntimeError) as exc:
                     path.unlink(missing_ok=True)  # a failed run's checkpoint would fail again
-                    raise _refusal(exc, sim, steps, petal, where) from None
+                    if not (isinstance(exc, NotConverged) and model_positions is not None
+                            and sim["integrator"] == "quasi-static"):
+                        raise _refusal(exc, sim, steps, petal, where) from None
+                    failed = exc
+            if failed is not None:  # an open model: its own path, from the model to a bud
+                log.warning("the bloom from the bud found no equilibrium at A = %.4g (petal "
+                            "%d): the path forward leaves the branch the bud is on; the bloom "
+                            "is the model's own path to its bud, played forward (every frame "
+                            "an equilibrium at its growth)", failed.growth,
+                            int(petal[failed.vertex]))
+                integrator = fresh_integrator()  # (its nudge at the start, as the search's)
+                effects = build_effects(model_positions)
+                with Progress(steps, "simulate (the path back)", progress) as bar:
+                    try:
+                        rec, wall = retrace(model, model_positions, control, integrator,
+                                            effects, steps=steps, frames=frames, h=h,
+                                            progress=bar.update)
+                    except (Diverged, NotConverged, ValueError, RuntimeError) as exc:
+                        raise _refusal(exc, sim, steps, petal, where) from None
+                v0 = np.asarray(rec.positions[0])
+                petals = prep.frames(v0).opening_toward(model_positions)
+                if len(petals.tips):
+                    rec.diagnostics["opening_angle_per_petal"] = [
+                        petals.opening_angles(X) for X in rec.positions]
+                    rec.diagnostics["opening_angle"] = [
+                        float(a.mean()) for a in rec.diagnostics["opening_angle_per_petal"]]
+                bud_info = {**bud_info, "bud_path": "own", "bloom_path": "retraced",
+                            "bud_distance": distance_to_model(v0, model_positions, petal,
+                                                              base)}
             distance = (None if model_positions is None else
                         distance_to_model(np.asarray(rec.positions[-1]), model_positions,
                                           petal, base))

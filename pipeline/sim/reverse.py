@@ -52,6 +52,42 @@ class Backward:
         return float(min(max(1.0 - t, 0.0), 1.0))
 
 
+class Played:
+    """A control played backward: A at time t is ``control``'s at ``end - t``."""
+
+    def __init__(self, control, end: float):
+        self.control, self.end = control, float(end)
+
+    def growth_at(self, t: float) -> float:
+        return self.control.growth_at(self.end - t)
+
+
+def retrace(model: Model, open_positions, control, integrator, effects, *, steps: int,
+            frames: int, h: float, progress=None):
+    """The bloom as the path of equilibria from the model to its bud, played forward:
+    ``integrator`` (quasi-static) follows the model's own path with ``control`` played
+    backward (A from 1 down to 0, frame by frame), and the frames are put in forward
+    order. Every frame is an equilibrium of the model at its growth, the last is the
+    model itself and the first the bud the path reaches. Where the forward path from a
+    bud leaves the branch the bud was found on (a fold: a petal that closed smoothly
+    snaps or crumples as it opens), this is the bloom on that branch.
+
+    Returns ``(recording, wall seconds)``: positions and the state's diagnostics
+    reversed, the integrator's counts (work done so far) and the times as recorded."""
+    from pipeline.sim.run import Recording
+    from pipeline.sim.run import run as integrate
+
+    back = Played(control, steps * h)
+    state = State.at_rest(model, np.asarray(open_positions, dtype=np.float64), back)
+    effects.constrain(state.forces)
+    rec, wall = integrate(model, state, back, integrator, steps=steps, frames=frames, h=h,
+                          effects=effects, progress=progress)
+    counts = set(integrator.diagnostics())
+    return Recording(time=rec.time, positions=rec.positions[::-1],
+                     diagnostics={k: (v if k in counts else v[::-1])
+                                  for k, v in rec.diagnostics.items()}), wall
+
+
 #: a shell's triangle whose rest area at the bud would be under this fraction of what an
 #: even growth of its edges gives (or over its inverse) has its edges' growth ratios evened
 #: out toward their mean: a sliver (angles of 17, 18 and 145 deg in a rose's remeshed petal)

@@ -99,10 +99,12 @@ def run(model: Model, state: State, control: Control, integrator, *, steps: int,
 
 def _guard_hold_energy(rec: Recording, state: State) -> None:
     growth, total = rec.diagnostics["growth"], rec.diagnostics["total_energy"]
-    hold = [i for i, a in enumerate(growth) if a >= 1.0]
-    if len(hold) < 2:
+    first = len(growth)  # the hold: the frames at full growth up to this one
+    while first > 0 and growth[first - 1] >= 1.0:
+        first -= 1
+    if len(growth) - first < 2:  # (a path played backward leaves full growth: no hold)
         return
-    start = total[hold[0]]
+    start = total[first]
     if total[-1] > start + HOLD_ENERGY_RISE * abs(start) + 1e-12:
         raise Diverged(state.step, state.potential_energy, state.max_speed(),
                        f"energy rose {100 * (total[-1] - start) / abs(start):.0f}% while "
