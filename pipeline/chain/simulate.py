@@ -180,18 +180,13 @@ def run(growth_h5: str | Path, out: str | Path, cfg: Config, *, overwrite: bool 
                 effects = build_effects(model_positions)
                 with Progress(steps, "simulate (the path back)", progress) as bar:
                     try:
-                        rec, wall = retrace(model, model_positions, control, integrator,
-                                            effects, steps=steps, frames=frames, h=h,
-                                            progress=bar.update)
+                        rec, wall = retrace(
+                            model, model_positions, control, integrator, effects, steps=steps,
+                            frames=frames, h=h, progress=bar.update,
+                            petals_at=lambda bud: prep.frames(bud).opening_toward(model_positions))
                     except (Diverged, NotConverged, ValueError, RuntimeError) as exc:
                         raise _refusal(exc, sim, steps, petal, where) from None
                 v0 = np.asarray(rec.positions[0])
-                petals = prep.frames(v0).opening_toward(model_positions)
-                if len(petals.tips):
-                    rec.diagnostics["opening_angle_per_petal"] = [
-                        petals.opening_angles(X) for X in rec.positions]
-                    rec.diagnostics["opening_angle"] = [
-                        float(a.mean()) for a in rec.diagnostics["opening_angle_per_petal"]]
                 bud_info = {**bud_info, "bud_path": "own", "bloom_path": "retraced",
                             "bud_distance": distance_to_model(v0, model_positions, petal,
                                                               base)}

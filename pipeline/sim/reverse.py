@@ -28,9 +28,12 @@ from pipeline.errors import BloomError
 from pipeline.mesh.hinge import edge_lengths, hinge_cos_sin
 from pipeline.sim.effects import Params, flower_axis_or_guess
 from pipeline.sim.model import Model, State
+from pipeline.sim.run import Recording, openings
+from pipeline.sim.run import run as integrate
 from pipeline.sim.solver.newton import NotConverged
 from pipeline.sim.solver.quasistatic import QuasiStatic
 from pipeline.sim.terms.contact import Contact, ContactError
+from pipeline.sim.terms.shell_kernels import rest_dets
 
 log = logging.getLogger("bloom")
 
@@ -63,7 +66,7 @@ class Played:
 
 
 def retrace(model: Model, open_positions, control, integrator, effects, *, steps: int,
-            frames: int, h: float, progress=None):
+            frames: int, h: float, petals_at=None, progress=None):
     """The bloom as the path of equilibria from the model to its bud, played forward:
     ``integrator`` (quasi-static) follows the model's own path with ``control`` played
     backward (A from 1 down to 0, frame by frame), and the frames are put in forward
@@ -73,19 +76,24 @@ def retrace(model: Model, open_positions, control, integrator, effects, *, steps
     snaps or crumples as it opens), this is the bloom on that branch.
 
     Returns ``(recording, wall seconds)``: positions and the state's diagnostics
-    reversed, the integrator's counts (work done so far) and the times as recorded."""
-    from pipeline.sim.run import Recording
-    from pipeline.sim.run import run as integrate
-
+    reversed, the integrator's counts (work done so far) and the times as recorded; the
+    opening angles measured from the first frame, in the petal frames ``petals_at(bud)``
+    gives (if given)."""
     back = Played(control, steps * h)
     state = State.at_rest(model, np.asarray(open_positions, dtype=np.float64), back)
     effects.constrain(state.forces)
     rec, wall = integrate(model, state, back, integrator, steps=steps, frames=frames, h=h,
                           effects=effects, progress=progress)
     counts = set(integrator.diagnostics())
-    return Recording(time=rec.time, positions=rec.positions[::-1],
-                     diagnostics={k: (v if k in counts else v[::-1])
-                                  for k, v in rec.diagnostics.items()}), wall
+    out = Recording(time=rec.time, positions=rec.positions[::-1],
+                    diagnostics={k: (v if k in counts else v[::-1])
+                                 for k, v in rec.diagnostics.items()})
+    petals = None if petals_at is None else petals_at(out.positions[0])
+    if petals is not None and len(petals.tips):
+        for X in out.positions:
+            for name, value in openings(petals, X).items():
+                out.add(name, value)
+    return out, wall
 
 
 #: a shell's triangle whose rest area at the bud would be under this fraction of what an
@@ -104,8 +112,6 @@ def even_growth(face_edges, full, growth):
     triangle outside it are halved toward their mean, until none is. Returns the ratios
     (a copy, equal to the input where no triangle is outside) and the triangles changed
     (sorted)."""
-    from pipeline.sim.terms.shell_kernels import rest_dets
-
     growth = np.array(growth, dtype=np.float64)
     full = np.ascontiguousarray(full, dtype=np.float64)
     det1 = np.empty(len(face_edges))

@@ -40,6 +40,12 @@ class Recording:
         return {name: np.asarray(values) for name, values in self.diagnostics.items()}
 
 
+def openings(petals: PetalFrames, X) -> dict:
+    """A frame's opening diagnostics: each petal's opening angle (deg) and their mean."""
+    angles = petals.opening_angles(X)
+    return {"opening_angle": float(angles.mean()), "opening_angle_per_petal": angles}
+
+
 def record(rec: Recording, model: Model, state: State, control: Control, h: float,
            petals: PetalFrames | None, effects: Effects = NO_EFFECTS, integrator=None) -> None:
     t = state.step * h
@@ -52,9 +58,8 @@ def record(rec: Recording, model: Model, state: State, control: Control, h: floa
     rec.add("max_speed", state.max_speed())
     rec.add("growth", control.growth_at(t))
     if petals is not None and len(petals.tips):
-        angles = petals.opening_angles(state.positions)
-        rec.add("opening_angle", float(angles.mean()))
-        rec.add("opening_angle_per_petal", angles)
+        for name, value in openings(petals, state.positions).items():
+            rec.add(name, value)
     for name, value in effects.frame_diagnostics(state.positions, control.growth_at(t)).items():
         rec.add(name, value)
     for name, value in (integrator.diagnostics() if integrator is not None else {}).items():
