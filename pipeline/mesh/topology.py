@@ -88,10 +88,12 @@ def hinges(faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def components(faces: np.ndarray, vertex_count: int) -> np.ndarray:
-    """``(V,) int``: connected-component label of every vertex, numbered by first vertex."""
+    """``(V,) int``: connected-component label of every vertex, numbered by first vertex.
+    ``faces`` ``(k, m)``: triangles, or any cells of ``m`` vertices (edges: ``m = 2``)."""
     f = np.asarray(faces, dtype=np.int64)
-    rows = np.concatenate([f[:, 0], f[:, 1], f[:, 2]])
-    cols = np.concatenate([f[:, 1], f[:, 2], f[:, 0]])
+    m = f.shape[1]
+    rows = np.concatenate([f[:, k] for k in range(m)])
+    cols = np.concatenate([f[:, (k + 1) % m] for k in range(m)])
     graph = sp.coo_matrix((np.ones(rows.size), (rows, cols)), shape=(vertex_count, vertex_count))
     _, labels = connected_components(graph, directed=False)
     # relabel in order of each component's first vertex, so labels do not depend on scipy

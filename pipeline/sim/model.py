@@ -8,6 +8,7 @@ import numpy as np
 from scipy.interpolate import PchipInterpolator
 
 from pipeline.mesh.hinge import edge_lengths, hinge_cos_sin
+from pipeline.mesh.topology import components
 from pipeline.sim.terms.elastic import internal_forces
 from pipeline.sim.terms.growth import SCHEDULE_CODES, growth_value
 from pipeline.sim.terms.shell import ShellTerm
@@ -85,6 +86,12 @@ class Model:
     @property
     def pinned(self) -> np.ndarray:
         return self.vertex_inv_mass == 0.0
+
+    @property
+    def pieces(self) -> np.ndarray:
+        """``(V,)`` each vertex's piece (a petal: the vertices its edges join), numbered
+        by first vertex: no spring, hinge or face of one piece reaches another."""
+        return components(self.edge_indices, self.vertex_count)
 
     @classmethod
     def build(cls, vertices, edges, edge_growth, edge_stiffness, hinges, hinge_stiffness,

@@ -84,8 +84,7 @@ class System:
             plane_row[effects.center_plane.vertices] = np.arange(len(effects.center_plane.vertices))
             normals = np.ascontiguousarray(effects.center_plane.normals)
         e = model.edge_indices
-        graph = sp.coo_matrix((np.ones(len(e)), (e[:, 0], e[:, 1])), shape=(n, n))
-        piece = connected_components(graph, directed=False)[1].astype(np.int64)
+        piece = model.pieces
         faces = model.shell.face_indices if model.shell is not None else np.zeros((0, 3), int)
         system = cls(blocks, model.pinned.copy(), plane_row, normals, piece, piece[e[:, 0]],
                      piece[model.hinge_indices[:, 0]], piece[faces[:, 0]])
