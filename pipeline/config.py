@@ -79,7 +79,8 @@ INTEGRATORS = ("semi-implicit", "explicit-damping", "quasi-static")
 SCHEMA: dict[str, Any] = {
     "scene": {
         "name": Key(str, "", "scene name (default: the config file's name)"),
-        "mesh": Key(str, "", "input mesh (OBJ/PLY/STL/OFF/GLB), relative to the config file"),
+        "mesh": Key(str, "", "input mesh (OBJ/PLY/STL/OFF/GLB), relative to the config file "
+                     "(given by --set: to the working folder)"),
         "description": Key(str, "", "free text, shown by `bloom inspect`"),
         "petals": Key(list, [], "glob patterns over the mesh's part names (e.g. [\"Circle.0*\"]): a "
                       "matching part is a petal whatever its shape says"),
@@ -512,6 +513,9 @@ def load_config(path: str | Path | None = None, overrides: tuple[str, ...] | lis
     for text in overrides:
         dotted, value = parse_override(text)
         values[dotted] = _coerce(dotted, KEYS[dotted], value, "--set")
+        if dotted == "scene.mesh" and values[dotted]:  # (typed on the command line: a
+            # relative path is from where it was typed, not from the config file's folder)
+            values[dotted] = str(Path(values[dotted]).absolute())
         given.add(dotted)
     cfg = Config(values, cfg_path, frozenset(given))
     _check_together(cfg, str(cfg_path) if cfg_path else "defaults")

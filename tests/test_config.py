@@ -96,6 +96,19 @@ def test_mesh_path_is_relative_to_the_config_file(tmp_path):
     assert load_config(path).mesh_path() == sub / "../assets/a.obj"
 
 
+def test_a_mesh_given_by_set_is_relative_to_the_working_folder(tmp_path, monkeypatch):
+    """``--set scene.mesh=x.obj`` beside ``--config scenes/s.toml``: the path typed on the
+    command line is from where it was typed (``make accuracy`` wrote its meshes under
+    outputs/ and looked for them under configs/outputs/)."""
+    sub = tmp_path / "scenes"
+    sub.mkdir()
+    path = write(sub, "[scene]\nmesh = '../assets/a.obj'\n")
+    monkeypatch.chdir(tmp_path)
+    cfg = load_config(path, ["scene.mesh=out/b.obj"])
+    assert cfg.mesh_path() == tmp_path / "out" / "b.obj"
+    assert load_config(None, ["scene.mesh=b.obj"]).mesh_path() == tmp_path / "b.obj"
+
+
 def test_growth_curves_evaluate_without_eval():
     x = np.linspace(-1, 1, 5)
     np.testing.assert_allclose(evaluate_curve("0.2*x**2", x), 0.2 * x ** 2)
