@@ -71,7 +71,7 @@ def test_axis_artifact(chain):
     with h5py.File(chain["axis"]) as f:
         x, s, base = f["axis/x"][()], f["axis/s"][()], f["axis/base"][()]
         on_axis, tip, plane = f["axis/on_axis"][()], f["axis/tip"][()], f["axis/plane"][()]
-        petal = f["mesh/petal"][()]
+        petal, faces = f["mesh/petal"][()], f["mesh/faces"][()]
     assert x.min() == -1.0 and x.max() == 1.0
     # the shell's (the default) x is measured from the midrib curve itself, where the
     # surface crosses the center plane: its on-axis vertices are on it or the nearer end
@@ -79,8 +79,16 @@ def test_axis_artifact(chain):
     assert np.abs(x[on_axis]).max() < 0.1
     assert np.all((s >= 0) & (s <= 1)) and np.all(s[tip] == 1.0) and s.min() == 0.0
     # the shell's base is a band: the vertices within axis.base_band of the length from
-    # the base edge (s runs from the base's lowest point: a little more at the band's edge)
-    assert 0.5 * KEYS["axis.base_band"].default < s[base].max() <= 1.25 * KEYS["axis.base_band"].default
+    # the base edge, to the nearest row (a vertex is in when the band reaches past half
+    # its largest step in s), so that its last row lies on the band's edge on average
+    band = KEYS["axis.base_band"].default
+    edges = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
+    step = np.zeros(len(s))
+    np.maximum.at(step, edges.ravel(), np.repeat(np.abs(np.diff(s[edges], axis=1))[:, 0], 2))
+    assert np.all(s[base] <= band + 0.5 * step[base] + 1e-12)
+    assert not np.any(~base & (s <= band + 0.5 * step))
+    last = base & np.isin(np.arange(len(s)), edges[base[edges[:, 0]] ^ base[edges[:, 1]]])
+    assert abs(s[last].mean() - band) < 0.25 * band, s[last].mean()
     assert tip.shape == (3,) and plane.shape == (3, 4)
     np.testing.assert_allclose(np.linalg.norm(plane[:, :3], axis=1), 1.0)
     for p in range(3):

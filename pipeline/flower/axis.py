@@ -123,6 +123,18 @@ def base_width(fixed: np.ndarray, points: np.ndarray) -> float:
     return float(np.linalg.norm(off, axis=1).max() / length) if length > 0.0 else 0.0
 
 
+def _band_by_rows(s: np.ndarray, edges: np.ndarray, band: float) -> np.ndarray:
+    """The vertices of the band ``s <= band``, rounded to the nearest row: a vertex is in
+    when the band reaches past half its spacing along s (its largest step in s to a
+    neighbour), so that the band's last row of vertices lies on ``s = band`` on average,
+    not up to an edge short of it (a clamp that moves with where vertices fall)."""
+    step = np.zeros(len(s))
+    ds = np.abs(s[edges[:, 0]] - s[edges[:, 1]])
+    np.maximum.at(step, edges[:, 0], ds)
+    np.maximum.at(step, edges[:, 1], ds)
+    return s <= band + 0.5 * step
+
+
 def _widen_base(base: np.ndarray, boundary: np.ndarray, proj: np.ndarray, pts: np.ndarray,
                 sub, limit: float) -> bool:
     """Add vertices to ``base`` (in place), nearest the base end first (by ``proj``),
@@ -515,6 +527,15 @@ def find_axes(vertices: np.ndarray, faces: np.ndarray, petal: np.ndarray, *,
         tip_at = tip_distance(dist_base, side, local_faces, dist_base[tip_local]) if surface \
             else dist_base[tip_local]
         s[idx] = np.minimum(dist_base / tip_at, 1.0)
+        if surface and base_region == "band":
+            # the band by s, to the nearest row of vertices (the clamp's last row lies
+            # on the band's edge on average, at any resolution: not up to an edge short)
+            banded = _band_by_rows(s[idx], local_edges, base_fraction) | end
+            if not np.array_equal(banded, mine_base):
+                mine_base = banded
+                if not _widen_base(mine_base, bnd, proj, pts, sub, reach):
+                    raise WeakBase(p, int(mine_base.sum()), base_width(pts[mine_base], pts))
+                base[idx] = mine_base
 
         # orient the plane normal: (normal, base->tip chord, outward) right-handed
         chord = pts[tip_local] - pts[mine_base].mean(axis=0)
