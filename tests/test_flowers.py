@@ -353,3 +353,100 @@ def test_the_flowers_of_a_file_are_problems_apart_however_near():
     qs.advance(model, state, control, 1, 0.1, prep.effects(("collisions",), params))
     assert qs.newton.contact is None  # (no contact between the flowers ...)
     assert len(qs._parts) == 2 and all(pt.solver.newton.contact is not None for pt in qs._parts)
+
+
+def _bush_growth(tmp_path):
+    """The three-flower bush through remesh, axis and growth: growth.h5."""
+    mesh = _bush_obj(tmp_path)
+    paths = {k: tmp_path / f"{k}.h5" for k in ("r", "a", "g")}
+    for stage, src, out in (("remesh", mesh, "r"), ("axis", paths["r"], "a"),
+                            ("growth", paths["a"], "g")):
+        r = CliRunner().invoke(cli, ["-q", stage, str(src), "--out", str(paths[out])])
+        assert r.exit_code == 0, r.output
+    return paths["g"]
+
+
+SHORT = ["--set", "simulate.steps=400", "--set", "simulate.frames=5", "--set",
+         "growth.start=bud", "--set", "effects.collisions.enabled=false", "--set",
+         "scene.stagger=2"]
+
+
+def test_each_flower_of_a_file_blooms_as_it_would_alone(tmp_path):
+    """A file of staggered flowers is simulated flower by flower: each flower's frames
+    in sim.h5 are, to the bit, those of its own problem run alone; the openings per
+    petal are each flower's, in the file's petal order, and their mean is the mean."""
+    from pipeline.chain import problem
+    from pipeline.config import load_config
+    from pipeline.flower.measure import Start
+    from pipeline.sim.build import Prepared
+
+    growth = _bush_growth(tmp_path)
+    r = CliRunner().invoke(cli, ["simulate", str(growth), "--out", str(tmp_path / "s.h5"),
+                                 *SHORT])
+    assert r.exit_code == 0, r.output
+    assert "flower 2 of 3: 5 petal(s)" in r.output
+    with h5py.File(tmp_path / "s.h5") as h:
+        X, opening = h["frames/positions"][()], h["diagnostics/opening_angle_per_petal"][()]
+        mean = h["diagnostics/opening_angle"][()]
+        assert "flowers_kept_as_modelled" not in h.attrs
+    cfg = load_config(None, [s for s in SHORT if s != "--set"])
+    job = problem.Job(cfg, Start("bud", float("nan"), "test"), [], {}, False, False, "test")
+    with h5py.File(growth) as src:
+        prep = Prepared.from_artifact(src)
+        part, idx = prep.flower_part(1)
+        alone = problem.problem(part, job, tmp_path / "alone.ckpt")
+        mine = np.unique(np.asarray(prep.petal)[idx])
+    np.testing.assert_array_equal(X[:, idx], np.asarray(alone.rec.positions))
+    np.testing.assert_array_equal(opening[:, mine], alone.rec.arrays()["opening_angle_per_petal"])
+    np.testing.assert_allclose(mean, opening.mean(axis=1), rtol=1e-12)
+    assert opening[-1].min() > 1.0  # (every petal opened some)
+
+
+def test_a_flower_that_cannot_bloom_is_kept_as_modelled_and_named(tmp_path, monkeypatch):
+    """One flower of three whose bloom is refused: the others bloom, it stays as
+    modelled in every frame, the log says why in a warning naming it, sim.h5 and the
+    report name it and the summary is unsound. Every flower refused: the run is."""
+    from pipeline.chain import problem
+    from pipeline.errors import BloomError
+
+    growth = _bush_growth(tmp_path)
+    original = problem.problem
+
+    def refusing(prep, job, ckpt, label=""):
+        if label in refused:
+            raise BloomError("simulate.stages: the quasi-static solver found no equilibrium "
+                             "(petal 2)", where=job.where)
+        return original(prep, job, ckpt, label)
+
+    monkeypatch.setattr(problem, "problem", refusing)
+    refused = {"flower 1"}
+    r = CliRunner().invoke(cli, ["simulate", str(growth), "--out", str(tmp_path / "s.h5"),
+                                 *SHORT])
+    assert r.exit_code == 0, r.output
+    assert ("flower 1 could not bloom; it is kept as modelled: simulate.stages: the "
+            "quasi-static solver found no equilibrium") in r.output
+    with h5py.File(tmp_path / "s.h5") as h:
+        X, petal = h["frames/positions"][()], h["mesh/petal"][()]
+        opening = h["diagnostics/opening_angle_per_petal"][()]
+        assert h.attrs["flowers_kept_as_modelled"].tolist() == [1]
+        assert h.attrs["summary"].startswith("unsound")
+        assert "1 flower(s) kept as modelled, no bloom found: flower 1" in h.attrs["summary"]
+    with h5py.File(growth) as g:
+        model = g["mesh/vertices"][()]
+    held = (petal // 5) == 1
+    assert np.all(X[:, held] == model[held])  # as modelled, every frame
+    assert np.abs(X[-1, ~held] - model[~held]).max() > 0.1  # the others bloomed
+    assert np.all(opening[-1, 5:10] == 0.0) and opening[-1, :5].min() > 1.0
+    r = CliRunner().invoke(cli, ["report", str(tmp_path / "s.h5"), "--out",
+                                 str(tmp_path / "report.json")])
+    assert r.exit_code == 0, r.output
+    import json
+
+    data = json.loads((tmp_path / "report.json").read_text())
+    assert data["flowers_kept_as_modelled"] == [1] and data["summary"].startswith("unsound")
+
+    refused.update({"flower 0", "flower 2"})
+    r = CliRunner().invoke(cli, ["simulate", str(growth), "--out", str(tmp_path / "t.h5"),
+                                 *SHORT])
+    assert r.exit_code != 0 and "simulate.stages" in r.output.splitlines()[-1]
+    assert not (tmp_path / "t.h5").exists()

@@ -160,7 +160,7 @@ def test_a_bloom_that_leaves_its_branch_is_the_path_back_played_forward(tmp_path
     the branch the bud was found on), the bloom of an open model is the model's own path
     to its bud, played forward: logged, recorded as bloom_path, the last frame the model
     itself, the first the bud (more closed), growth and the solver's counts rising."""
-    from pipeline.chain import simulate as chain
+    from pipeline.chain import problem as chain
     from pipeline.sim.solver.newton import NotConverged
 
     v, f, p = procedural.open_flower(3, 600, 0)

@@ -573,7 +573,7 @@ def test_a_scene_made_for_the_springs_keeps_its_stiffness_ratio_as_a_shell():
     """``K_s``/``K_b`` set (and not the shell's own keys) scale the shell's defaults as
     they are from theirs: K_b x 4 is twice the thickness; K_s x 2 doubles the modulus and
     keeps bending (the thickness over sqrt 2); the shell's keys, given, win."""
-    from pipeline.chain.simulate import shell_moduli
+    from pipeline.chain.problem import shell_moduli
     from pipeline.config import KEYS, load_config
 
     modulus, thickness = (KEYS["simulate.stretch_modulus"].default,

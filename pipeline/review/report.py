@@ -51,7 +51,7 @@ def crossings(X, faces, petal) -> int:
 def soundness(positions: np.ndarray, faces: np.ndarray, opening_per_petal: np.ndarray, *,
               distance_to_model: float | None = None, petal_names: list[str] | None = None,
               intersecting: list[bool] | None = None, petal=None, patch=None,
-              bud_closed: float | None = None) -> dict:
+              bud_closed: float | None = None, held_flowers=None) -> dict:
     """Whether a bloom is sound, from its arrays.
 
     Parameters
@@ -73,6 +73,8 @@ def soundness(positions: np.ndarray, faces: np.ndarray, opening_per_petal: np.nd
         their flower's axis than the model's (sim.h5's ``bud_closed``, degrees, the mean
         over petals; negative: they hang open the other way, and the bloom closes them),
         or None.
+    held_flowers : a file of many flowers: those kept as modelled because no bloom was
+        found for them (sim.h5's ``flowers_kept_as_modelled``), or None.
 
     Returns
     -------
@@ -102,6 +104,8 @@ def soundness(positions: np.ndarray, faces: np.ndarray, opening_per_petal: np.nd
                        for p in np.flatnonzero(closed)],
         "left": left,
         "bud_closed": None if bud_closed is None else float(bud_closed),
+        "flowers_kept_as_modelled": [int(k) for k in (held_flowers if held_flowers is not None
+                                                      else [])],
     }
 
 
@@ -110,7 +114,8 @@ def summary_line(sound: dict) -> str:
     intersection (checked exactly); last frame 1.6e-13 petal lengths from the model; every
     petal opened (least 21.3 deg)"; "unsound:" when a frame has an intersection, a petal
     did not open, an open start's last frame is off the model (over :data:`OFF_MODEL`),
-    or its bud is no more closed than the model (``bud_closed`` <= 0: the bloom closes)."""
+    or its bud is no more closed than the model (``bud_closed`` <= 0: the bloom closes),
+    or a flower of many was kept as modelled (no bloom found for it)."""
     left = sound.get("left") or []
     checked = "checked exactly"
     if left:
@@ -126,6 +131,10 @@ def summary_line(sound: dict) -> str:
     if backward:  # (the bud hangs open the other way: the "bloom" closes the flower)
         parts.append(f"the bud is {-sound['bud_closed']:.1f} deg more open than the model "
                      "(its petals lean further from the axis: the bloom closes them)")
+    held = sound.get("flowers_kept_as_modelled") or []
+    if held:
+        parts.append(f"{len(held)} flower(s) kept as modelled, no bloom found: flower "
+                     + ", ".join(str(k) for k in held[:10]) + (" ..." if len(held) > 10 else ""))
     final = sound["opening_final_per_petal"]
     if sound["not_opened"]:
         shown = ", ".join(f"{d['name']} {d['opening']:+.1f} deg" for d in sound["not_opened"][:6])
@@ -135,7 +144,7 @@ def summary_line(sound: dict) -> str:
     elif final:
         parts.append(f"every petal opened (least {min(final):.1f} deg)")
     sound_ = (sound["intersecting_frames"] == 0 and not sound["not_opened"] and not off
-              and not backward)
+              and not backward and not held)
     return ("sound: " if sound_ else "unsound: ") + "; ".join(parts)
 
 
@@ -203,6 +212,7 @@ def compute(sim) -> dict:
     distance = sim.attrs.get("distance_to_model")
     closed = sim.attrs.get("bud_closed")
     sound = soundness(X, faces, diag["opening_angle_per_petal"],
+                      held_flowers=sim.attrs.get("flowers_kept_as_modelled"),
                       distance_to_model=None if distance is None else float(distance),
                       bud_closed=None if closed is None else float(closed),
                       petal_names=_names(sim, petal, faces), intersecting=intersecting,
@@ -228,6 +238,7 @@ def compute(sim) -> dict:
         "opening_final_per_petal": sound["opening_final_per_petal"],
         "did_not_open": sound["did_not_open"],
         "not_opened": sound["not_opened"],
+        "flowers_kept_as_modelled": sound["flowers_kept_as_modelled"],
         "summary": summary_line(sound),
     }
     if "effects/connections/broken_step" in sim:

@@ -90,6 +90,40 @@ class Prepared:
                                boundary_stiffness=boundary_stiffness)
         return cls.of(v, faces, petal, axes, growth)
 
+    def flower_part(self, k: int) -> tuple[Prepared, np.ndarray]:
+        """Flower ``k`` of a file of many (:attr:`flower`) as a problem of its own: its
+        vertices, faces, petals (numbered from 0 in their order), edges and hinges
+        renumbered, its axis the flower's; and ``(n,)`` its vertices' indices here."""
+        idx = np.flatnonzero(np.asarray(self.flower) == k)
+        new = np.full(len(self.vertices), -1, dtype=np.int64)
+        new[idx] = np.arange(len(idx))
+        petal = np.asarray(self.petal)
+        petals = np.unique(petal[idx])
+        renumber = np.full(len(self.tip), -1, dtype=np.int64)
+        renumber[petals] = np.arange(len(petals))
+
+        def inside(cells):
+            cells = np.asarray(cells, dtype=np.int64)
+            keep = np.all(new[cells] >= 0, axis=1) if len(cells) else np.zeros(0, dtype=bool)
+            return new[cells[keep]], keep
+
+        faces, _ = inside(self.faces)
+        edges, on_edge = inside(self.edges)
+        hinges, on_hinge = inside(self.hinges)
+
+        def part(a):
+            return None if a is None else np.asarray(a)[idx]
+
+        return Prepared(
+            np.asarray(self.vertices)[idx], faces, renumber[petal[idx]],
+            np.asarray(self.base)[idx], np.asarray(self.on_axis)[idx], np.asarray(self.s)[idx],
+            np.asarray(self.x)[idx], new[np.asarray(self.tip)[petals]],
+            np.asarray(self.plane)[petals],
+            np.asarray(self.flower_axes, dtype=np.float64)[k] if self.flower_axes is not None
+            else np.asarray(self.flower_axis), edges, np.asarray(self.alpha)[on_edge],
+            np.asarray(self.stiffness)[on_edge], hinges, np.asarray(self.rest_angle)[on_hinge],
+            part(self.thickness), part(self.patch)), idx
+
     def model(self, stretch: float, bending: float, mass: float = 1.0, pinned=None) -> Model:
         """The springs (``stretch`` times each edge's stiffness factor) and hinges
         (``bending``), rest state measured on :attr:`vertices`, the base fixed."""

@@ -1,0 +1,419 @@
+"""One bloom problem of the simulate stage (:mod:`pipeline.chain.simulate`): a whole
+file, or one flower of a file of many (:func:`problem`); a file's flowers run one after
+another and put together (:func:`flowers_apart`); the solver's failures as one line
+naming the key (:func:`refusal`); the checkpoints a run writes as it goes
+(:class:`Saver`)."""
+
+from __future__ import annotations
+
+import logging
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from types import SimpleNamespace
+
+import numpy as np
+
+from pipeline.config import KEYS, Config
+from pipeline.errors import BloomError
+from pipeline.flower.measure import Start
+from pipeline.progress import Progress
+from pipeline.review import report
+from pipeline.sim import checkpoint
+from pipeline.sim.build import Prepared
+from pipeline.sim.effects import ORDER, Params
+from pipeline.sim.explicit.semi_implicit import Diverged
+from pipeline.sim.integrators import make_integrator
+from pipeline.sim.model import Control, State
+from pipeline.sim.reverse import distance_to_model, open_start, retrace
+from pipeline.sim.run import run as integrate
+from pipeline.sim.solver.newton import NotConverged
+
+log = logging.getLogger("bloom")
+
+@dataclass
+class Job:
+    """What every problem of a run shares: the config, the start and effects decided for
+    the whole file, the inputs' hashes (the checkpoints' key), whether to resume and show
+    a bar, and the config's name for messages."""
+
+    cfg: Config
+    start: Start
+    names: list
+    inputs: dict
+    resume: bool
+    progress: bool | None
+    where: str
+
+
+@dataclass
+class Result:
+    """A run's bloom, whole or put together from its flowers: the bud (frame 0's start),
+    the bud search's figures, the effects' names and connection springs, the frames'
+    times, positions and diagnostics, wall seconds, the checkpoint it resumed from, the
+    last frame's distance to the model (an open start) and the flowers kept as
+    modelled."""
+
+    bud: np.ndarray
+    bud_info: dict
+    names: list
+    connections: object
+    time: np.ndarray
+    positions: np.ndarray
+    diag: dict
+    wall: float
+    resumed: object
+    resumed_step: int
+    distance: float | None
+    held: list = field(default_factory=list)
+
+    @classmethod
+    def of(cls, run: Bloom) -> Result:
+        """The bloom of a whole file, one problem."""
+        return cls(run.bud, run.bud_info, run.effects.names, run.effects.connections,
+                   np.asarray(run.rec.time), np.asarray(run.rec.positions), run.rec.arrays(),
+                   run.wall, run.resumed, run.resumed_step, run.distance)
+
+
+def unlink_checkpoints(ckpt: Path) -> None:
+    """The run's checkpoints: the whole run's, the search without the lift's, each
+    flower's."""
+    for path in [ckpt, *ckpt.parent.glob(ckpt.name + "-*")]:
+        path.unlink(missing_ok=True)
+
+
+#: a file of many flowers: how each frame's diagnostic of the whole is made of the
+#: flowers' (the rest are sums: energies, counts)
+_SAME = ("growth", "curl_factor")
+_LARGEST = ("max_speed", "center_plane_drift", "stable_step")
+
+
+def flowers_apart(prep: Prepared, job: Job, ckpt: Path) -> Result:
+    """Each flower of a file of many as a problem of its own (:func:`problem`), put
+    together. A flower whose bloom is refused is kept as modelled (its frames the
+    model; its petals opened 0 deg), with a warning naming it and why; the run is
+    refused only if every flower is."""
+    flower = np.asarray(prep.flower)
+    count = int(flower.max()) + 1
+    petal = np.asarray(prep.petal)
+    petals = len(prep.tip)
+    runs, held, refusals = {}, [], []
+    for k in range(count):
+        part, idx = prep.flower_part(k)
+        log.info("flower %d of %d: %d petal(s), %d vertices", k, count, len(part.tip), len(idx))
+        try:
+            runs[k] = (problem(part, job, ckpt.with_name(f"{ckpt.name}-flower{k}"),
+                                label=f"flower {k}"), idx)
+        except BloomError as exc:
+            log.warning("flower %d could not bloom; it is kept as modelled: %s", k,
+                        str(exc).removeprefix(f"{job.where}: "))
+            held.append(k)
+            refusals.append(exc)
+    if not runs:
+        raise refusals[0]
+    some = next(iter(runs.values()))[0]
+    times = np.asarray(some.rec.time)
+    frames = len(times)
+    positions = np.repeat(np.asarray(prep.vertices, dtype=np.float64)[None], frames, axis=0)
+    bud = np.array(prep.vertices, dtype=np.float64)
+    per_petal = np.zeros((frames, petals))
+    diag: dict = {}
+    names, pairs, broken = set(), [], []
+    info: dict = {}
+    wall, resumed, resumed_step = 0.0, None, 0
+    for run_, idx in runs.values():
+        positions[:, idx] = np.asarray(run_.rec.positions)
+        bud[idx] = run_.bud
+        mine = np.unique(petal[idx])
+        arrays = run_.rec.arrays()
+        if "opening_angle_per_petal" in arrays:
+            per_petal[:, mine] = arrays["opening_angle_per_petal"]
+        for name, values in arrays.items():
+            if name in ("opening_angle", "opening_angle_per_petal"):
+                continue
+            values = np.asarray(values, dtype=np.float64)
+            if name not in diag:
+                diag[name] = values.copy()
+            elif name in _LARGEST:
+                diag[name] = np.maximum(diag[name], values)
+            elif name not in _SAME:
+                diag[name] = diag[name] + values
+        names.update(run_.effects.names)
+        c = run_.effects.connections
+        if c is not None:
+            pairs.append(idx[np.asarray(c.pairs, dtype=np.int64)])
+            broken.append(np.asarray(c.broken_step))
+        for key, value in run_.bud_info.items():
+            info.setdefault(key, []).append(value)
+        wall += run_.wall
+        if run_.resumed is not None:
+            resumed, resumed_step = run_.resumed, max(resumed_step, run_.resumed_step)
+    diag["opening_angle_per_petal"] = per_petal
+    diag["opening_angle"] = per_petal.mean(axis=1)
+    bud_info = {}
+    for key, values in info.items():  # the flowers' figures of their bud searches
+        if isinstance(values[0], str):
+            bud_info[key] = ",".join(sorted(set(values)))
+        elif key in ("bud_seconds", "bud_newton_iterations"):
+            bud_info[key] = sum(values)
+        elif key == "bud_close":
+            bud_info[key] = min(values)
+    start_open = job.start.start == "open"
+    distance = None
+    if start_open:
+        model = np.asarray(prep.vertices)
+        bud_info["bud_distance"] = distance_to_model(bud, model, petal, prep.base)
+        distance = distance_to_model(positions[-1], model, petal, prep.base)
+    connections = None
+    if pairs:
+        connections = SimpleNamespace(pairs=np.concatenate(pairs),
+                                      broken_step=np.concatenate(broken))
+    return Result(bud, bud_info, sorted(names, key=lambda n: ORDER.index(n)
+                                         if n in ORDER else len(ORDER)),
+                   connections, times, positions, diag, wall, resumed, resumed_step, distance,
+                   held)
+
+
+def problem(prep: Prepared, job: Job, ckpt: Path, label: str = "") -> Bloom:
+    """One problem's bloom (a whole file, or one flower of many): the model and effects
+    built, the bud found for an open start (and searched again without the lift where
+    the bloom ends off the model), integrated; the solver's failures as one line naming
+    the key (:class:`BloomError`)."""
+    cfg, start, where, progress = job.cfg, job.start, job.where, job.progress
+    sim = cfg.section("simulate")
+    steps, frames, h = sim["steps"], sim["frames"], sim["h"]
+    v, petal, base = prep.vertices, prep.petal, prep.base
+    shell = sim["model"] == "shell"
+    try:
+        if shell:
+            modulus, thickness = shell_moduli(cfg)
+            model = prep.shell_model(modulus, thickness, sim["poisson"], sim["mass"])
+        else:
+            model = prep.model(sim["stretch_stiffness"], sim["bending_stiffness"],
+                               sim["mass"])
+    except ValueError as exc:
+        raise BloomError(f"cannot build the model{' of ' + label if label else ''}: {exc}",
+                         where=where) from None
+    params = Params.of(cfg)
+    if shell:  # the contact gap in units of the petal (mesh units shrink as the mesh is
+        # refined)
+        params = params.but(collisions={
+            "thickness": cfg["effects.collisions.gap"] * model.shell.size})
+    rest_angle = prep.rest_angle
+    max_edge = prep.max_grown_edge()  # once: the bud search changes the model's rest lengths
+
+    def build_effects(positions):
+        return prep.effects(job.names, params, positions=positions, rest_angle=rest_angle,
+                            max_edge=max_edge,
+                            pushback=sim["integrator"] != "quasi-static")
+
+    inputs = job.inputs
+    model_positions = np.asarray(v) if start.start == "open" else None
+    bud_model, bud_angle, bud_params = model, rest_angle, params
+
+    def closed_by(bud) -> float:
+        """How much more closed ``bud`` is than the model: the mean over petals of
+        the opening angle's change (deg)."""
+        frames_ = prep.frames(bud).opening_toward(model_positions)
+        return float(np.mean(np.abs(frames_.opening_angles(model_positions))))
+
+    def bloom(lifted: bool) -> Bloom:
+        """The run from the bud (an open start: found with the closing lift or
+        without, :func:`~pipeline.sim.reverse.open_start`), resumed from its checkpoint
+        if asked (each search its own)."""
+        v0, model, rest_angle, params, bud_info = v, bud_model, bud_angle, bud_params, {}
+        if model_positions is not None:
+            v0, model, rest_angle, params, bud_info = open_start(
+                cfg, model, model_positions, rest_angle, params, build_effects, petal,
+                base, prep.s, prep.x, prep.flower_axis, where, faces=prep.faces,
+                plane=prep.plane, lifted=lifted, closed_by=closed_by)
+        petals = prep.frames(v0)
+        if model_positions is not None:  # the model is the open flower: it says which way is out
+            petals = petals.opening_toward(model_positions)
+        if cfg["growth.keys"]:
+            control = Control.keyed(cfg["growth.keys"], frames, steps, h)
+        else:
+            control = Control(cfg["growth.schedule"], cfg["growth.ramp"] * steps * h)
+
+        def fresh_integrator():
+            made = make_integrator(sim["integrator"], sim["eta"], sim["damping"],
+                                   sim["speed_limit"], sim["stages"], sim["tolerance"],
+                                   sim["substeps"], sim["inertia"])
+            if hasattr(made, "petal"):  # (it names the petal of each rescue in the log)
+                made.petal = np.asarray(petal)
+            return made
+
+        integrator = fresh_integrator()
+        if shell and model_positions is not None:  # (the found bud breaks the symmetry)
+            integrator.perturbation = 0.0
+        elif shell and hasattr(integrator, "nudge") and sim["imperfection"] > 0.0:
+            # a bud that is not perfectly symmetric, the same at any resolution, from the
+            # first growth on (a random nudge per vertex picks a branch per mesh)
+            integrator.nudge = prep.imperfection(sim["imperfection"])
+        effects = build_effects(v0)
+        state = State.at_rest(model, v0, control)
+        effects.constrain(state.forces)
+        path = ckpt if lifted else ckpt.with_name(ckpt.name + "-unlifted")
+        key = checkpoint.fingerprint(cfg.to_json(),
+                                     inputs if lifted else {**inputs, "bud search": "own path"})
+        resumed = (checkpoint.load(path, key, state, effects, integrator, model) if job.resume
+                   else None)
+        resumed_step = state.step
+        if resumed is not None:
+            log.info("resuming from step %d (%s)", state.step, path)
+        saver = Saver(path, key, effects, integrator, sim["checkpoint_seconds"])
+        log.info("%d vertices (%d fixed), %d springs, %d hinges; %d steps of h = %g, %d "
+                 "frames; effects: %s", model.vertex_count, int(model.pinned.sum()),
+                 model.edge_count, model.hinge_count, steps, h, frames,
+                 ", ".join(effects.names) or "none")
+        if effects.connections is not None:
+            log.info("%d connection springs between petals", len(effects.connections.pairs))
+        failed = None
+        what = f"simulate {label}" if label else "simulate"
+        with Progress(steps, what, progress) as bar:
+            try:
+                rec, wall = integrate(model, state, control, integrator, steps=steps,
+                                      frames=frames, h=h, petals=petals, effects=effects,
+                                      progress=bar.update, resume=resumed,
+                                      checkpoint=saver)
+            except (Diverged, NotConverged, ValueError, RuntimeError) as exc:
+                path.unlink(missing_ok=True)  # a failed run's checkpoint would fail again
+                if not (isinstance(exc, NotConverged) and model_positions is not None
+                        and sim["integrator"] == "quasi-static"):
+                    raise refusal(exc, sim, steps, petal, where) from None
+                failed = exc
+        if failed is not None:  # an open model: its own path, from the model to a bud
+            log.warning("the bloom from the bud found no equilibrium at A = %.4g (petal "
+                        "%d): the path forward leaves the branch the bud is on; the bloom "
+                        "is the model's own path to its bud, played forward (every frame "
+                        "an equilibrium at its growth)", failed.growth,
+                        int(petal[failed.vertex]))
+            integrator = fresh_integrator()  # (its nudge at the start, as the search's)
+            effects = build_effects(model_positions)
+            with Progress(steps, f"{what} (the path back)", progress) as bar:
+                try:
+                    rec, wall = retrace(
+                        model, model_positions, control, integrator, effects, steps=steps,
+                        frames=frames, h=h, progress=bar.update,
+                        petals_at=lambda bud: prep.frames(bud).opening_toward(model_positions))
+                except (Diverged, NotConverged, ValueError, RuntimeError) as exc:
+                    raise refusal(exc, sim, steps, petal, where) from None
+            v0 = np.asarray(rec.positions[0])
+            bud_info = {**bud_info, "bud_path": "own", "bloom_path": "retraced",
+                        "bud_distance": distance_to_model(v0, model_positions, petal,
+                                                          base)}
+        distance = (None if model_positions is None else
+                    distance_to_model(np.asarray(rec.positions[-1]), model_positions,
+                                      petal, base))
+        return Bloom(v0, bud_info, effects, rec, wall, resumed, resumed_step, distance)
+
+    run_ = bloom(lifted=True)
+    if (run_.distance is not None and run_.distance > report.OFF_MODEL
+            and sim["integrator"] == "quasi-static" and run_.bud_info["bud_path"] == "lifted"):
+        # the forward path from the bud the lift picked lands on another equilibrium:
+        # the model's own path back (no lift) may lead to a bud that returns to it
+        log.warning("the bloom ends %.3g petal lengths (RMS) from the model (over %g): "
+                    "its bud is on another branch; searching again along the model's own "
+                    "path (no closing lift)", run_.distance, report.OFF_MODEL)
+        try:
+            other = bloom(lifted=False)
+        except BloomError as exc:
+            log.warning("no bud without the lift: %s", exc)
+        else:
+            better = other.distance < run_.distance
+            log.info("without the lift the bloom ends %.3g petal lengths from the model: "
+                     "%s", other.distance, "kept" if better else "the first one kept")
+            if better:
+                run_ = other
+    return run_
+
+
+def shell_moduli(cfg: Config) -> tuple[float, float]:
+    """The shell's ``(stretch_modulus, thickness)``: the scene's, or, where it sets the
+    paper's ``K_s``/``K_b`` (``simulate.stretch_stiffness``, ``bending_stiffness``) and not
+    these, the shell's defaults scaled as those springs are from their defaults: ``K_s``
+    times ``c`` stretches ``c`` times as hard, ``K_b`` times ``c`` bends ``c`` times as hard
+    (bending ~ ``Y t^2``: the thickness times ``sqrt(c / c_s)``). A scene made for the
+    springs keeps its meaning (the plum's stiffer ``K_b`` is a thicker shell). Logged."""
+    sim = cfg.section("simulate")
+    paper = [k for k in ("stretch_stiffness", "bending_stiffness")
+             if f"simulate.{k}" in cfg.given]
+    if not paper or any(f"simulate.{k}" in cfg.given for k in ("stretch_modulus", "thickness")):
+        return sim["stretch_modulus"], sim["thickness"]
+    stretch = sim["stretch_stiffness"] / KEYS["simulate.stretch_stiffness"].default
+    bend = sim["bending_stiffness"] / KEYS["simulate.bending_stiffness"].default
+    modulus = sim["stretch_modulus"] * stretch
+    thickness = sim["thickness"] * float(np.sqrt(bend / stretch))
+    log.info("simulate.model = shell: %s scale the shell's defaults: stretch_modulus %.4g, "
+             "thickness %.4g", ", ".join(f"simulate.{k} = {sim[k]:g}" for k in paper),
+             modulus, thickness)
+    return modulus, thickness
+
+
+def refusal(exc: Exception, sim: dict, steps: int, petal, where: str) -> BloomError:
+    """What the integrator could not do, as one line naming the key to change."""
+    if isinstance(exc, Diverged):
+        if sim["substeps"]:  # a fixed substep: the step may simply be too large
+            return BloomError(
+                f"simulate.h: the simulation {exc} (of {steps}, {sim['substeps']} "
+                "substep(s) each); likely cause: the time step is too large for the "
+                "stiffness; remedy: simulate.substeps = 0 (chosen from the stable "
+                "step), a smaller simulate.h, or simulate.integrator = quasi-static",
+                where=where)
+        return BloomError(
+            f"simulate.steps: the simulation {exc} (of {steps}); the substep was "
+            "already chosen from the stable step and halved after each divergence, "
+            "so the motion itself runs away; likely cause: growth too fast for the "
+            "steps, or vertices faster than simulate.speed_limit; remedy: more "
+            "simulate.steps, or simulate.integrator = quasi-static", where=where)
+    if isinstance(exc, NotConverged):  # the cause, as the solver names it, picks the key
+        name = f"petal {int(petal[exc.vertex])}" if len(petal) else "the mesh"
+        if exc.cause == "weak":
+            return BloomError(
+                f"axis.base_fraction: the quasi-static solver found {exc}; {name}'s base "
+                "is a line and it would spin about it; remedy: rerun bloom axis (it "
+                "widens such a base) or a larger axis.base_fraction", where=where)
+        remedy = ("more simulate.stages, a larger simulate.tolerance, or a dynamic "
+                  "integrator (it follows a snap)")
+        if exc.growth == 0.0:  # growth has not started: not the growth curve's doing
+            remedy = "check the mesh (bloom inspect), or a dynamic integrator"
+        return BloomError(f"simulate.stages: the quasi-static solver found {exc} ({name}); "
+                          f"remedy: {remedy}", where=where)
+    if isinstance(exc, ValueError):  # what the integrator cannot do with this scene
+        return BloomError(f"simulate.integrator: {exc}", where=where)
+    key = getattr(exc, "key", None) or (  # (contact.ContactError names its key)
+        "effects.collisions" if "collision" in str(exc) else "simulate")
+    return BloomError(f"{key}: {exc}", where=where)
+
+
+@dataclass
+class Bloom:
+    """One run of :func:`run`'s: its bud, the bud search's figures, the effects, the
+    frames, wall seconds, the checkpoint it resumed from and the last frame's distance
+    to the model (an open start; else None)."""
+
+    bud: np.ndarray
+    bud_info: dict
+    effects: object
+    rec: object
+    wall: float
+    resumed: object
+    resumed_step: int
+    distance: float | None
+
+
+class Saver:
+    """Writes a checkpoint after a frame when ``every`` wall seconds have passed: the
+    state, the effects' arrays, the frames so far and the integrator's own state (the
+    quasi-static solver's path and factorizations)."""
+
+    def __init__(self, path, key, effects, integrator, every: float):
+        self.path, self.key, self.effects, self.every = path, key, effects, every
+        self.integrator = integrator
+        self.clock = time.monotonic
+        self.last = self.clock()
+
+    def __call__(self, rec, state) -> None:
+        if self.every > 0 and self.clock() - self.last >= self.every:
+            checkpoint.save(self.path, self.key, state, self.effects, rec, self.integrator)
+            self.last = self.clock()
