@@ -8,7 +8,12 @@ bifurcation or a snap, or the prediction is far off), the energy is first search
 a direction of negative curvature read from the factors, then the step solves
 ``(H + mu I) p = -g`` with ``mu`` raised until that is positive definite (see
 :meth:`Newton.solve`). Every step is cut to what continuous collision detection allows
-when the scene has contact, then searched backtracking on the energy (Armijo)."""
+when the scene has contact, then searched backtracking on the energy (Armijo). An
+energy asked for again at the same point and growth is the last evaluation's.
+
+The module is long because a solve is one loop whose parts share its state (the groups'
+factorizations, which of them converged, the line search's accepted energy): the step,
+the chord, the shift, the descent and the line search read best beside it."""
 
 from __future__ import annotations
 
@@ -147,6 +152,10 @@ class Newton:
     _accepted: float | None = field(default=None, repr=False)
     #: a checkpoint's state of the elastic term, put back when the terms are built
     restored: object = field(default=None, repr=False)
+    _growth: float = field(default=float("nan"), repr=False)  #: the growth last set
+    #: the last evaluation of :meth:`energy`: what it was of (terms, growth, the contact's
+    #: parameters, X) and what it gave (energy, forces, coupling forces); None: none kept
+    _memo: tuple | None = field(default=None, repr=False)
 
     def at(self, model: Model, effects: Effects, A: float) -> None:
         """Set the scene's terms (built once per model, :func:`~pipeline.sim.energy.build`) to growth A:
@@ -158,6 +167,7 @@ class Newton:
             self.terms.elastic.restore(self.restored)
             self.restored = None
         self.terms.elastic.at(A)
+        self._growth = A
 
     def assemble(self, X, groups=None) -> None:
         """The constrained Hessian at X into the system's blocks; its elastic part only
@@ -186,9 +196,37 @@ class Newton:
             links.append(np.asarray(c.pairs, dtype=np.int64)[np.asarray(c.alive, dtype=bool)])
         return np.concatenate(links)
 
+    def _memo_key(self) -> tuple | None:
+        """What an evaluation of :meth:`energy` depends on besides X, or None where that
+        is not all (the inertia term's prediction, connection springs that break as
+        their forces are taken)."""
+        if self.dyn is not None or self.springs is not None:
+            return None
+        c = self.contact
+        return (self.terms, self._growth, None if c is None else (c.gap, c.band, c.kappa))
+
     def energy(self, X, scratch) -> float:
         """The energy at X; the forces into ``scratch``. With coupling terms, their
-        forces are also kept (``_coupling``) for :meth:`rounding`."""
+        forces are also kept (``_coupling``) for :meth:`rounding`. The same X at the same
+        growth as the last evaluation is not evaluated again (a predictor's step is the
+        first iterate of the solve after it; a converged solve's X is the frame's): its
+        results come back, the same bits."""
+        key = self._memo_key()
+        memo = self._memo
+        if (key is not None and memo is not None and memo[0] is key[0] and memo[1] == key[1]
+                and memo[2] == key[2] and np.array_equal(memo[3], X)):
+            scratch[:] = memo[5]
+            if memo[6] is not None:
+                self._coupling = memo[6].copy()
+            return memo[4]
+        energy = self._evaluate(X, scratch)
+        self._memo = None if key is None else (
+            *key, X.copy(), energy, scratch.copy(),
+            None if self._coupling is None or not self.terms.coupling else self._coupling.copy())
+        return energy
+
+    def _evaluate(self, X, scratch) -> float:
+        """:meth:`energy`, evaluated."""
         scratch[:] = 0.0
         energy = self.terms.elastic.forces(X, scratch)
         if self.dyn is not None:
