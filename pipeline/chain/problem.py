@@ -31,6 +31,7 @@ from pipeline.sim.solver.newton import NotConverged
 
 log = logging.getLogger("bloom")
 
+
 @dataclass
 class Job:
     """What every problem of a run shares: the config, the start and effects decided for
