@@ -229,6 +229,34 @@ def test_petals_in_threads_give_the_forces_and_rounding_of_one_call(monkeypatch)
     assert np.abs(F1).max() > 0.0
 
 
+def test_a_group_of_petals_alone_has_the_energy_along_its_own_moves():
+    """A Newton descent moves one group of petals: it compares the energies of those
+    petals' faces alone (:meth:`ShellTerm.part_forces`). Their forces are, to the bit,
+    the whole mesh's on the group's vertices, and none elsewhere; along a move of the
+    group's vertices alone, the whole energy and the group's differ by a constant."""
+    from pipeline.sim.blocks import Part
+
+    _, model = _shell_scene(4, 600)
+    v = prepared(4, 600)[0]
+    X = v + 0.01 * np.sin(7.0 * v[:, [1, 2, 0]])
+    term = sh.ShellTerm(model).at(0.4)
+    label = model.pieces
+    faces = model.shell.face_indices
+    mine = np.flatnonzero(label[faces[:, 0]] == 1)
+    part = Part(np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64),
+                np.zeros(0, dtype=np.int64), faces=mine)
+    F, Fp = np.zeros_like(X), np.zeros_like(X)
+    whole, own = term.forces(X, F), term.part_forces(X, Fp, [part])
+    inside = label == 1
+    assert np.array_equal(Fp[inside], F[inside]) and not np.any(Fp[~inside])
+    d = np.where(inside[:, None], np.cos(3.0 * v), 0.0)
+    for t in (0.01, 0.05):
+        Y = X + t * d
+        moved = term.forces(Y, np.zeros_like(X)) - term.part_forces(Y, np.zeros_like(X), [part])
+        assert moved == pytest.approx(whole - own, rel=1e-12, abs=1e-12 * abs(whole))
+    assert own != whole
+
+
 def test_the_rounding_bound_reads_the_last_assembly_until_it_is_forgotten(petal):
     """The solver's rounding bound (each face's |H| row sums times the coordinates'
     size, plus its gradient) takes the Hessians from the last assembly: after an

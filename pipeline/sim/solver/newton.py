@@ -205,12 +205,16 @@ class Newton:
         c = self.contact
         return (self.terms, self._growth, None if c is None else (c.gap, c.band, c.kappa))
 
-    def energy(self, X, scratch) -> float:
+    def energy(self, X, scratch, parts=None) -> float:
         """The energy at X; the forces into ``scratch``. With coupling terms, their
         forces are also kept (``_coupling``) for :meth:`rounding`. The same X at the same
         growth as the last evaluation is not evaluated again (a predictor's step is the
         first iterate of the solve after it; a converged solve's X is the frame's): its
-        results come back, the same bits."""
+        results come back, the same bits. ``parts``: where the elastic term can
+        (``part_forces``), only these pieces' elastic energy and the coupling terms' (the
+        energy up to a constant along a move of these pieces alone: a group's descent)."""
+        if parts is not None and self.dyn is None and hasattr(self.terms.elastic, "part_forces"):
+            return self._evaluate(X, scratch, parts)
         key = self._memo_key()
         memo = self._memo
         if (key is not None and memo is not None and memo[0] is key[0] and memo[1] == key[1]
@@ -225,10 +229,13 @@ class Newton:
             None if self._coupling is None or not self.terms.coupling else self._coupling.copy())
         return energy
 
-    def _evaluate(self, X, scratch) -> float:
-        """:meth:`energy`, evaluated."""
+    def _evaluate(self, X, scratch, parts=None) -> float:
+        """:meth:`energy`, evaluated (of the pieces ``parts`` only, if given)."""
         scratch[:] = 0.0
-        energy = self.terms.elastic.forces(X, scratch)
+        if parts is None:
+            energy = self.terms.elastic.forces(X, scratch)
+        else:
+            energy = self.terms.elastic.part_forces(X, scratch, parts)
         if self.dyn is not None:
             energy += self.dyn.forces(X, scratch)
         coupled = self.terms.coupling
@@ -356,13 +363,13 @@ class Newton:
                 if not positive:
                     lost.append(gr)
                     if down is not None:
-                        downs.append(self.downhill(self.constrained(down), g))
+                        downs.append((gr, self.downhill(self.constrained(down), g)))
             if self.contact is not None and len(downs) > 1:
                 # (one sweep for all the groups' searches: each moves its group alone)
-                self.contact.cover(X, X + DESCENT * sum(downs))
-            for d in downs:
+                self.contact.cover(X, X + DESCENT * sum(d for _, d in downs))
+            for gr, d in downs:
                 self.counts.descents += 1
-                energy = self.descend(X, scratch, energy, d)
+                energy = self.descend(X, scratch, energy, d, gr.parts)
             if lost:
                 energy, g = self.gradient(X, scratch)
 
@@ -506,12 +513,17 @@ class Newton:
         d = down.reshape(-1, 3) / np.abs(down).max()
         return -d if float(g @ down) > 0.0 else d
 
-    def descend(self, X, scratch, energy, d) -> float:
+    def descend(self, X, scratch, energy, d, parts=None) -> float:
         """Move X along the downhill negative-curvature direction ``d``
         (:meth:`downhill`), by the length that lowers the energy most among 1e-3 times
         powers of 2 (at most :data:`DESCENT` mesh units): from :data:`DESCENT_FIRST`,
         doubled while the energy falls, or else halved until it falls below X's and on
-        while it falls (down to 1e-3); returns the energy there."""
+        while it falls (down to 1e-3); returns the energy there (``energy`` is X's).
+        ``parts``: the pieces ``d`` moves (one group's): where the elastic term can, the
+        energies compared are those pieces' and the coupling terms' (the rest does not
+        change along ``d``), and what is returned is that part of the energy."""
+        if parts is not None:
+            energy = self.energy(X, scratch, parts)
         base = X.copy()
         top = DESCENT  # (no further than contact allows)
         if self.contact is not None:
@@ -523,7 +535,7 @@ class Newton:
             length *= 0.5
         while low <= length <= top:
             X[:] = base + length * d
-            trial = self.energy(X, scratch)
+            trial = self.energy(X, scratch, parts)
             if trial < best:
                 best, best_length = trial, length
             elif grow or best_length > 0.0:

@@ -382,6 +382,17 @@ class ShellTerm(Term):
         return sum(parallel_map(
             lambda p: shell_forces(P, *p[1], self.A, self.curl, F, p[2]), pieces))
 
+    def part_forces(self, X, F, parts) -> float:
+        """:meth:`forces` of the faces of ``parts`` alone (pieces no face joins to
+        another, :class:`pipeline.sim.blocks.Part`): their energy, their forces added to
+        ``F`` (a descent that moves one group of petals compares these)."""
+        P = self._with_anchors(X)
+        total = 0.0
+        for part in parts:
+            args = part.static[0] if part.static is not None else self._args(part.faces)
+            total += shell_forces(P, *args, self.A, self.curl, F, self._scratch)
+        return total
+
     def energy(self, X) -> float:
         return self.forces(X, np.zeros_like(X, dtype=np.float64))
 
