@@ -120,6 +120,23 @@ class Counters:
 
 
 @dataclass
+class _Memo:
+    """:meth:`Newton.energy`'s last evaluation: what it was of (``key``: the terms, the
+    growth and the contact's parameters; ``X``) and what it gave."""
+
+    key: tuple
+    X: np.ndarray
+    energy: float
+    forces: np.ndarray
+    coupling: np.ndarray | None  #: the coupling terms' forces (None: no coupling term)
+
+    def holds(self, key: tuple | None, X) -> bool:
+        """Whether it is the evaluation of ``key`` at ``X`` (key None: nothing is kept)."""
+        return (key is not None and self.key[0] is key[0] and self.key[1:] == key[1:]
+                and np.array_equal(self.X, X))
+
+
+@dataclass
 class Newton:
     """Newton's method on one model's energy (see the module docstring). Holds what a
     solve carries from one call to the next: the linear systems (:class:`System`), the
@@ -153,9 +170,8 @@ class Newton:
     #: a checkpoint's state of the elastic term, put back when the terms are built
     restored: object = field(default=None, repr=False)
     _growth: float = field(default=float("nan"), repr=False)  #: the growth last set
-    #: the last evaluation of :meth:`energy`: what it was of (terms, growth, the contact's
-    #: parameters, X) and what it gave (energy, forces, coupling forces); None: none kept
-    _memo: tuple | None = field(default=None, repr=False)
+    #: the last evaluation of :meth:`energy` (:class:`_Memo`), or None: none kept
+    _memo: _Memo | None = field(default=None, repr=False)
 
     def at(self, model: Model, effects: Effects, A: float) -> None:
         """Set the scene's terms (built once per model, :func:`~pipeline.sim.energy.build`) to growth A:
@@ -205,28 +221,33 @@ class Newton:
         c = self.contact
         return (self.terms, self._growth, None if c is None else (c.gap, c.band, c.kappa))
 
+    def by_parts(self) -> bool:
+        """Whether :meth:`energy` can be taken of some pieces alone (the elastic term
+        has ``part_forces``; not with the inertia term, which moves every vertex)."""
+        return self.dyn is None and hasattr(self.terms.elastic, "part_forces")
+
     def energy(self, X, scratch, parts=None) -> float:
         """The energy at X; the forces into ``scratch``. With coupling terms, their
         forces are also kept (``_coupling``) for :meth:`rounding`. The same X at the same
         growth as the last evaluation is not evaluated again (a predictor's step is the
         first iterate of the solve after it; a converged solve's X is the frame's): its
-        results come back, the same bits. ``parts``: where the elastic term can
-        (``part_forces``), only these pieces' elastic energy and the coupling terms' (the
-        energy up to a constant along a move of these pieces alone: a group's descent)."""
-        if parts is not None and self.dyn is None and hasattr(self.terms.elastic, "part_forces"):
+        results come back, the same bits. ``parts`` (where :meth:`by_parts`): only these
+        pieces' elastic energy and the coupling terms' (the energy up to a constant along
+        a move of these pieces alone: a group's descent)."""
+        if parts is not None:
             return self._evaluate(X, scratch, parts)
         key = self._memo_key()
         memo = self._memo
-        if (key is not None and memo is not None and memo[0] is key[0] and memo[1] == key[1]
-                and memo[2] == key[2] and np.array_equal(memo[3], X)):
-            scratch[:] = memo[5]
-            if memo[6] is not None:
-                self._coupling = memo[6].copy()
-            return memo[4]
+        if memo is not None and memo.holds(key, X):
+            scratch[:] = memo.forces
+            if memo.coupling is not None:
+                self._coupling = memo.coupling.copy()
+            return memo.energy
         energy = self._evaluate(X, scratch)
-        self._memo = None if key is None else (
-            *key, X.copy(), energy, scratch.copy(),
-            None if self._coupling is None or not self.terms.coupling else self._coupling.copy())
+        self._memo = None if key is None else _Memo(
+            key, X.copy(), energy, scratch.copy(),
+            self._coupling.copy() if self._coupling is not None and self.terms.coupling
+            else None)
         return energy
 
     def _evaluate(self, X, scratch, parts=None) -> float:
@@ -369,7 +390,8 @@ class Newton:
                 self.contact.cover(X, X + DESCENT * sum(d for _, d in downs))
             for gr, d in downs:
                 self.counts.descents += 1
-                energy = self.descend(X, scratch, energy, d, gr.parts)
+                energy = self.descend(X, scratch, energy, d,
+                                      gr.parts if self.by_parts() else None)
             if lost:
                 energy, g = self.gradient(X, scratch)
 
@@ -519,7 +541,7 @@ class Newton:
         powers of 2 (at most :data:`DESCENT` mesh units): from :data:`DESCENT_FIRST`,
         doubled while the energy falls, or else halved until it falls below X's and on
         while it falls (down to 1e-3); returns the energy there (``energy`` is X's).
-        ``parts``: the pieces ``d`` moves (one group's): where the elastic term can, the
+        ``parts``: the pieces ``d`` moves (one group's; only where :meth:`by_parts`): the
         energies compared are those pieces' and the coupling terms' (the rest does not
         change along ``d``), and what is returned is that part of the energy."""
         if parts is not None:
