@@ -81,6 +81,7 @@ def test_axis_artifact(chain):
     # the shell's base is a band: the vertices within axis.base_band of the length from
     # the base edge, to the nearest row (a vertex is in when the band reaches past half
     # its largest step in s), so that its last row lies on the band's edge on average
+    # (measured: 0.099 on this bud of about 118 vertices a petal, the band 0.08)
     band = KEYS["axis.base_band"].default
     edges = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
     step = np.zeros(len(s))
