@@ -242,3 +242,30 @@ def test_remesh_is_reproducible_and_unit_free():
     np.testing.assert_array_equal(cm.faces, a.faces)
     np.testing.assert_allclose(cm.vertices, a.vertices, rtol=0, atol=1e-9)
     assert cm.scale == pytest.approx(a.scale / 100.0)
+
+
+def test_ends_of_a_mirror_cut_closer_than_a_quarter_edge_are_one_end():
+    """The half of a petal cut at its center plane (first coordinate 0 along the cut) whose
+    cut has three held ends within 0.01 h of one another at the tip (a rim that zigzags
+    across the plane there: the lotus's petal 7, whose mirrored tip kept edges 0.01 of
+    the mean and was refused at growth as a degenerate rest state): the remesh holds the
+    first of them only, so the tip's edges are of the mesh's size."""
+    from scipy.spatial import Delaunay
+
+    from pipeline.flower.petals import _remesh_half
+
+    u, y = np.meshgrid(np.linspace(0.0, 1.0, 5), np.linspace(0.0, 3.0, 13), indexing="ij")
+    flat = np.column_stack([u.ravel(), y.ravel()])
+    flat = np.vstack([[[0.0, 3.0], [0.0, 0.0], [0.0, 2.99], [0.0, 2.995]],
+                      flat[~((flat[:, 0] == 0.0) & np.isin(flat[:, 1], [0.0, 3.0]))]])
+    v = np.column_stack([flat, np.zeros(len(flat))])
+    f = Delaunay(flat).simplices.astype(np.int64)
+    turned = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])[:, 2] < 0
+    f[turned] = f[turned][:, [0, 2, 1]]
+    held = np.zeros(len(v), dtype=bool)
+    held[:4] = True
+    assert remesh.edge_ratio(v, f) < 0.05
+    out_v, out_f, out_held = _remesh_half(0.25)(v, f, held)
+    assert remesh.edge_ratio(out_v, out_f) >= remesh.MIN_EDGE
+    assert np.any(np.all(out_v == [0.0, 3.0, 0.0], axis=1))  # the first end is held
+    assert np.all(out_v[:, 0] >= 0.0)

@@ -825,8 +825,17 @@ def _raw_part_sheets(part, part_faces, verdict, i: int, *, dust: float,
 def _remesh_half(h: float):
     """The remesh step of :func:`symmetry.mirrored_mesh`: isotropic at ``h``, then
     :func:`remesh.improve` with the cut's vertices free to slide along it (they get
-    first coordinate 0 there, and sliding between two of them keeps it exactly 0)."""
+    first coordinate 0 there, and sliding between two of them keeps it exactly 0).
+    Ends of the cut closer than :data:`remesh.MIN_EDGE` times ``h`` to an earlier one are
+    not held: a rim that zigzags across the plane at the tip (the lotus's) would keep
+    them as a cluster of tiny triangles no later step may mend (edges 0.01 of the mean)."""
     def redo(v, f, fixed):
+        fixed = fixed.copy()
+        for i in np.flatnonzero(fixed).tolist():
+            if fixed[i]:
+                near = np.linalg.norm(v[fixed] - v[i], axis=1) < remesh.MIN_EDGE * h
+                fixed[np.flatnonzero(fixed)[near]] = False
+                fixed[i] = True
         v, f, fixed = remesh.isotropic(v, f, h, fixed=fixed)
         seam = topology.boundary_vertices(f, len(v)) & (v[:, 0] == 0.0) & ~fixed
         v, f, fixed, _ = remesh.improve(v, f, fixed, seam)
