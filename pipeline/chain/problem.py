@@ -321,11 +321,23 @@ def problem(prep: Prepared, job: Job, ckpt: Path, label: str = "") -> Bloom:
         except BloomError as exc:
             log.warning("no bud without the lift: %s", exc)
         else:
-            better = other.distance < run_.distance
-            log.info("without the lift the bloom ends %.3g petal lengths from the model: "
-                     "%s", other.distance, "kept" if better else "the first one kept")
-            if better:
-                run_ = other
+            lifted_closed = prep.bud_closed(run_.bud, model_positions)
+            own_closed = prep.bud_closed(other.bud, model_positions)
+            if (lifted_closed is not None and own_closed is not None
+                    and lifted_closed > 0.0 >= own_closed):
+                # a bud that hangs open the other way makes a "bloom" that closes the
+                # flower: a bloom forward that ends off the model is nearer what was asked
+                log.warning("without the lift the bud hangs open the other way (its petals "
+                            "lean %.1f deg further from the axis than the model's, the "
+                            "bloom would close the flower): the lifted bloom kept, %.3g "
+                            "petal lengths from the model", -own_closed, run_.distance)
+            else:
+                better = other.distance < run_.distance
+                log.info("without the lift the bloom ends %.3g petal lengths from the "
+                         "model: %s", other.distance,
+                         "kept" if better else "the first one kept")
+                if better:
+                    run_ = other
     return run_
 
 

@@ -23,7 +23,7 @@ from pipeline.chain import carried_attrs, problem
 from pipeline.config import Config
 from pipeline.errors import BloomError
 from pipeline.flower import stagger
-from pipeline.flower.measure import Start, bloom_start, leans, petals_within_reach
+from pipeline.flower.measure import Start, bloom_start, petals_within_reach
 from pipeline.mesh.separate import patch_groups
 from pipeline.review import report
 from pipeline.sim import checkpoint
@@ -54,7 +54,7 @@ def run(growth_h5: str | Path, out: str | Path, cfg: Config, *, overwrite: bool 
     steps, frames = sim["steps"], sim["frames"]
     with artifact.Artifact(growth_h5, needs="growth", reader="simulate") as src:
         prep = Prepared.from_artifact(src)
-        v, petal, base = prep.vertices, prep.petal, prep.base
+        v, petal = prep.vertices, prep.petal
         starts = decide_flowers(cfg, prep, stagger.flower_count(src), frames)
         start = decide_start(cfg, prep)
         names = decide_effects(cfg, prep)
@@ -90,12 +90,8 @@ def run(growth_h5: str | Path, out: str | Path, cfg: Config, *, overwrite: bool 
         if model_positions is not None:
             attrs["distance_to_model"] = result.distance
             attrs.update(bud_info)
-            axes = prep.petal_axes()
-            if np.all(np.isfinite(axes)):  # how much less the bud's petals lean from
-                # their flower's axis than the model's (deg, the mean over petals;
-                # negative: they lean further, hanging open the other way)
-                less = float(np.mean(leans(model_positions, petal, base, prep.tip, axes)
-                                     - leans(v, petal, base, prep.tip, axes)))
+            less = prep.bud_closed(v, model_positions)
+            if less is not None:
                 attrs["bud_closed"] = less
                 log.info("the bud's petals lean %.1f deg less from the flower's axis than the "
                          "model's (mean over petals)", less)

@@ -16,7 +16,7 @@ import numpy as np
 
 from pipeline.flower.axis import find_axes
 from pipeline.flower.growth import GrowthMap, assign_growth
-from pipeline.flower.measure import PetalFrames
+from pipeline.flower.measure import PetalFrames, leans
 from pipeline.mesh import clean
 from pipeline.mesh.hinge import edge_lengths
 from pipeline.sim import effects as fx
@@ -204,6 +204,16 @@ class Prepared:
             of[np.asarray(self.petal)] = np.asarray(self.flower)
             return np.asarray(self.flower_axes, dtype=np.float64)[of]
         return np.broadcast_to(np.asarray(self.flower_axis, dtype=np.float64), (count, 6))
+
+    def bud_closed(self, bud, model) -> float | None:
+        """How much less the petals of ``bud`` lean from their flower's axis than those
+        of ``model`` (deg, the mean over petals; negative: they lean further, the bud
+        hangs open the other way). None without a flower's axis (a lone petal)."""
+        axes = self.petal_axes()
+        if not np.all(np.isfinite(axes)):
+            return None
+        return float(np.mean(leans(model, self.petal, self.base, self.tip, axes)
+                             - leans(bud, self.petal, self.base, self.tip, axes)))
 
     def frames(self, positions=None):
         """The petal frames the opening angle is measured in, at ``positions`` (default
