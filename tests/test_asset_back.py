@@ -313,6 +313,43 @@ def test_a_petal_stays_bound_to_its_own_sheet_where_petals_overlap():
                                atol=1e-12)
 
 
+def test_a_leaf_modelled_in_the_petals_part_stays_where_it_is():
+    """One input part holds a petal and, beside it, a leaf (a tulip's leaves and stem are
+    in its petals' mesh). Remesh keeps the leaf as a piece that is no petal; bound to the
+    nearest petal it followed the petal through the bloom (the tulip's leaves crumpled in
+    its render). Its points stay (face -1), exactly, in every frame; the petal's follow
+    the sheet; the render draws the leaf as a leaf, not framed; the report's vote of the
+    part's petal counts the petal's points only."""
+    from pipeline.review import render
+    from pipeline.review.report import petal_names
+
+    va, fa = _grid(6, 4)
+    leaf, leaf_f = _grid(3, 3, 0.5, x0=7.0)
+    points = np.concatenate([va, leaf])
+    asset = userasset.Asset([_part(points, np.concatenate([fa, leaf_f + len(va)]))], None, None)
+    kept = {0: (leaf.copy(), leaf_f.copy())}
+    b = binding.bind_parts(asset, 2.0, 2.0 * va, fa, np.zeros(len(va), dtype=int), kept)[0]
+    stays = b.face < 0
+    assert np.array_equal(stays, np.r_[np.zeros(len(va), bool), np.ones(len(leaf), bool)])
+    bent = 2.0 * va.copy()
+    bent[:, 2] += 0.3 * bent[:, 0] ** 2  # the petal bends up
+    moved = binding.deform(bent, fa, b) / 2.0
+    assert np.array_equal(moved[stays], points[stays])
+    np.testing.assert_allclose(moved[~stays], bent / 2.0, atol=1e-12)
+    frames = binding.local_frames(bent, fa, b.face, b.bary)
+    assert np.array_equal(frames[stays], np.broadcast_to(np.eye(3), (len(leaf), 3, 3)))
+    # (without kept the leaf is bound to the petal and rises with it)
+    plain = binding.bind_parts(asset, 2.0, 2.0 * va, fa, np.zeros(len(va), dtype=int))[0]
+    assert np.all(plain.face >= 0)
+    assert np.abs(binding.deform(bent, fa, plain)[stays] / 2.0 - points[stays]).max() > 1.0
+    layers = render.asset_layers([np.stack([points, moved])], asset, {0: b}, fa,
+                                 np.zeros(len(va), dtype=int), color="#ffc0cb", palette="petals")
+    assert [len(layer.faces) for layer in layers] == [len(leaf_f), len(fa)]
+    assert not layers[0].framed and layers[1].framed
+    assert petal_names(np.zeros(len(va), dtype=int), bindings={0: b}, faces=fa,
+                       asset_names=["flower"]) == ["petal 0 (flower)"]
+
+
 def test_only_a_part_with_two_sides_has_a_thickness_to_measure():
     """A one-sided sheet whose points stray off it by up to a tenth of an edge (a
     remeshed surface) has no thickness; the same sheet solidified (two sides 0.2 apart)

@@ -145,7 +145,8 @@ def _report(asset, bindings, frames, sheet, sides: dict) -> None:
         which, rest = s.point[s.positive], s.rest[s.positive]
         if len(which) == 0:  # (a one-sided part: no thickness to keep)
             continue
-        change = [float(np.abs(binding.thickness(X, tris, b.offset[:, 2], which) / rest - 1).max())
+        normal = np.where(b.face >= 0, b.offset[:, 2], np.nan)  # (a piece that stays: neither)
+        change = [float(np.abs(binding.thickness(X, tris, normal, which) / rest - 1).max())
                   for X in frames[i]]
         worst = int(np.argmax(change))
         log.info("part %r: thickness (median %.4g, %d points) within %.2f%% of the input's in "

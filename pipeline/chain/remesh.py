@@ -230,10 +230,15 @@ def _bound_asset(mesh_path, mesh_file, result):
                     "export can give back the simulated sheet only (export.mesh = \"sheet\")",
                     mesh_path, len(asset.parts), len(names))
         return None, {}
-    bindings = binding.bind_parts(asset, result.scale, result.vertices, result.faces, result.part)
+    bindings = binding.bind_parts(asset, result.scale, result.vertices, result.faces, result.part,
+                                  result.kept_parts)
     for i, b in sorted(bindings.items())[:LINES]:
+        bound = b.face >= 0
+        stay = int((~bound).sum())
         log.info("%s: part %r: %d points bound to its sheet (offset up to %.3g along the "
-                 "normal, %.3g across)", mesh_path, names[i], len(b.face),
-                 float(np.abs(b.offset[:, 2]).max()) / result.scale,
-                 float(np.linalg.norm(b.offset[:, :2], axis=1).max()) / result.scale)
+                 "normal, %.3g across)%s", mesh_path, names[i], int(bound.sum()),
+                 float(np.abs(b.offset[bound, 2]).max(initial=0.0)) / result.scale,
+                 float(np.linalg.norm(b.offset[bound, :2], axis=1).max(initial=0.0)) / result.scale,
+                 f"; {stay} points of its pieces that are no petal stay where they are"
+                 if stay else "")
     return asset, bindings

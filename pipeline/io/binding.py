@@ -33,7 +33,11 @@ from pipeline.mesh.topology import components, vertex_normals
 
 @dataclass
 class Binding:
-    face: np.ndarray  #: (n,) int64 the sheet triangle each point is bound to
+    """A part's points bound to the sheet. A point with ``face`` -1 stays where it is (a
+    piece of a petal's part that is no petal: the leaves and stem modelled in one mesh
+    with the flower); its ``offset`` is then its place (mesh units)."""
+
+    face: np.ndarray  #: (n,) int64 the sheet triangle each point is bound to (-1: it stays)
     bary: np.ndarray  #: (n, 3) barycentric coordinates of its closest point there
     offset: np.ndarray  #: (n, 3) from the closest point, in the local frame (t1, t2, n)
 
@@ -46,6 +50,12 @@ def local_frames(vertices: np.ndarray, faces: np.ndarray, face: np.ndarray, bary
     F = np.asarray(faces, dtype=np.int64)
     if normals is None:
         normals = vertex_normals(X, F)
+    stays = np.asarray(face) < 0
+    if stays.any():  # (a point that stays: the identity frame)
+        out = local_frames(X, F, np.where(stays, 0, face), np.where(stays[:, None], 1.0 / 3.0, bary),
+                           normals)
+        out[stays] = np.eye(3)
+        return out
     tri = F[face]
     n = np.einsum("ij,ijk->ik", bary, normals[tri])
     fn = np.cross(X[tri[:, 1]] - X[tri[:, 0]], X[tri[:, 2]] - X[tri[:, 0]])
@@ -79,7 +89,10 @@ def deform(vertices: np.ndarray, faces: np.ndarray, binding: Binding,
     F = np.asarray(faces, dtype=np.int64)
     on = np.einsum("ij,ijk->ik", binding.bary, X[F[binding.face]])
     frames = local_frames(X, F, binding.face, binding.bary, normals)
-    return on + np.einsum("ikj,ik->ij", frames, binding.offset)
+    out = on + np.einsum("ikj,ik->ij", frames, binding.offset)
+    stays = binding.face < 0
+    out[stays] = binding.offset[stays]
+    return out
 
 
 def rotations(vertices: np.ndarray, faces: np.ndarray, binding: Binding, rest_frames: np.ndarray,
@@ -94,11 +107,15 @@ BIND_GROUP = "bind"
 
 
 def bind_parts(asset, scale: float, vertices: np.ndarray, faces: np.ndarray,
-               vertex_part: np.ndarray) -> dict[int, Binding]:
+               vertex_part: np.ndarray, kept: dict | None = None) -> dict[int, Binding]:
     """Bind each part of ``asset`` (:class:`pipeline.io.userasset.Asset`, input units) that
     has sheet vertices (``vertex_part``: the input part of each sheet vertex) to its own
     sheet triangles (mesh units: the input times ``scale``). Parts without a sheet (not
-    petals) get no binding: they stay where they are."""
+    petals) get no binding: they stay where they are; so do the pieces of a petal's part
+    that are no petal (``kept``: part -> ``(vertices, faces)`` of those pieces, input
+    units, as remesh keeps them): a piece of the part's mesh whose points are mostly
+    theirs stays (``face`` -1), where bound to the nearest petal it would follow it
+    through the bloom (a tulip's leaves, crumpling with its petals)."""
     F = np.asarray(faces, dtype=np.int64)
     face_part = np.asarray(vertex_part)[F[:, 0]] if len(F) else np.zeros(0, dtype=np.int64)
     face_piece = components(F, len(vertices))[F[:, 0]] if len(F) else np.zeros(0, dtype=np.int64)
@@ -110,14 +127,34 @@ def bind_parts(asset, scale: float, vertices: np.ndarray, faces: np.ndarray,
         if allowed.any():
             points = np.asarray(part.points) * scale
             b = bind(points, vertices, F, allowed, normals)
+            stays = _not_petals(points / scale, part.triangles(), (kept or {}).get(i))
             _keep_to_own_petal(b, points, part.triangles(), vertices, F, allowed, face_piece,
-                               normals)
+                               normals, stays)
+            b.face[stays], b.bary[stays], b.offset[stays] = -1, 0.0, points[stays]
             out[i] = b
     return out
 
 
+def _not_petals(points: np.ndarray, triangles, kept) -> np.ndarray:
+    """``(n,) bool``: the points of the pieces of a part's mesh (``points``, input units)
+    whose points are mostly among ``kept``'s vertices (the part's pieces that are no
+    petal, :func:`bind_parts`)."""
+    stays = np.zeros(len(points), dtype=bool)
+    if kept is None or len(kept[0]) == 0 or len(points) == 0:
+        return stays
+    from scipy.spatial import cKDTree
+
+    kept_v = np.asarray(kept[0], dtype=np.float64)
+    span = float(np.ptp(np.vstack([points, kept_v]), axis=0).max()) or 1.0
+    dist, _ = cKDTree(kept_v).query(points, distance_upper_bound=1e-9 * span)
+    theirs = np.isfinite(dist)
+    piece = components(np.asarray(triangles, dtype=np.int64).reshape(-1, 3), len(points))
+    share = np.bincount(piece, weights=theirs) / np.maximum(np.bincount(piece), 1)
+    return share[piece] > 0.5
+
+
 def _keep_to_own_petal(b: Binding, points, triangles, vertices, faces, allowed,
-                       face_piece, normals=None) -> None:
+                       face_piece, normals=None, stays=None) -> None:
     """Where most of a connected piece of the input is bound to one sheet petal, bind
     all of it to that petal (in place): a piece is one petal's surface (both sides of a
     thick one), and its points that lay closer to another petal, where petals overlap
@@ -126,7 +163,7 @@ def _keep_to_own_petal(b: Binding, points, triangles, vertices, faces, allowed,
     by remesh) keeps each point's closest petal."""
     piece = components(np.asarray(triangles, dtype=np.int64).reshape(-1, 3), len(points))
     petal_of = face_piece[b.face]
-    for c in np.unique(piece):
+    for c in np.unique(piece if stays is None else piece[~stays]):
         idx = np.flatnonzero(piece == c)
         values, counts = np.unique(petal_of[idx], return_counts=True)
         main = values[np.argmax(counts)]
@@ -201,7 +238,7 @@ def sides(points: np.ndarray, triangles: np.ndarray, b: Binding, sheet: np.ndarr
     count = 0
     for positive_side in (True, False):
         up = (o > 0.0) == positive_side
-        other_side = np.all(~up[T], axis=1)
+        other_side = np.all(~up[T] & (b.face[T] >= 0), axis=1)  # (not a piece that stays)
         mine = np.flatnonzero(up & interior(b))
         if len(mine) == 0 or not other_side.any():
             continue
@@ -297,10 +334,11 @@ def thickness(points: np.ndarray, triangles: np.ndarray, offset_normal: np.ndarr
               which: np.ndarray) -> np.ndarray:
     """``(k,)`` a thick part's thickness at its points ``which`` (:func:`two_sided`):
     each one's distance to the nearest point of the part's negative side (its triangles
-    with every corner on that side, by the sign of ``offset_normal``)."""
+    with every corner on that side, by the sign of ``offset_normal``; nan: a point on
+    neither side, one that stays)."""
     P = np.asarray(points, dtype=np.float64)
     T = np.asarray(triangles, dtype=np.int64)
-    down_faces = np.all(~(np.asarray(offset_normal) > 0.0)[T], axis=1)
+    down_faces = np.all((np.asarray(offset_normal) <= 0.0)[T], axis=1)
     if len(which) == 0:
         return np.zeros(0)
     face, bary = closest_points(P[which], P, T, down_faces)

@@ -159,7 +159,8 @@ def asset_layers(frames: list[np.ndarray], asset, bindings: dict, faces: np.ndar
     sheet petal each point is bound to, or with "growth" ``growth (V,)`` (per sheet
     vertex) at each point's place on the sheet. Another part is coloured by its kind
     (``kinds[i]``, :data:`PART_COLOURS`; a petal kind left unbound takes ``color``), and a
-    stem or leaf is not framed."""
+    stem or leaf is not framed; so are the pieces of a petal's part that stay (its points
+    bound to no triangle: a leaf or stem modelled with the petals), coloured as a leaf."""
     palette_rgb = np.array([_rgb(c) for c in PETAL_COLOURS])
     faces = np.asarray(faces, dtype=np.int64)
     layers = []
@@ -169,6 +170,11 @@ def asset_layers(frames: list[np.ndarray], asset, bindings: dict, faces: np.ndar
             continue
         if i in bindings:
             b = bindings[i]
+            stays = np.all(b.face[tris] < 0, axis=1)  # a leaf or stem of a petal's part
+            if stays.any():
+                layers.append(Layer(tris[stays], np.asarray(pts, dtype=np.float64),
+                                    color=PART_COLOURS["leaf"], framed=False))
+                tris = tris[~stays]
             layer = Layer(tris, np.asarray(pts, dtype=np.float64), color=color)
             if palette == "petals":
                 layer.rgb = palette_rgb[np.asarray(petal)[faces[b.face, 0]] % len(palette_rgb)]

@@ -178,7 +178,7 @@ def petal_names(petal: np.ndarray, part_names=None, part: np.ndarray | None = No
         face_petal = petal[np.asarray(faces)[:, 0]]
         votes = np.zeros((count, len(asset_names)), dtype=np.int64)
         for i, b in sorted(bindings.items()):
-            votes[:, i] = np.bincount(face_petal[b.face], minlength=count)[:count]
+            votes[:, i] = np.bincount(face_petal[b.face[b.face >= 0]], minlength=count)[:count]
         for p in range(count):
             if votes[p].max() > 0:
                 owner[p] = asset_names[int(np.argmax(votes[p]))]
