@@ -327,7 +327,7 @@ def test_a_leaf_modelled_in_the_petals_part_stays_where_it_is():
     leaf, leaf_f = _grid(3, 3, 0.5, x0=7.0)
     points = np.concatenate([va, leaf])
     asset = userasset.Asset([_part(points, np.concatenate([fa, leaf_f + len(va)]))], None, None)
-    kept = {0: (leaf.copy(), leaf_f.copy())}
+    kept = {0: (points.copy(), leaf_f + len(va))}  # (remesh keeps the part's vertex array)
     b = binding.bind_parts(asset, 2.0, 2.0 * va, fa, np.zeros(len(va), dtype=int), kept)[0]
     stays = b.face < 0
     assert np.array_equal(stays, np.r_[np.zeros(len(va), bool), np.ones(len(leaf), bool)])

@@ -137,14 +137,14 @@ def bind_parts(asset, scale: float, vertices: np.ndarray, faces: np.ndarray,
 
 def _not_petals(points: np.ndarray, triangles, kept) -> np.ndarray:
     """``(n,) bool``: the points of the pieces of a part's mesh (``points``, input units)
-    whose points are mostly among ``kept``'s vertices (the part's pieces that are no
-    petal, :func:`bind_parts`)."""
+    whose points are mostly among the vertices of ``kept``'s faces (the part's pieces
+    that are no petal, :func:`bind_parts`; its vertex array may be the whole part's)."""
     stays = np.zeros(len(points), dtype=bool)
-    if kept is None or len(kept[0]) == 0 or len(points) == 0:
+    if kept is None or len(kept[1]) == 0 or len(points) == 0:
         return stays
     from scipy.spatial import cKDTree
 
-    kept_v = np.asarray(kept[0], dtype=np.float64)
+    kept_v = np.asarray(kept[0], dtype=np.float64)[np.unique(np.asarray(kept[1], dtype=np.int64))]
     span = float(np.ptp(np.vstack([points, kept_v]), axis=0).max()) or 1.0
     dist, _ = cKDTree(kept_v).query(points, distance_upper_bound=1e-9 * span)
     theirs = np.isfinite(dist)
