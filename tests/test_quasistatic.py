@@ -1,6 +1,9 @@
 """The quasi-static integrator: its Hessian, Newton's convergence, and agreement with a
 slow explicit run."""
 
+import json
+
+import h5py
 import numpy as np
 import pytest
 
@@ -508,3 +511,47 @@ def test_an_energy_taken_again_at_the_same_point_is_not_evaluated_again(monkeypa
     assert np.array_equal(runs[0][0], runs[1][0]) and runs[0][1:] == runs[1][1:]
     assert counts[0] < 0.9 * counts[1], counts
     assert key(Newton(1e-6, 10, None, springs=object())) is None
+
+
+def test_a_bloom_that_finds_no_equilibrium_past_half_growth_is_held_there(tmp_path, monkeypatch):
+    """A bloom from a bud whose solver finds no equilibrium past A = 0.5 (the water lily's
+    petal 35 folded through itself at A = 0.969, after 7 minutes of a run that was then
+    refused): the frames it reached are kept, the last one held for the rest, the
+    summary unsound and naming where it stopped; sim.h5 and report.json say so. A failure
+    at the very start (no frame past the bud) is still refused (above)."""
+    from click.testing import CliRunner
+
+    from pipeline.sim.solver.newton import Failure, Newton
+    from stages.cli import cli
+
+    runner = CliRunner()
+    mesh, paths = tmp_path / "petal.obj", {k: tmp_path / f"{k}.h5" for k in ("r", "a", "g")}
+    assert runner.invoke(cli, ["asset", "petal", "--vertices", "200", "--out", str(mesh)]).exit_code == 0
+    for stage, src, out in (("remesh", mesh, "r"), ("axis", paths["r"], "a"),
+                            ("growth", paths["a"], "g")):
+        assert runner.invoke(cli, ["-q", stage, str(src), "--out", str(paths[out])]).exit_code == 0
+    real = Newton.solve
+
+    def past_half(self, model, state, effects, A):
+        return Failure(3e-3, 1.0, "stalled", "indefinite") if A > 0.5 else real(
+            self, model, state, effects, A)
+
+    monkeypatch.setattr(Newton, "solve", past_half)
+    out = tmp_path / "s.h5"
+    r = runner.invoke(cli, ["simulate", str(paths["g"]), "--out", str(out), "--set",
+                            "simulate.frames=11", "--set", "growth.start=bud"])
+    assert r.exit_code == 0, r.output
+    assert "the bloom stops at A = 0.5" in r.output, r.output
+    with h5py.File(out) as h:
+        assert abs(h.attrs["bloom_stopped_at"] - 0.5) < 1e-9
+        assert list(h.attrs["bloom_stopped_petals"]) == [0]
+        assert "unsound" in h.attrs["summary"] and "the bloom stops at A = 0.5" in h.attrs["summary"]
+        X, growth = h["frames/positions"][()], h["diagnostics/growth"][()]
+        t = h["frames/time"][()]
+    assert len(X) == 11 and np.all(np.diff(t) > 0)
+    reached = int(np.flatnonzero(growth == growth[-1])[0])  # the frame held
+    assert 0 < reached < 10 and np.all(growth[reached:] == growth[reached])
+    assert np.all(X[reached + 1:] == X[reached]) and not np.array_equal(X[reached], X[0])
+    r = runner.invoke(cli, ["report", str(out), "--out", str(tmp_path / "report.json")])
+    assert r.exit_code == 0, r.output
+    assert abs(json.loads((tmp_path / "report.json").read_text())["bloom_stopped_at"] - 0.5) < 1e-9

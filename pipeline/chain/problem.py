@@ -26,6 +26,7 @@ from pipeline.sim.explicit.semi_implicit import Diverged
 from pipeline.sim.integrators import make_integrator
 from pipeline.sim.model import Control, State
 from pipeline.sim.reverse import distance_to_model, open_start, retrace
+from pipeline.sim.run import held as held_frames
 from pipeline.sim.run import run as integrate
 from pipeline.sim.solver.newton import NotConverged
 
@@ -67,13 +68,15 @@ class Result:
     resumed_step: int
     distance: float | None
     held: list = field(default_factory=list)
+    stopped: list = field(default_factory=list)  #: (growth reached, petal) per bloom held
 
     @classmethod
     def of(cls, run: Bloom) -> Result:
         """The bloom of a whole file, one problem."""
         return cls(run.bud, run.bud_info, run.effects.names, run.effects.connections,
                    np.asarray(run.rec.time), np.asarray(run.rec.positions), run.rec.arrays(),
-                   run.wall, run.resumed, run.resumed_step, run.distance)
+                   run.wall, run.resumed, run.resumed_step, run.distance,
+                   stopped=[run.stopped] if run.stopped else [])
 
 
 def unlink_checkpoints(ckpt: Path) -> None:
@@ -122,10 +125,13 @@ def flowers_apart(prep: Prepared, job: Job, ckpt: Path) -> Result:
     names, pairs, broken = set(), [], []
     info: dict = {}
     wall, resumed, resumed_step = 0.0, None, 0
+    stopped = []
     for run_, idx in runs.values():
         positions[:, idx] = np.asarray(run_.rec.positions)
         bud[idx] = run_.bud
         mine = np.unique(petal[idx])
+        if run_.stopped:
+            stopped.append((run_.stopped[0], int(mine[run_.stopped[1]])))
         arrays = run_.rec.arrays()
         if "opening_angle_per_petal" in arrays:
             per_petal[:, mine] = arrays["opening_angle_per_petal"]
@@ -172,7 +178,7 @@ def flowers_apart(prep: Prepared, job: Job, ckpt: Path) -> Result:
     return Result(bud, bud_info, sorted(names, key=lambda n: ORDER.index(n)
                                          if n in ORDER else len(ORDER)),
                    connections, times, positions, diag, wall, resumed, resumed_step, distance,
-                   held)
+                   held, stopped)
 
 
 def problem(prep: Prepared, job: Job, ckpt: Path, label: str = "") -> Bloom:
@@ -269,8 +275,9 @@ def problem(prep: Prepared, job: Job, ckpt: Path, label: str = "") -> Bloom:
                  ", ".join(effects.names) or "none")
         if effects.connections is not None:
             log.info("%d connection springs between petals", len(effects.connections.pairs))
-        failed = None
+        failed = stopped = None
         what = f"simulate {label}" if label else "simulate"
+        clock = time.perf_counter()
         with Progress(steps, what, progress) as bar:
             try:
                 rec, wall = integrate(model, state, control, integrator, steps=steps,
@@ -279,10 +286,23 @@ def problem(prep: Prepared, job: Job, ckpt: Path, label: str = "") -> Bloom:
                                       checkpoint=saver)
             except (Diverged, NotConverged, ValueError, RuntimeError) as exc:
                 path.unlink(missing_ok=True)  # a failed run's checkpoint would fail again
-                if not (isinstance(exc, NotConverged) and model_positions is not None
-                        and sim["integrator"] == "quasi-static"):
+                quasi = isinstance(exc, NotConverged) and sim["integrator"] == "quasi-static"
+                if quasi and model_positions is None and len(exc.recording.time) > 1:
+                    # a bloom from a bud that got going: kept as far as it went, its last
+                    # frame held (a refusal after minutes of work gives the user nothing)
+                    stopped = (float(exc.recording.diagnostics["growth"][-1]),
+                               int(petal[exc.vertex]))
+                    rec = held_frames(exc.recording, exc.frame_steps, h)
+                    wall = time.perf_counter() - clock
+                    log.warning("the bloom stops at A = %.4g: the quasi-static solver found "
+                                "no equilibrium at A = %.4g (petal %d, %s), even with the "
+                                "rescue; its last %d frame(s) hold the frame at A = %.4g",
+                                stopped[0], exc.growth, stopped[1], exc.cause,
+                                len(rec.time) - len(exc.recording.time), stopped[0])
+                elif not (quasi and model_positions is not None):
                     raise refusal(exc, sim, steps, petal, where) from None
-                failed = exc
+                else:
+                    failed = exc
         if failed is not None:  # an open model: its own path, from the model to a bud
             log.warning("the bloom from the bud found no equilibrium at A = %.4g (petal "
                         "%d): the path forward leaves the branch the bud is on; the bloom "
@@ -306,7 +326,7 @@ def problem(prep: Prepared, job: Job, ckpt: Path, label: str = "") -> Bloom:
         distance = (None if model_positions is None else
                     distance_to_model(np.asarray(rec.positions[-1]), model_positions,
                                       petal, base))
-        return Bloom(v0, bud_info, effects, rec, wall, resumed, resumed_step, distance)
+        return Bloom(v0, bud_info, effects, rec, wall, resumed, resumed_step, distance, stopped)
 
     run_ = bloom(lifted=True)
     if (run_.distance is not None and run_.distance > report.OFF_MODEL
@@ -403,7 +423,8 @@ def refusal(exc: Exception, sim: dict, steps: int, petal, where: str) -> BloomEr
 class Bloom:
     """One run of :func:`run`'s: its bud, the bud search's figures, the effects, the
     frames, wall seconds, the checkpoint it resumed from and the last frame's distance
-    to the model (an open start; else None)."""
+    to the model (an open start; else None); ``stopped``: where a bloom from a bud found
+    no equilibrium, ``(growth reached, petal)``, its last frame held from there."""
 
     bud: np.ndarray
     bud_info: dict
@@ -413,6 +434,7 @@ class Bloom:
     resumed: object
     resumed_step: int
     distance: float | None
+    stopped: tuple | None = None
 
 
 class Saver:

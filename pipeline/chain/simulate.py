@@ -87,6 +87,10 @@ def run(growth_h5: str | Path, out: str | Path, cfg: Config, *, overwrite: bool 
         attrs["growth_start"], attrs["growth_start_rule"] = start.start, start.reason
         if result.held:
             attrs["flowers_kept_as_modelled"] = np.asarray(result.held, dtype=np.int64)
+        if result.stopped:  # a bloom held where no equilibrium was found past it
+            attrs["bloom_stopped_at"] = min(a for a, _ in result.stopped)
+            attrs["bloom_stopped_petals"] = np.asarray([p for _, p in result.stopped],
+                                                       dtype=np.int64)
         if model_positions is not None:
             attrs["distance_to_model"] = result.distance
             attrs.update(bud_info)
@@ -107,7 +111,8 @@ def run(growth_h5: str | Path, out: str | Path, cfg: Config, *, overwrite: bool 
                                  petal_names=names, petal=petal, patch=prep.patch,
                                  intersecting=frame_intersections(seen, prep.faces, petal,
                                                                   prep.patch),
-                                 held_flowers=result.held)
+                                 held_flowers=result.held,
+                                 stopped=attrs.get("bloom_stopped_at"))
         diag["intersecting"] = np.asarray(sound["intersecting"], dtype=bool)
         attrs["summary"] = report.summary_line(sound)
         for p in sound["not_opened"]:

@@ -51,7 +51,8 @@ def crossings(X, faces, petal) -> int:
 def soundness(positions: np.ndarray, faces: np.ndarray, opening_per_petal: np.ndarray, *,
               distance_to_model: float | None = None, petal_names: list[str] | None = None,
               intersecting: list[bool] | None = None, petal=None, patch=None,
-              bud_closed: float | None = None, held_flowers=None) -> dict:
+              bud_closed: float | None = None, held_flowers=None,
+              stopped: float | None = None) -> dict:
     """Whether a bloom is sound, from its arrays.
 
     Parameters
@@ -75,6 +76,8 @@ def soundness(positions: np.ndarray, faces: np.ndarray, opening_per_petal: np.nd
         or None.
     held_flowers : a file of many flowers: those kept as modelled because no bloom was
         found for them (sim.h5's ``flowers_kept_as_modelled``), or None.
+    stopped : the growth where a bloom from a bud found no equilibrium past it and was
+        held (sim.h5's ``bloom_stopped_at``), or None.
 
     Returns
     -------
@@ -106,6 +109,7 @@ def soundness(positions: np.ndarray, faces: np.ndarray, opening_per_petal: np.nd
         "bud_closed": None if bud_closed is None else float(bud_closed),
         "flowers_kept_as_modelled": [int(k) for k in (held_flowers if held_flowers is not None
                                                       else [])],
+        "bloom_stopped_at": None if stopped is None else float(stopped),
     }
 
 
@@ -115,7 +119,8 @@ def summary_line(sound: dict) -> str:
     petal opened (least 21.3 deg)"; "unsound:" when a frame has an intersection, a petal
     did not open, an open start's last frame is off the model (over :data:`OFF_MODEL`),
     or its bud is no more closed than the model (``bud_closed`` <= 0: the bloom closes),
-    or a flower of many was kept as modelled (no bloom found for it)."""
+    or a flower of many was kept as modelled (no bloom found for it), or the bloom
+    stopped short of full growth (``bloom_stopped_at``)."""
     left = sound.get("left") or []
     checked = "checked exactly"
     if left:
@@ -135,6 +140,10 @@ def summary_line(sound: dict) -> str:
     if held:
         parts.append(f"{len(held)} flower(s) kept as modelled, no bloom found: flower "
                      + ", ".join(str(k) for k in held[:10]) + (" ..." if len(held) > 10 else ""))
+    cut = sound.get("bloom_stopped_at")
+    if cut is not None:
+        parts.append(f"the bloom stops at A = {cut:.3g} (no equilibrium past it): the frames "
+                     "after hold it")
     final = sound["opening_final_per_petal"]
     if sound["not_opened"]:
         shown = ", ".join(f"{d['name']} {d['opening']:+.1f} deg" for d in sound["not_opened"][:6])
@@ -144,7 +153,7 @@ def summary_line(sound: dict) -> str:
     elif final:
         parts.append(f"every petal opened (least {min(final):.1f} deg)")
     sound_ = (sound["intersecting_frames"] == 0 and not sound["not_opened"] and not off
-              and not backward and not held)
+              and not backward and not held and cut is None)
     return ("sound: " if sound_ else "unsound: ") + "; ".join(parts)
 
 
@@ -213,6 +222,7 @@ def compute(sim) -> dict:
     closed = sim.attrs.get("bud_closed")
     sound = soundness(X, faces, diag["opening_angle_per_petal"],
                       held_flowers=sim.attrs.get("flowers_kept_as_modelled"),
+                      stopped=sim.attrs.get("bloom_stopped_at"),
                       distance_to_model=None if distance is None else float(distance),
                       bud_closed=None if closed is None else float(closed),
                       petal_names=_names(sim, petal, faces), intersecting=intersecting,
@@ -239,6 +249,7 @@ def compute(sim) -> dict:
         "did_not_open": sound["did_not_open"],
         "not_opened": sound["not_opened"],
         "flowers_kept_as_modelled": sound["flowers_kept_as_modelled"],
+        "bloom_stopped_at": sound["bloom_stopped_at"],
         "summary": summary_line(sound),
     }
     if "effects/connections/broken_step" in sim:

@@ -75,7 +75,9 @@ def run(model: Model, state: State, control: Control, integrator, *, steps: int,
 
     ``resume``: the frames a checkpoint recorded, ``state`` (and effects) being restored
     at the last of them; the run goes on from there. ``checkpoint`` is called after each
-    frame. Returns the recording and the wall-clock seconds spent stepping.
+    frame. Returns the recording and the wall-clock seconds spent stepping. Where the
+    integrator fails, its error carries the frames recorded so far (``recording``) and
+    the steps they took (``frame_steps``), for a caller that keeps them.
     """
     if resume is None:
         rec = Recording()
@@ -91,7 +93,11 @@ def run(model: Model, state: State, control: Control, integrator, *, steps: int,
             continue
         n = int(target - state.step)
         t0 = time.perf_counter()
-        integrator.advance(model, state, control, n, h, effects)
+        try:
+            integrator.advance(model, state, control, n, h, effects)
+        except Exception as exc:
+            exc.recording, exc.frame_steps = rec, targets
+            raise
         wall += time.perf_counter() - t0
         record(rec, model, state, control, h, petals, effects, integrator)
         _guard_hold_energy(rec, state)
@@ -100,6 +106,22 @@ def run(model: Model, state: State, control: Control, integrator, *, steps: int,
         if checkpoint is not None and target < targets[-1]:
             checkpoint(rec, state)
     return rec, wall
+
+
+def held(rec: Recording, targets, h: float) -> Recording:
+    """``rec`` (the frames a run recorded before it stopped) with its last frame held for
+    each of the frame steps ``targets`` it did not reach: the same positions and
+    diagnostics (its growth too: the sheet does not grow past where it stopped), at the
+    frames' times."""
+    last = len(rec.time)
+    out = Recording(list(rec.time), list(rec.positions),
+                    {k: list(v) for k, v in rec.diagnostics.items()})
+    for target in targets[last:]:
+        out.time.append(int(target) * h)
+        out.positions.append(rec.positions[-1].copy())
+        for v in out.diagnostics.values():
+            v.append(v[last - 1])
+    return out
 
 
 def _guard_hold_energy(rec: Recording, state: State) -> None:
