@@ -11,7 +11,7 @@ from click.testing import CliRunner
 from pipeline.config import load_config
 from pipeline.errors import BloomError
 from pipeline.flower.measure import OPEN_CHORD, OPEN_CUP, bloom_start, petals_within_reach
-from pipeline.mesh import procedural
+from pipeline.mesh import procedural, topology
 from pipeline.sim.build import Prepared
 from pipeline.sim.reverse import petal_lengths
 from stages.cli import cli
@@ -98,3 +98,22 @@ def test_a_bud_whose_petals_lean_out_but_curl_their_tips_in_is_a_bud():
     lotus = _start(*procedural.open_flower(6, 1200, 0, shape))
     assert lotus.figure > OPEN_CHORD and lotus.start == "bud", lotus.reason
     assert "their tips turn -" in lotus.reason
+
+
+def test_an_open_flower_whose_inner_whorls_stand_is_open():
+    """The water lily's kind: five petals standing up the axis as in a bud, and an outer
+    whorl of three lying open and turned out. The median lean says bud (and the water
+    lily, so taken, bloomed on past flat into an umbrella and stopped where a petal
+    folded); its outer petals (OPEN_OUTER) say open."""
+    from pipeline.flower.measure import OPEN_OUTER
+
+    vi, fi, pi = procedural.bud(5, 1000, 1)
+    vo, fo, po = procedural.open_flower(3, 900, 0, procedural.OpenShape(
+        lean=80.0, recurve=100.0, receptacle_radius=0.4))
+    v, f, which = topology.stack([(vi, fi), (vo, fo)])
+    p = np.where(which == 0, pi[np.minimum(np.arange(len(v)), len(vi) - 1)],
+                 5 + po[np.clip(np.arange(len(v)) - len(vi), 0, len(vo) - 1)])
+    whorls = _start(v, f, p)
+    assert whorls.figure < OPEN_CHORD and whorls.start == "open", whorls.reason
+    assert "outer petals lean" in whorls.reason and f"over {OPEN_OUTER:g}" in whorls.reason
+    assert _start(vi, fi, pi).start == "bud"

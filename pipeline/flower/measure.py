@@ -195,6 +195,11 @@ OPEN_CHORD = 30.0
 #: bud of petals leaning out at the base curls its tips back in over its centre (the
 #: lotus: chords 37.7 deg, tips -4.5 deg; the open models' tips 15-131 deg)
 OPEN_TIP = 5.0
+#: ... or whose outer petals (the 90th percentile of the chords' lean, and of the tips'
+#: turn over OPEN_TIP) lean this far: an open flower of whorls whose inner petals stand
+#: (the water lily: median 26.5 deg, its outer whorl 79.6 deg, tips 97 deg out; no bud
+#: of the project leans its outer petals past 35 deg, the closed lotus 58.2)
+OPEN_OUTER = 60.0
 #: ... and a lone petal whose surface turns (median over its rims and midrib) less than
 #: this from base to tip and across is already open (a cupped bud petal: 89 deg; the
 #: external single petals: 0-53 deg)
@@ -215,7 +220,8 @@ def bloom_start(vertices, faces, petal, base, tip, s, x, on_axis, flower_axis) -
 
     A flower (two petals or more, its axis known): the median angle between each
     petal's base-to-tip chord and the flower's axis (toward the tips); a bud's petals
-    rise along the axis (under :data:`OPEN_CHORD`), an open flower's spread. A lone
+    rise along the axis (under :data:`OPEN_CHORD`), an open flower's spread, and so do
+    the outer petals of an open flower of whorls (:data:`OPEN_OUTER`). A lone
     petal: how far its surface turns, the median over the petal of the angle between
     the normals at its base and tip along the midrib and between its two rims across;
     a bud petal is a deep cup (over :data:`OPEN_CUP`), an open one nearly flat."""
@@ -234,10 +240,15 @@ def bloom_start(vertices, faces, petal, base, tip, s, x, on_axis, flower_axis) -
             angles.append(np.degrees(np.arccos(np.clip(chord @ d / np.linalg.norm(chord), -1, 1))))
             turns.append(_tip_turn(v, mine, on_axis, s, v[tip[p]], fa[:3], d))
         lean, turn = float(np.median(angles)), float(np.median(turns))
-        start = "open" if lean > OPEN_CHORD and turn > OPEN_TIP else "bud"
+        outer, outer_turn = float(np.percentile(angles, 90)), float(np.percentile(turns, 90))
+        whorl = outer > OPEN_OUTER and outer_turn > OPEN_TIP
+        start = "open" if (lean > OPEN_CHORD and turn > OPEN_TIP) or whorl else "bud"
         return Start(start, lean, f"the petals' base-to-tip chords lean {lean:.1f} deg (median) "
                      f"from the flower's axis, their tips turn {turn:.1f} deg outward; a bud's "
-                     f"lean is under {OPEN_CHORD:g}, or its tips under {OPEN_TIP:g}")
+                     f"lean is under {OPEN_CHORD:g}, or its tips under {OPEN_TIP:g}"
+                     + (f"; but its outer petals lean {outer:.1f} deg, tips {outer_turn:.1f} deg "
+                        f"out (90th percentile; over {OPEN_OUTER:g}: an open flower of whorls)"
+                        if whorl and not (lean > OPEN_CHORD and turn > OPEN_TIP) else ""))
     normals = topology.vertex_normals(v, faces)
     turns = []
     for p in range(count):
