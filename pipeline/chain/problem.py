@@ -26,7 +26,7 @@ from pipeline.sim.explicit.semi_implicit import Diverged
 from pipeline.sim.integrators import make_integrator
 from pipeline.sim.model import Control, State
 from pipeline.sim.reverse import distance_to_model, open_start, retrace
-from pipeline.sim.run import held as held_frames
+from pipeline.sim.run import hold_last
 from pipeline.sim.run import run as integrate
 from pipeline.sim.solver.newton import NotConverged
 
@@ -288,17 +288,8 @@ def problem(prep: Prepared, job: Job, ckpt: Path, label: str = "") -> Bloom:
                 path.unlink(missing_ok=True)  # a failed run's checkpoint would fail again
                 quasi = isinstance(exc, NotConverged) and sim["integrator"] == "quasi-static"
                 if quasi and model_positions is None and len(exc.recording.time) > 1:
-                    # a bloom from a bud that got going: kept as far as it went, its last
-                    # frame held (a refusal after minutes of work gives the user nothing)
-                    stopped = (float(exc.recording.diagnostics["growth"][-1]),
-                               int(petal[exc.vertex]))
-                    rec = held_frames(exc.recording, exc.frame_steps, h)
+                    rec, stopped = _stopped(exc, petal, h)
                     wall = time.perf_counter() - clock
-                    log.warning("the bloom stops at A = %.4g: the quasi-static solver found "
-                                "no equilibrium at A = %.4g (petal %d, %s), even with the "
-                                "rescue; its last %d frame(s) hold the frame at A = %.4g",
-                                stopped[0], exc.growth, stopped[1], exc.cause,
-                                len(rec.time) - len(exc.recording.time), stopped[0])
                 elif not (quasi and model_positions is not None):
                     raise refusal(exc, sim, steps, petal, where) from None
                 else:
@@ -359,6 +350,19 @@ def problem(prep: Prepared, job: Job, ckpt: Path, label: str = "") -> Bloom:
                 if better:
                     run_ = other
     return run_
+
+
+def _stopped(exc: NotConverged, petal, h: float):
+    """A bloom from a bud that got going and then found no equilibrium: kept as far as it
+    went, its last frame held (a refusal after minutes of work gives the user nothing).
+    Returns the frames and ``(growth reached, petal)``; logged."""
+    stopped = (float(exc.recording.diagnostics["growth"][-1]), int(petal[exc.vertex]))
+    rec = hold_last(exc.recording, exc.frame_steps, h)
+    log.warning("the bloom stops at A = %.4g: the quasi-static solver found no equilibrium "
+                "at A = %.4g (petal %d, %s), even with the rescue; its last %d frame(s) hold "
+                "the frame at A = %.4g", stopped[0], exc.growth, stopped[1], exc.cause,
+                len(rec.time) - len(exc.recording.time), stopped[0])
+    return rec, stopped
 
 
 def shell_moduli(cfg: Config) -> tuple[float, float]:

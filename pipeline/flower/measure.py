@@ -241,14 +241,15 @@ def bloom_start(vertices, faces, petal, base, tip, s, x, on_axis, flower_axis) -
             turns.append(_tip_turn(v, mine, on_axis, s, v[tip[p]], fa[:3], d))
         lean, turn = float(np.median(angles)), float(np.median(turns))
         outer, outer_turn = float(np.percentile(angles, 90)), float(np.percentile(turns, 90))
+        spread = lean > OPEN_CHORD and turn > OPEN_TIP
         whorl = outer > OPEN_OUTER and outer_turn > OPEN_TIP
-        start = "open" if (lean > OPEN_CHORD and turn > OPEN_TIP) or whorl else "bud"
+        start = "open" if spread or whorl else "bud"
         return Start(start, lean, f"the petals' base-to-tip chords lean {lean:.1f} deg (median) "
                      f"from the flower's axis, their tips turn {turn:.1f} deg outward; a bud's "
                      f"lean is under {OPEN_CHORD:g}, or its tips under {OPEN_TIP:g}"
                      + (f"; but its outer petals lean {outer:.1f} deg, tips {outer_turn:.1f} deg "
                         f"out (90th percentile; over {OPEN_OUTER:g}: an open flower of whorls)"
-                        if whorl and not (lean > OPEN_CHORD and turn > OPEN_TIP) else ""))
+                        if whorl and not spread else ""))
     normals = topology.vertex_normals(v, faces)
     turns = []
     for p in range(count):

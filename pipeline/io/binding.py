@@ -50,12 +50,9 @@ def local_frames(vertices: np.ndarray, faces: np.ndarray, face: np.ndarray, bary
     F = np.asarray(faces, dtype=np.int64)
     if normals is None:
         normals = vertex_normals(X, F)
-    stays = np.asarray(face) < 0
-    if stays.any():  # (a point that stays: the identity frame)
-        out = local_frames(X, F, np.where(stays, 0, face), np.where(stays[:, None], 1.0 / 3.0, bary),
-                           normals)
-        out[stays] = np.eye(3)
-        return out
+    stays = np.asarray(face) < 0  # (a point that stays: the identity frame, below)
+    if stays.any():
+        face, bary = np.where(stays, 0, face), np.where(stays[:, None], 1.0 / 3.0, bary)
     tri = F[face]
     n = np.einsum("ij,ijk->ik", bary, normals[tri])
     fn = np.cross(X[tri[:, 1]] - X[tri[:, 0]], X[tri[:, 2]] - X[tri[:, 0]])
@@ -66,7 +63,9 @@ def local_frames(vertices: np.ndarray, faces: np.ndarray, face: np.ndarray, bary
     t1 = e - n * np.einsum("ij,ij->i", e, n)[:, None]
     t1 /= np.maximum(np.linalg.norm(t1, axis=1, keepdims=True), 1e-300)
     t2 = np.cross(n, t1)
-    return np.stack([t1, t2, n], axis=1)
+    frames = np.stack([t1, t2, n], axis=1)
+    frames[stays] = np.eye(3)
+    return frames
 
 
 def bind(points: np.ndarray, vertices: np.ndarray, faces: np.ndarray,
@@ -127,18 +126,21 @@ def bind_parts(asset, scale: float, vertices: np.ndarray, faces: np.ndarray,
         if allowed.any():
             points = np.asarray(part.points) * scale
             b = bind(points, vertices, F, allowed, normals)
-            stays = _not_petals(points / scale, part.triangles(), (kept or {}).get(i))
-            _keep_to_own_petal(b, points, part.triangles(), vertices, F, allowed, face_piece,
+            piece = components(np.asarray(part.triangles(), dtype=np.int64).reshape(-1, 3),
+                               len(points))
+            stays = _not_petals(points / scale, piece, (kept or {}).get(i))
+            _keep_to_own_petal(b, points, piece, vertices, F, allowed, face_piece,
                                normals, stays)
             b.face[stays], b.bary[stays], b.offset[stays] = -1, 0.0, points[stays]
             out[i] = b
     return out
 
 
-def _not_petals(points: np.ndarray, triangles, kept) -> np.ndarray:
-    """``(n,) bool``: the points of the pieces of a part's mesh (``points``, input units)
-    whose points are mostly among the vertices of ``kept``'s faces (the part's pieces
-    that are no petal, :func:`bind_parts`; its vertex array may be the whole part's)."""
+def _not_petals(points: np.ndarray, piece: np.ndarray, kept) -> np.ndarray:
+    """``(n,) bool``: the points of the pieces of a part's mesh (``points``, input units;
+    ``piece (n,)`` each one's connected piece) whose points are mostly among the vertices
+    of ``kept``'s faces (the part's pieces that are no petal, :func:`bind_parts`; its
+    vertex array may be the whole part's)."""
     stays = np.zeros(len(points), dtype=bool)
     if kept is None or len(kept[1]) == 0 or len(points) == 0:
         return stays
@@ -148,20 +150,19 @@ def _not_petals(points: np.ndarray, triangles, kept) -> np.ndarray:
     span = float(np.ptp(np.vstack([points, kept_v]), axis=0).max()) or 1.0
     dist, _ = cKDTree(kept_v).query(points, distance_upper_bound=1e-9 * span)
     theirs = np.isfinite(dist)
-    piece = components(np.asarray(triangles, dtype=np.int64).reshape(-1, 3), len(points))
     share = np.bincount(piece, weights=theirs) / np.maximum(np.bincount(piece), 1)
     return share[piece] > 0.5
 
 
-def _keep_to_own_petal(b: Binding, points, triangles, vertices, faces, allowed,
+def _keep_to_own_petal(b: Binding, points, piece, vertices, faces, allowed,
                        face_piece, normals=None, stays=None) -> None:
     """Where most of a connected piece of the input is bound to one sheet petal, bind
     all of it to that petal (in place): a piece is one petal's surface (both sides of a
     thick one), and its points that lay closer to another petal, where petals overlap
     or meet at the hub, would otherwise follow that petal through the bloom and tear
     the surface. A piece no petal has most of (a sheet that was several petals, split
-    by remesh) keeps each point's closest petal."""
-    piece = components(np.asarray(triangles, dtype=np.int64).reshape(-1, 3), len(points))
+    by remesh) keeps each point's closest petal. ``piece (n,)``: each point's connected
+    piece of the input."""
     petal_of = face_piece[b.face]
     for c in np.unique(piece if stays is None else piece[~stays]):
         idx = np.flatnonzero(piece == c)

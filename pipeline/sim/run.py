@@ -12,6 +12,7 @@ from pipeline.flower.measure import PetalFrames
 from pipeline.sim.effects import NO_EFFECTS, Effects
 from pipeline.sim.explicit.semi_implicit import Diverged
 from pipeline.sim.model import Control, Model, State
+from pipeline.sim.solver.newton import NotConverged
 
 #: energy guard: while growth holds, kinetic + potential energy may only fall (Eq. 8 with
 #: eta < 1/2, collisions and breaking springs all remove energy); a rise by more than
@@ -76,8 +77,9 @@ def run(model: Model, state: State, control: Control, integrator, *, steps: int,
     ``resume``: the frames a checkpoint recorded, ``state`` (and effects) being restored
     at the last of them; the run goes on from there. ``checkpoint`` is called after each
     frame. Returns the recording and the wall-clock seconds spent stepping. Where the
-    integrator fails, its error carries the frames recorded so far (``recording``) and
-    the steps they took (``frame_steps``), for a caller that keeps them.
+    quasi-static solver finds no equilibrium, its :class:`NotConverged` carries the frames
+    recorded so far (``recording``) and every frame's step (``frame_steps``), for a
+    caller that keeps them (:func:`hold_last`).
     """
     if resume is None:
         rec = Recording()
@@ -95,7 +97,7 @@ def run(model: Model, state: State, control: Control, integrator, *, steps: int,
         t0 = time.perf_counter()
         try:
             integrator.advance(model, state, control, n, h, effects)
-        except Exception as exc:
+        except NotConverged as exc:
             exc.recording, exc.frame_steps = rec, targets
             raise
         wall += time.perf_counter() - t0
@@ -108,7 +110,7 @@ def run(model: Model, state: State, control: Control, integrator, *, steps: int,
     return rec, wall
 
 
-def held(rec: Recording, targets, h: float) -> Recording:
+def hold_last(rec: Recording, targets, h: float) -> Recording:
     """``rec`` (the frames a run recorded before it stopped) with its last frame held for
     each of the frame steps ``targets`` it did not reach: the same positions and
     diagnostics (its growth too: the sheet does not grow past where it stopped), at the
