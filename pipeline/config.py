@@ -177,6 +177,16 @@ SCHEMA: dict[str, Any] = {
                      "growth curve undone in full); left unset, a bud under 20 deg more "
                      "closed than the model is searched again closing twice as far (up to "
                      "4)", low=0.0),
+        "recurve": Key(bool, True, "growth.start = open, the shell: the model's curvature "
+                       "away from the flower's inside (tips and rims rolled back, a lily's "
+                       "recurved petals) grows in over the bloom, so the bud Bloom finds is "
+                       "not rolled back; false keeps it in the bud's rest state (the bud "
+                       "is then the model's curl with its growth undone)"),
+        "cup": Key(float, 1.5, "growth.start = open, the shell: the bud's curvature toward "
+                   "the flower's inside, in 1 / the petal size (the square root of its area), "
+                   "that the model has not: it picks the side each petal closes to (a flat "
+                   "petal whose rims' growth is undone could cup either way) and fades out over "
+                   "the bloom; 0: none", low=0.0),
     },
     "simulate": {
         "steps": Key(int, 200_000, "number of time steps", low=1),

@@ -199,11 +199,12 @@ def test_every_petal_of_the_external_models_has_a_sane_axis(tmp_path, name):
 @needs_shared
 def test_dimontels_petal_opens_with_the_default_config(tmp_path):
     """Remeshed, unsymmetrized (its mirrored remesh keeps a needle): it opened -1.0 deg
-    with its axis a region. Now (a flat petal: an open start): at growth.close 1 the
-    shell's bud is only 8.7 deg more closed than the model (its rim's growth undone
-    curls it across), so the search closes twice as far: a bud 0.53 petal lengths away
-    that opens 53.2 deg back onto the model (the paper's springs, hinging at four fixed
-    vertices: 61.9 deg)."""
+    with its axis a region. Now (a flat petal: an open start): with the model's own
+    curvature kept in the bud, its bud at growth.close 1 was only 8.7 deg more closed
+    than the model (its rim's growth undone curls it across) and the search closed twice
+    as far (53.2 deg); with the bud cupped and not rolled back (growth.cup,
+    growth.recurve: 83% of its squared curvature is recurve), growth.close 1 finds a bud
+    0.53 petal lengths away that opens 27.3 deg back onto the model."""
     out = {}
     src = str(EXTERNAL / "dimontel_petal.obj")
     for stage, dst in (("remesh", "r.h5"), ("axis", "a.h5"), ("growth", "g.h5"),
@@ -214,7 +215,8 @@ def test_dimontels_petal_opens_with_the_default_config(tmp_path):
         src = str(tmp_path / dst)
     with h5py.File(tmp_path / "s.h5") as h:
         assert h["diagnostics/opening_angle_per_petal"][-1, 0] > 20.0  # (reverse.CLOSED)
-        assert h.attrs["bud_close"] == 2.0 and h.attrs["bud_distance"] > 0.3
+        assert h.attrs["bud_close"] == 1.0 and h.attrs["bud_distance"] > 0.3
+        assert h.attrs["recurve_share"] > 0.5
         assert h.attrs["distance_to_model"] < 1e-3
 
 

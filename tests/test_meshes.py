@@ -251,9 +251,10 @@ def test_a_solidified_petal_blooms_with_the_default_config(tmp_path):
     """pchinyun's Blender-solidified petal, every stage at its defaults: its mid-surface
     is remeshed to the quality bound (needles clipped off its rim) and Newton follows it
     to the end. Before, a needle on the rim flattened at growth 0.045 and simulate
-    stopped with "no equilibrium". Measured: final opening 36.7 deg (18.1 deg while the
-    axis of this unsymmetrized petal was a band two vertices wide, both ends of every edge
-    crossing its center plane held at x = 0)."""
+    stopped with "no equilibrium". Measured: final opening 81.8 deg, from a bud cupped and
+    not rolled back (growth.cup, growth.recurve; 36.7 deg from a bud that kept the model's
+    curvature, 18.1 deg while the axis of this unsymmetrized petal was a band two vertices
+    wide, both ends of every edge crossing its center plane held at x = 0)."""
     import h5py
 
     steps = (("remesh", EXTERNAL / "pchinyun_petal.obj", "remesh.h5"),
@@ -267,4 +268,4 @@ def test_a_solidified_petal_blooms_with_the_default_config(tmp_path):
         X = h["frames/positions"][()]
         opening = h["diagnostics/opening_angle"][()]
     assert np.isfinite(X).all() and len(X) == 121
-    assert 10.0 < opening[-1] < 50.0
+    assert 10.0 < opening[-1] < 120.0

@@ -138,7 +138,11 @@ def test_a_bud_search_that_finds_no_equilibrium_closes_half_as_far(tmp_path, mon
         return real(model, *args, **kwargs)
 
     monkeypatch.setattr(reverse, "find_bud", crumples_at_full_close)
-    short = ["--set", "growth.start=open", "--set", "simulate.frames=5"]
+    # (five frames: with the bud's cup, a bloom in five steps lands 1.4% off the model and
+    # the search is made again along the model's own path, at growth.close 1; the halving
+    # is what is tested here, so the bud keeps the model's curvature)
+    short = ["--set", "growth.start=open", "--set", "simulate.frames=5",
+             "--set", "growth.cup=0", "--set", "growth.recurve=false"]
     out = {k: tmp_path / f"{k}.h5" for k in ("r", "a", "g", "s")}
     for stage, src, dst in (("remesh", mesh, "r"), ("axis", out["r"], "a"), ("growth", out["a"], "g")):
         assert CliRunner().invoke(cli, [stage, str(src), "--out", str(out[dst])]).exit_code == 0
@@ -284,3 +288,86 @@ def test_closing_twice_as_far_keeps_the_first_bud_unless_the_second_is_more_clos
         out = reverse.open_start(cfg, None, X, None, None, None, petal, base, None, None,
                                  None, "here", closed_by=lambda bud, c=closed: c[bud[0, 2]])
         assert out[-1]["bud_close"] == kept
+
+
+def test_the_recurve_is_the_curvature_away_from_the_inside_and_the_cup_curves_toward_it():
+    """``recurve_form`` keeps, per face, the principal curvatures of the sign that curves
+    away from the inside (the flower's), and ``bloom_form`` takes the bud's cup off it;
+    exact on quadratic sheets: a cylinder rolled either way, a saddle."""
+    from pipeline.sim.budshape import BudShape, bloom_form, face_metrics, recurve_form
+    from pipeline.sim.terms.shell_kernels import second_form
+    from pipeline.sim.terms.shell_stencil import face_stencil, ghost_rows
+
+    g = np.linspace(-1.0, 1.0, 9)
+    xy = np.stack(np.meshgrid(g, g, indexing="ij"), -1).reshape(-1, 2)
+    tri = []
+    for i in range(8):
+        for j in range(8):
+            a, b, c, d = 9 * i + j, 9 * (i + 1) + j, 9 * (i + 1) + j + 1, 9 * i + j + 1
+            tri += [(a, b, c), (a, c, d)]
+    faces = np.array(tri, dtype=np.int64)
+
+    def curvatures(z, inside):
+        """The inside-relative principal curvatures of (form, recurve, bud) per face."""
+        X = np.c_[xy, z(xy[:, 0], xy[:, 1])]
+        opp = face_stencil(X, faces)
+        crease = np.zeros((len(faces), 3, 2))
+        ghost = np.ascontiguousarray(ghost_rows(X, faces, opp))
+        form = np.empty((len(faces), 3))
+        second_form(X, faces, opp, ghost, crease, form)
+        side = np.full(len(faces), float(inside))
+        out = recurve_form(X, faces, form, side)
+        bud = form - bloom_form(X, faces, form, BudShape(side, cup=0.5, recurve=True), 2.0)
+        metric = face_metrics(X, faces)
+
+        def principal(b):
+            a = np.stack([metric[:, [0, 1]], metric[:, [1, 2]]], 1)
+            m = np.stack([b[:, [0, 1]], b[:, [1, 2]]], 1)
+            return np.sort(np.linalg.eigvals(np.linalg.solve(a, inside * m)).real, axis=1)
+        interior = np.all(np.abs(X[faces][:, :, :2]).max(axis=2) < 0.76, axis=1)
+        return [principal(b)[interior] for b in (form, out, bud)]
+
+    # (the face normals e1 x e2 point +z: z = +k x^2 / 2 curves toward +z)
+    for inside, k in ((1.0, 0.6), (-1.0, 0.6), (1.0, -0.6), (1.0, 0.0)):
+        form, out, bud = curvatures(lambda x, y, k=k: 0.5 * k * x ** 2 - 0.2 * y ** 2, inside)
+        assert np.any(form < -0.1)  # (some curvature away from the inside)
+        np.testing.assert_allclose(out, np.minimum(form, 0.0), atol=1e-9)
+        # the bud: never curved away; cupped toward the inside by 0.5 / size (size 2)
+        np.testing.assert_allclose(bud, np.maximum(form, 0.0) + 0.25, atol=1e-9)
+    form, out, bud = curvatures(lambda x, y: 0.3 * x * x + 0.2 * y * y, 1.0)
+    assert np.all(form > 0.1)  # a bowl toward the inside: no recurve
+    np.testing.assert_allclose(out, 0.0, atol=1e-9)
+    np.testing.assert_allclose(bud, form + 0.25, atol=1e-9)
+
+
+def test_an_open_shell_with_its_bud_shape_is_at_rest_on_the_model_and_its_bud_is_not():
+    """With the bud's cup and the recurve left out of the bud (growth.cup, growth.recurve),
+    the model is still its own rest state at A = 1; at A = 0 the rest curvature is the
+    bud's (the model's less :func:`bloom_form`); and the lifted path keeps the bud shape."""
+    from pipeline.sim.budshape import BudShape, bloom_form, inner_sides
+    from pipeline.sim.build import Prepared
+    from pipeline.sim.terms.shell import ShellTerm
+
+    v, f, petal, axes, growth = open_petal()
+    opened = Prepared.of(v, f, petal, axes, growth).shell_model(27.3, 0.013, 1 / 3)
+    inside = inner_sides(v, opened.shell.face_indices, petal, axes.s,
+                                 np.full(6, np.nan))
+    assert np.all(np.abs(inside) == 1.0)
+    shape = BudShape(inside, cup=1.5, recurve=True)
+    model = reverse.open_model(opened, 1.0, v, 0.0, petal, shape)
+    plain = reverse.open_model(opened, 1.0, v)
+    g = ShellTerm(model).at(1.0).gradient(v)
+    g[model.pinned] = 0.0
+    at_bud = ShellTerm(plain).at(0.0).gradient(v)
+    at_bud[model.pinned] = 0.0
+    assert np.abs(g).max() <= 1e-9 * np.abs(at_bud).max()
+    form = model.shell.form_at(v)
+    added = bloom_form(np.asarray(v, float), model.shell.face_indices, form, shape,
+                       model.shell.size)
+    scale = model.shell.face_rest_form / form  # the growth's per-face factor, both alike
+    ok = np.abs(form) > 1e-6 * np.abs(form).max()
+    np.testing.assert_allclose(model.shell.face_bloom_form[ok], (added * scale)[ok],
+                               rtol=1e-9, atol=1e-12 * np.abs(added).max())
+    assert np.abs(model.shell.face_bloom_form).max() > 0.0
+    lifted = reverse.rest_at(model, v + 0.01)
+    assert lifted.shell.bud is shape and np.abs(lifted.shell.face_bloom_form).max() > 0.0

@@ -165,6 +165,8 @@ def flowers_apart(prep: Prepared, job: Job, ckpt: Path) -> Result:
             bud_info[key] = sum(values)
         elif key == "bud_close":
             bud_info[key] = min(values)
+        elif key == "recurve_share":
+            bud_info[key] = max(values)
     start_open = job.start.start == "open"
     distance = None
     if start_open:

@@ -26,6 +26,7 @@ import numpy as np
 
 from pipeline.errors import BloomError
 from pipeline.mesh.hinge import edge_lengths, hinge_cos_sin
+from pipeline.sim.budshape import BudShape, inner_sides, recurve_form, recurve_share
 from pipeline.sim.effects import Params, flower_axis_or_guess
 from pipeline.sim.model import Model, State
 from pipeline.sim.run import Recording, openings
@@ -134,13 +135,14 @@ def even_growth(face_edges, full, growth):
 
 
 def open_model(model: Model, close: float, positions=None, beta: float = 0.0,
-               petal=None) -> Model:
+               petal=None, bud: BudShape | None = None) -> Model:
     """The model whose rest lengths reach the mesh's own at A = 1: ``rest0 = L / (1 + c
     alpha)``, growth ratios ``c alpha``. A shell's rest curvature too: ``positions``' (the
     mesh's) at A = 1, with the curl's ``beta`` (already times ``c``) decaying it on the
     way (:meth:`~pipeline.sim.terms.shell.ShellData.rest_on`); and its slivers' growth
     ratios evened out where the bud would crush them (:func:`even_growth`, logged, the
-    petals named by ``petal (V,)`` if given)."""
+    petals named by ``petal (V,)`` if given). ``bud``: a shell's bud shape (its cup and
+    whether the model's recurve is left out of it; None: the model's own curvature)."""
     growth = float(close) * model.edge_growth
     if np.any(1.0 + growth <= 0.0):
         raise ValueError("growth.close: a growth ratio times it is <= -1 (a rest length "
@@ -163,7 +165,7 @@ def open_model(model: Model, close: float, positions=None, beta: float = 0.0,
     if shell is not None:
         if positions is None:
             raise ValueError("an open shell needs the model's positions (its curvature)")
-        shell = shell.rest_on(positions, rest, growth, beta)
+        shell = shell.rest_on(positions, rest, growth, beta, bud)
     return dataclasses.replace(model, edge_rest_length=rest, edge_growth=growth, shell=shell)
 
 
@@ -362,7 +364,11 @@ def _find_bud_closing(cfg, close, model, positions, rest_angle, params, build_ef
         params = params.but(curl={"beta": close * params.curl.beta})
         rest_angle = open_rest_angle(rest_angle, params.curl.beta)
         beta = params.curl.beta
-    model = open_model(model, close, positions, beta, petal)
+    bud_shape = None
+    if model.shell is not None:
+        bud_shape = BudShape(inner_sides(positions, model.shell.face_indices, petal, s,
+                                         flower_axis), cfg["growth.cup"], cfg["growth.recurve"])
+    model = open_model(model, close, positions, beta, petal, bud_shape)
     if not lifted:
         bud, solver = find_bud(model, positions, build_effects(positions),
                                stages=cfg["simulate.stages"], tolerance=cfg["simulate.tolerance"],
@@ -465,7 +471,17 @@ def open_start(cfg, model: Model, positions, rest_angle, params: Params, build_e
     moved = distance_to_model(bud, positions, petal, base)
     log.info("growth.start = open: found the bud in %.2f s (%d Newton iterations); it is %.3g "
              "petal lengths (RMS) from the model", seconds, solver.iterations, moved)
-    return bud, model, rest_angle, params, {"bud_seconds": seconds,
-                                            "bud_newton_iterations": solver.iterations,
-                                            "bud_distance": moved, "bud_close": close,
-                                            "bud_path": "lifted" if lifted else "own"}
+    info = {"bud_seconds": seconds, "bud_newton_iterations": solver.iterations,
+            "bud_distance": moved, "bud_close": close, "bud_path": "lifted" if lifted else "own"}
+    sh = getattr(model, "shell", None)
+    if sh is not None and sh.bud is not None:
+        X = np.asarray(positions, dtype=np.float64)
+        form = sh.form_at(X)
+        info["recurve_share"] = recurve_share(
+            X, sh.face_indices, form, recurve_form(X, sh.face_indices, form, sh.bud.inside))
+        log.info("growth.start = open: the bud is cupped toward the flower's inside "
+                 "(curvature %g / petal size, growth.cup)%s", sh.bud.cup,
+                 f" and not rolled back: the model's recurve ({100 * info['recurve_share']:.0f}% "
+                 "of its squared curvature) grows in over the bloom (growth.recurve)"
+                 if sh.bud.recurve else "")
+    return bud, model, rest_angle, params, info

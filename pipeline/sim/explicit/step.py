@@ -185,8 +185,8 @@ def advance(X, V, F, F_next, inv_mass, edges, rest0, growth, edge_k, hinges, cos
                 P[v, 2] = X[v, 2]
             energy = shell_forces(P, shell.faces, shell.opposite, shell.ghost, shell.crease,
                                   shell.face_edges, rest0, growth, shell.young, shell.bend,
-                                  shell.nu, shell.form, shell.det0, A, 1.0 - A * shell.beta, Fn,
-                                  shell.scratch)
+                                  shell.nu, shell.form, shell.bloom_form, shell.det0, A,
+                                  1.0 - A * shell.beta, Fn, shell.scratch)
         else:
             if curl_on:
                 curl_rest_angles(theta0, A * beta, cos_t, sin_t)

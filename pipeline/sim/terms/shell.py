@@ -24,6 +24,7 @@ import scipy.sparse as sp
 
 from pipeline.mesh import topology
 from pipeline.sim.blocks import Part
+from pipeline.sim.budshape import BudShape, bloom_form
 from pipeline.sim.terms.shell_kernels import (
     KERNEL_SCRATCH,
     rest_dets,
@@ -151,6 +152,15 @@ class ShellData:
     #: (F, 3, 2) the stiffness and rest angle (growth 0) of the crease a face carries
     #: across the edge opposite each corner (stiffness 0: none; :func:`creases`)
     face_crease: np.ndarray = None
+    #: (F, 3) the part of ``face_rest_form`` that the bloom adds: absent from the bud,
+    #: grown in with A (an open start's, :func:`bloom_form`; zero: none)
+    face_bloom_form: np.ndarray = None
+    #: an open start's bud shape (:class:`BudShape`), kept for :meth:`rest_on`; None: none
+    bud: BudShape | None = None
+
+    def __post_init__(self):
+        if self.face_bloom_form is None:
+            self.face_bloom_form = np.zeros((len(self.face_indices), 3))
 
     @property
     def face_count(self) -> int:
@@ -196,19 +206,31 @@ class ShellData:
         return cls(f, opp, ghost, fe, form, det0, young, bend, float(poisson), size, anchors,
                    len(X), crease)
 
-    def rest_on(self, positions, rest0, growth, beta: float = 0.0) -> ShellData:
+    def _with_anchors(self, positions) -> np.ndarray:
+        X = np.ascontiguousarray(positions, dtype=np.float64)
+        if self.anchors is not None and len(self.anchors):
+            X = np.concatenate([X, self.anchors])
+        return X
+
+    def form_at(self, positions) -> np.ndarray:
+        """``(F, 3)``: each face's second fundamental form at ``positions`` (V, 3)."""
+        form = np.empty((self.face_count, 3))
+        second_form(self._with_anchors(positions), self.face_indices, self.face_opposite,
+                    self.face_ghost, self.face_crease, form)
+        return form
+
+    def rest_on(self, positions, rest0, growth, beta: float = 0.0,
+                bud: BudShape | None = None) -> ShellData:
         """This shell with ``positions`` as its rest shape at full growth (A = 1; an open
         start's model, :mod:`pipeline.sim.reverse`): the rest curvature at growth 0 is
         ``positions``' own second fundamental form divided by what growth and curl
         multiply it by on the way to A = 1 (``(det abar(1) / det abar(0))^(1/4)`` and
         ``1 - beta``), so that at A = 1 it is ``positions``' own. ``rest0``, ``growth``:
-        the model's edges' rest lengths at growth 0 and growth ratios."""
-        X = np.ascontiguousarray(positions, dtype=np.float64)
-        if self.anchors is not None and len(self.anchors):
-            X = np.concatenate([X, self.anchors])
-        form = np.empty((self.face_count, 3))
-        second_form(X, self.face_indices, self.face_opposite, self.face_ghost, self.face_crease,
-                    form)
+        the model's edges' rest lengths at growth 0 and growth ratios. ``bud``: the bud's
+        shape (given, or kept from an earlier ``rest_on``): the part of ``positions``'
+        curvature the bud has not (:func:`bloom_form`) grows in with A."""
+        X = self._with_anchors(positions)
+        form = self.form_at(positions)
         crease = self.face_crease.copy()  # (a crease's angle stays as growth goes: curl's only)
         crease[:, :, 1] = crease_angles(X, self.face_indices, self.face_opposite,
                                         self.face_crease) / (1.0 - beta)
@@ -221,8 +243,12 @@ class ShellData:
             raise ValueError(f"{int(np.sum((det0 <= 0.0) | (det1 <= 0.0)))} faces have no "
                              "rest area")
         k = np.sqrt(np.sqrt(det0 / det1)) / (1.0 - beta)
+        bud = self.bud if bud is None else bud
+        added = (np.zeros_like(form) if bud is None
+                 else bloom_form(X, self.face_indices, form, bud, self.size))
         return dataclasses.replace(self, face_rest_form=form * k[:, None], face_rest_det=det0,
-                                   face_crease=crease)
+                                   face_crease=crease, face_bloom_form=added * k[:, None],
+                                   bud=bud)
 
     def equivalent(self) -> tuple[float, float]:
         """The paper's (K_s, K_b) of the same sheet (mean over faces), for what still
@@ -244,7 +270,10 @@ class ShellData:
             self.face_ghost[face_mask], edge_map[self.face_edges[face_mask]],
             self.face_rest_form[face_mask], self.face_rest_det[face_mask],
             self.face_stretch[face_mask], self.face_bending[face_mask], self.poisson,
-            self.size, self.anchors, count, self.face_crease[face_mask])
+            self.size, self.anchors, count, self.face_crease[face_mask],
+            self.face_bloom_form[face_mask],
+            None if self.bud is None else dataclasses.replace(
+                self.bud, inside=self.bud.inside[face_mask]))
 
 
 #: What the dynamic integrators' step (:func:`pipeline.sim.explicit.step.advance`) takes of
@@ -252,7 +281,7 @@ class ShellData:
 #: positions' work array ``points`` (V + anchors), the face data and the curl's ``beta``.
 KernelShell = namedtuple("KernelShell", [
     "on", "points", "faces", "opposite", "ghost", "crease", "face_edges", "young", "bend", "nu",
-    "form", "det0", "beta", "scratch"])
+    "form", "bloom_form", "det0", "beta", "scratch"])
 
 
 def kernel_shell(model, curl=None) -> KernelShell:
@@ -263,12 +292,13 @@ def kernel_shell(model, curl=None) -> KernelShell:
         return KernelShell(False, np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int64),
                            np.zeros((0, 3), dtype=np.int64), np.zeros((0, 3, 3)),
                            np.zeros((0, 3, 2)), np.zeros((0, 3), dtype=np.int64), np.zeros(0),
-                           np.zeros(0), 0.0, np.zeros((0, 3)), np.zeros(0), 0.0, np.zeros(KERNEL_SCRATCH))
+                           np.zeros(0), 0.0, np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0), 0.0,
+                           np.zeros(KERNEL_SCRATCH))
     anchors = sh.anchors if sh.anchors is not None else np.zeros((0, 3))
     points = np.concatenate([np.zeros((model.vertex_count, 3)), anchors])
     return KernelShell(True, points, sh.face_indices, sh.face_opposite, sh.face_ghost,
                        sh.face_crease, sh.face_edges, sh.face_stretch, sh.face_bending, sh.poisson,
-                       sh.face_rest_form, sh.face_rest_det,
+                       sh.face_rest_form, sh.face_bloom_form, sh.face_rest_det,
                        0.0 if curl is None else float(curl.beta), np.zeros(KERNEL_SCRATCH))
 
 
@@ -349,11 +379,11 @@ class ShellTerm(Term):
             return (sh.face_indices, sh.face_opposite, sh.face_ghost, sh.face_crease,
                     sh.face_edges,
                     m.edge_rest_length, m.edge_growth, sh.face_stretch, sh.face_bending,
-                    sh.poisson, sh.face_rest_form, sh.face_rest_det)
+                    sh.poisson, sh.face_rest_form, sh.face_bloom_form, sh.face_rest_det)
         return (sh.face_indices[faces], sh.face_opposite[faces], sh.face_ghost[faces],
                 sh.face_crease[faces], sh.face_edges[faces], m.edge_rest_length, m.edge_growth,
                 sh.face_stretch[faces], sh.face_bending[faces], sh.poisson,
-                sh.face_rest_form[faces], sh.face_rest_det[faces])
+                sh.face_rest_form[faces], sh.face_bloom_form[faces], sh.face_rest_det[faces])
 
     def _apart(self) -> list | None:
         """The mesh's pieces (petals: no face's stencil reaches another's), each as

@@ -788,18 +788,20 @@ def _grown(f, face_edges, rest0, growth, A):
 
 
 @njit(cache=True, inline="always")
-def _face_rest(f, face_edges, rest0, growth, A, face_bbar, face_det0, curl, bbar):
+def _face_rest(f, face_edges, rest0, growth, A, face_bbar, face_out, face_det0, curl, bbar):
     """Squared grown rest lengths of face ``f``'s edges, and its rest second fundamental
-    form at growth A into ``bbar``: the bud's, scaled by the face's linear growth
-    ``(det abar(A) / det abar(0))^(1/4)`` (exactly 1 at A = 0) and by ``curl`` (``1 - B
-    beta``)."""
+    form at growth A into ``bbar``: ``face_bbar - (1 - A) face_out`` (``face_bbar`` the
+    form at A = 1, ``face_out`` its part the bud has not: zero but for an open start's
+    model, :func:`pipeline.sim.terms.shell.bloom_form`), scaled by the face's linear growth ``(det abar(A) /
+    det abar(0))^(1/4)`` (exactly 1 at A = 0) and by ``curl`` (``1 - B beta``)."""
     L0s, L1s, L2s, detb = _grown(f, face_edges, rest0, growth, A)
     k = curl
     if detb > 0.0 and face_det0[f] > 0.0 and detb != face_det0[f]:
         k *= math.sqrt(math.sqrt(detb / face_det0[f]))
-    bbar[0] = k * face_bbar[f, 0]
-    bbar[1] = k * face_bbar[f, 1]
-    bbar[2] = k * face_bbar[f, 2]
+    fade = 1.0 - A
+    bbar[0] = k * (face_bbar[f, 0] - fade * face_out[f, 0])
+    bbar[1] = k * (face_bbar[f, 1] - fade * face_out[f, 1])
+    bbar[2] = k * (face_bbar[f, 2] - fade * face_out[f, 2])
     return L0s, L1s, L2s
 
 
@@ -812,7 +814,7 @@ def rest_dets(face_edges, rest0, growth, out):
 
 @njit(cache=True, nogil=True, error_model="numpy")
 def shell_forces(X, faces, opposite, ghost, crease, face_edges, rest0, growth, young, bend, nu,
-                 face_bbar, face_det0, A, curl, F, scratch):
+                 face_bbar, face_out, face_det0, A, curl, F, scratch):
     """Add ``-dE/dX`` of every face (membrane and bending) to ``F``; return the energy.
     ``young``, ``bend``: per face (mesh units); ``curl``: ``1 - B(t) beta``."""
     s = scratch[:SCRATCH]
@@ -821,8 +823,8 @@ def shell_forces(X, faces, opposite, ghost, crease, face_edges, rest0, growth, y
     gx = views[7]
     energy = 0.0
     for f in range(faces.shape[0]):
-        L0s, L1s, L2s = _face_rest(f, face_edges, rest0, growth, A, face_bbar, face_det0,
-                                   curl, bbar)
+        L0s, L1s, L2s = _face_rest(f, face_edges, rest0, growth, A, face_bbar, face_out,
+                                   face_det0, curl, bbar)
         v = faces[f]
         opp = opposite[f]
         energy += _face(X, v, opp, ghost[f], crease[f], L0s, L1s, L2s, young[f], nu, bend[f],
@@ -839,7 +841,7 @@ def shell_forces(X, faces, opposite, ghost, crease, face_edges, rest0, growth, y
 
 @njit(cache=True, nogil=True, error_model="numpy")
 def shell_hessian(X, faces, opposite, ghost, crease, face_edges, rest0, growth, young, bend, nu,
-                  face_bbar, face_det0, A, curl, data, slots, rows, face_h, scratch):
+                  face_bbar, face_out, face_det0, A, curl, data, slots, rows, face_h, scratch):
     """Add every face's Hessian blocks to ``data``; ``slots[f, 6 r + c]`` is the block of
     the face's vertex pair (r, c) in the order q0, q1, q2, o0, o1, o2 (-1: no vertex).
     Each face's row sums of ``|H|`` go to ``face_h[rows[f]] (6,)``, for
@@ -849,8 +851,8 @@ def shell_hessian(X, faces, opposite, ghost, crease, face_edges, rest0, growth, 
     views = _views(s)
     Hx = views[8]
     for f in range(faces.shape[0]):
-        L0s, L1s, L2s = _face_rest(f, face_edges, rest0, growth, A, face_bbar, face_det0,
-                                   curl, bbar)
+        L0s, L1s, L2s = _face_rest(f, face_edges, rest0, growth, A, face_bbar, face_out,
+                                   face_det0, curl, bbar)
         _face_called(X, faces[f], opposite[f], ghost[f], crease[f], L0s, L1s, L2s, young[f],
                      nu, bend[f], bbar, curl, True, views, G, Gi, Cs, Cb, hinge)
         for r in range(6):
@@ -870,7 +872,7 @@ def shell_hessian(X, faces, opposite, ghost, crease, face_edges, rest0, growth, 
 
 @njit(cache=True, nogil=True, error_model="numpy")
 def shell_rounding(X, faces, opposite, ghost, crease, face_edges, rest0, growth, young, bend, nu,
-                   face_bbar, face_det0, A, curl, full, rows, face_h, scale, scratch):
+                   face_bbar, face_out, face_det0, A, curl, full, rows, face_h, scale, scratch):
     """The size of what the force kernel adds and subtracts, per vertex into ``scale
     (V,)`` (force units), and for the energy (returned): ``eps`` times these bounds what
     rounding alone leaves in the gradient and the energy (see
@@ -889,8 +891,8 @@ def shell_rounding(X, faces, opposite, ghost, crease, face_edges, rest0, growth,
     Hx = views[8]
     energy = 0.0
     for f in range(faces.shape[0]):
-        L0s, L1s, L2s = _face_rest(f, face_edges, rest0, growth, A, face_bbar, face_det0,
-                                   curl, bbar)
+        L0s, L1s, L2s = _face_rest(f, face_edges, rest0, growth, A, face_bbar, face_out,
+                                   face_det0, curl, bbar)
         v = faces[f]
         opp = opposite[f]
         e = _face_called(X, v, opp, ghost[f], crease[f], L0s, L1s, L2s, young[f], nu, bend[f],
