@@ -152,3 +152,19 @@ def test_report_gives_the_distance_to_the_model_of_an_open_start(still, tmp_path
     data = json.loads((tmp_path / "r.json").read_text())
     assert data["distance_to_model"] == 2.5e-12
     assert "last frame 2.5e-12 petal lengths (RMS) from the model" in data["summary"]
+
+
+def test_petals_that_did_not_open_are_named_up_to_ten_lines_then_counted():
+    """A flower of fifty petals kept as modelled named every petal in its own warning;
+    now the first ten, then one line with how many more."""
+    from pipeline.review.report import NAMED, warn_not_opened
+
+    lines = []
+    warn_not_opened([{"name": f"petal {p}", "opening": 0.5} for p in range(NAMED + 40)],
+                    lines.append)
+    assert len(lines) == NAMED + 1
+    assert lines[0] == "petal 0 did not open: +0.5 deg at the end (under 5 deg)"
+    assert lines[-1].startswith("and 40 more petals did not open")
+    lines.clear()
+    warn_not_opened([{"name": "petal 3", "opening": -1.0}], lines.append)
+    assert lines == ["petal 3 did not open: -1.0 deg at the end (under 5 deg)"]

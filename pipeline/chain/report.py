@@ -47,9 +47,7 @@ def run(sim_h5: str | Path, out: str | Path, cfg=None, *, overwrite: bool = Fals
     log.info("opening %.1f deg; wrinkles %d; crossings %d at the end; %d of %d frames with "
              "an intersection", data["opening_angle_final_mean"], data["boundary_wrinkles"][-1],
              data["crossings"][-1], data["intersecting_frames"], len(data["intersecting"]))
-    for petal in data["not_opened"]:
-        log.warning("warning: %s did not open: %+.1f deg at the end (under %g deg)", petal["name"],
-                    petal["opening"], report.NOT_OPEN)
+    report.warn_not_opened(data["not_opened"], lambda m: log.warning("warning: %s", m))
     log.info("%s", data["summary"])
     log.info("wrote %s and %s", out_path, png)
 

@@ -115,9 +115,7 @@ def run(growth_h5: str | Path, out: str | Path, cfg: Config, *, overwrite: bool 
                                  stopped=attrs.get("bloom_stopped_at"))
         diag["intersecting"] = np.asarray(sound["intersecting"], dtype=bool)
         attrs["summary"] = report.summary_line(sound)
-        for p in sound["not_opened"]:
-            log.warning("%s did not open: %+.1f deg at the end (under %g deg)", p["name"],
-                        p["opening"], report.NOT_OPEN)
+        report.warn_not_opened(sound["not_opened"], lambda m: log.warning("%s", m))
         (log.info if attrs["summary"].startswith("sound") else log.warning)("%s", attrs["summary"])
         with artifact.writing(out, stage="simulate", config_json=cfg.to_json(),
                               inputs=inputs, attrs=attrs, previous=src) as h5:

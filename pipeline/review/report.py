@@ -113,6 +113,22 @@ def soundness(positions: np.ndarray, faces: np.ndarray, opening_per_petal: np.nd
     }
 
 
+#: petals that did not open named one per log line, at most (the rest counted in one)
+NAMED = 10
+
+
+def warn_not_opened(not_opened: list[dict], warn) -> None:
+    """A warning per petal that did not open (:func:`soundness`'s ``not_opened``), through
+    ``warn(message)``: the first :data:`NAMED`, then how many more (a flower of fifty
+    petals kept as modelled would fill a batch log; report.json names every one)."""
+    for p in not_opened[:NAMED]:
+        warn(f"{p['name']} did not open: {p['opening']:+.1f} deg at the end (under "
+             f"{NOT_OPEN:g} deg)")
+    if len(not_opened) > NAMED:
+        warn(f"and {len(not_opened) - NAMED} more petals did not open (report.json's "
+             "not_opened names each)")
+
+
 def summary_line(sound: dict) -> str:
     """The one-line verdict of :func:`soundness`, e.g. "sound: 0 of 121 frames with an
     intersection (checked exactly); last frame 1.6e-13 petal lengths from the model; every
