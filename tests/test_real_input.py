@@ -373,3 +373,31 @@ def test_what_is_not_a_set_of_petals_is_named_in_one_line(tmp_path, kind):
     assert code == 1 and out.strip().count("\n") == 0, out
     assert out.startswith(f"bloom remesh: error: {path}: ") and expected in out, out
     assert not (tmp_path / "r.h5").exists()
+
+
+@pytest.mark.slow
+@pytest.mark.studio
+@needs_shared
+def test_hallgeirls_flat_flower_blooms_from_a_closed_bud(tmp_path):
+    """hallgeirl's flat flower (14 petals in a pinwheel, tips curled 131 deg down), default
+    config, about two minutes (``make test-studio``). With the model's curvature kept in
+    the bud, undoing the rims' growth rolled its petals further down and under: a bud
+    63.5 deg more open than the model, the "bloom" closing it. With the recurve left out
+    of the bud and the bud cupped toward the inside (growth.recurve, growth.cup): a bud
+    34.3 deg more closed than the model, every petal opening over 100 deg, sound."""
+    scene = tmp_path / "scene.toml"
+    scene.write_text(f'[scene]\nmesh = "{EXTERNAL / "hallgeirl_petals.obj"}"\n')
+    src = None
+    for stage, dst in (("remesh", "r.h5"), ("axis", "a.h5"), ("growth", "g.h5"),
+                       ("simulate", "s.h5")):
+        args = [stage] + ([] if src is None else [src]) + ["--config", scene, "--out",
+                                                           tmp_path / dst]
+        code, out = run(*args)
+        assert code == 0 and "Traceback" not in out, out
+        src = tmp_path / dst
+    with h5py.File(tmp_path / "s.h5") as h:
+        assert h.attrs["growth_start"] == "open"
+        assert h.attrs["bud_closed"] > 20.0
+        assert h.attrs["recurve_share"] > 0.3
+        assert h.attrs["summary"].startswith("sound"), h.attrs["summary"]
+        assert h["diagnostics/opening_angle_per_petal"][-1].min() > 20.0
