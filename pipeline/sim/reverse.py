@@ -479,9 +479,11 @@ def open_start(cfg, model: Model, positions, rest_angle, params: Params, build_e
         form = sh.form_at(X)
         info["recurve_share"] = recurve_share(
             X, sh.face_indices, form, recurve_form(X, sh.face_indices, form, sh.bud.inside))
-        log.info("growth.start = open: the bud is cupped toward the flower's inside "
-                 "(curvature %g / petal size, growth.cup)%s", sh.bud.cup,
-                 f" and not rolled back: the model's recurve ({100 * info['recurve_share']:.0f}% "
-                 "of its squared curvature) grows in over the bloom (growth.recurve)"
-                 if sh.bud.recurve else "")
+        shape = ([f"cupped toward the flower's inside (curvature {sh.bud.cup:g} / petal size, "
+                  "growth.cup)"] if sh.bud.cup > 0.0 else [])
+        if sh.bud.recurve:
+            shape.append(f"not rolled back: the model's recurve ({100 * info['recurve_share']:.0f}"
+                         "% of its squared curvature) grows in over the bloom (growth.recurve)")
+        if shape:
+            log.info("growth.start = open: the bud is %s", " and ".join(shape))
     return bud, model, rest_angle, params, info
