@@ -23,6 +23,21 @@ def run(*args):
     return r.exit_code, r.output
 
 
+def run_stages(tmp_path, scene):
+    """remesh, axis, growth and simulate of the scene file ``scene`` into ``tmp_path``
+    (r.h5, a.h5, g.h5, s.h5), each asserted to exit 0 without a traceback; returns
+    simulate's output."""
+    src = None
+    for stage, dst in (("remesh", "r.h5"), ("axis", "a.h5"), ("growth", "g.h5"),
+                       ("simulate", "s.h5")):
+        args = [stage] + ([] if src is None else [src]) + ["--config", scene, "--out",
+                                                           tmp_path / dst]
+        code, out = run(*args)
+        assert code == 0 and "Traceback" not in out, out
+        src = tmp_path / dst
+    return out
+
+
 def write_parts(path, parts, header=""):
     """An OBJ with one ``o`` group per ``(name, vertices, faces)``."""
     lines = [f"# {line}" for line in header.splitlines()]
@@ -387,14 +402,7 @@ def test_hallgeirls_flat_flower_blooms_from_a_closed_bud(tmp_path):
     34.3 deg more closed than the model, every petal opening over 100 deg, sound."""
     scene = tmp_path / "scene.toml"
     scene.write_text(f'[scene]\nmesh = "{EXTERNAL / "hallgeirl_petals.obj"}"\n')
-    src = None
-    for stage, dst in (("remesh", "r.h5"), ("axis", "a.h5"), ("growth", "g.h5"),
-                       ("simulate", "s.h5")):
-        args = [stage] + ([] if src is None else [src]) + ["--config", scene, "--out",
-                                                           tmp_path / dst]
-        code, out = run(*args)
-        assert code == 0 and "Traceback" not in out, out
-        src = tmp_path / dst
+    run_stages(tmp_path, scene)
     with h5py.File(tmp_path / "s.h5") as h:
         assert h.attrs["growth_start"] == "open"
         assert h.attrs["bud_closed"] > 20.0

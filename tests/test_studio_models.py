@@ -12,7 +12,7 @@ import h5py
 import numpy as np
 import pytest
 
-from tests.test_real_input import EXTERNAL, needs_shared, run
+from tests.test_real_input import EXTERNAL, needs_shared, run, run_stages
 
 #: model -> (least petals found, flowers, least share of the input's petal area kept)
 MODELS = {
@@ -113,14 +113,7 @@ def test_a_daisy_of_the_bush_blooms_forward_from_a_closed_bud(tmp_path):
     closed bud): measured, not fixed."""
     scene = tmp_path / "scene.toml"
     scene.write_text(f'[scene]\nmesh = "{EXTERNAL / "mitagki_daisybush.glb"}"\nflower = "0"\n')
-    src = None
-    for stage, dst in (("remesh", "r.h5"), ("axis", "a.h5"), ("growth", "g.h5"),
-                       ("simulate", "s.h5")):
-        args = [stage] + ([] if src is None else [src]) + ["--config", scene, "--out",
-                                                           tmp_path / dst]
-        code, out = run(*args)
-        assert code == 0 and "Traceback" not in out, out
-        src = tmp_path / dst
+    out = run_stages(tmp_path, scene)
     assert "without the lift the bud hangs open the other way" in out, out
     with h5py.File(tmp_path / "s.h5") as h:
         assert h.attrs["bud_path"] == "lifted"

@@ -16,7 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from pipeline.sim.effects import flower_axis_or_guess
+from pipeline.sim.effects import flower_axis_or_guess, has_flower_axis
 
 
 @dataclass(frozen=True)
@@ -74,10 +74,11 @@ def recurve_form(X, faces, form, inside) -> np.ndarray:
                                           away[:, 1, 1]], axis=1))
 
 
-def recurve_share(X, faces, form, out) -> float:
-    """How much of the surface's curvature ``form`` is the recurve ``out`` (both ``(F,
-    3)``, :func:`recurve_form`): the area-weighted sum of the squared principal
-    curvatures of ``out`` over that of ``form``, in [0, 1]."""
+def recurve_share(X, faces, form, inside) -> float:
+    """How much of the surface's curvature ``form (F, 3)`` is its recurve
+    (:func:`recurve_form`, ``inside`` as there): the area-weighted sum of the recurve's
+    squared principal curvatures over that of ``form``'s, in [0, 1]."""
+    out = recurve_form(X, faces, form, inside)
     g11, g12, g22 = face_metrics(X, faces).T
     det = g11 * g22 - g12 * g12
     area = 0.5 * np.sqrt(np.maximum(det, 0.0))
@@ -105,14 +106,11 @@ def inner_sides(positions, faces, petal, s, flower_axis) -> np.ndarray:
     X = np.asarray(positions, dtype=np.float64)
     F = np.asarray(faces)
     point, up = flower_axis_or_guess(X, flower_axis)
-    centre = X[F].mean(axis=1)
-    radial = centre - point
-    radial -= np.outer(radial @ up, up)
-    fa = np.asarray(flower_axis, dtype=np.float64)
-    lone = not (fa.shape == (6,) and np.all(np.isfinite(fa)))
-    if not lone:
-        radial /= np.maximum(np.linalg.norm(radial, axis=1), 1e-300)[:, None]
-    inward = up[None, :] - (0.0 if lone else radial)
+    inward = np.broadcast_to(up, (len(F), 3))
+    if has_flower_axis(flower_axis):
+        radial = X[F].mean(axis=1) - point
+        radial -= np.outer(radial @ up, up)
+        inward = inward - radial / np.maximum(np.linalg.norm(radial, axis=1), 1e-300)[:, None]
     normal = np.cross(X[F[:, 1]] - X[F[:, 0]], X[F[:, 2]] - X[F[:, 0]])
     along = np.einsum("ij,ij->i", normal, inward) * (np.asarray(s)[F].mean(axis=1) < 0.5)
     owner = np.asarray(petal)[F[:, 0]]

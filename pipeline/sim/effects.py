@@ -88,11 +88,18 @@ def petal_layers(vertices, petal, axis_point, axis_dir) -> np.ndarray:
     return np.array([radial[petal == p].mean() + 1e-9 * p for p in range(count)])
 
 
+def has_flower_axis(flower_axis) -> bool:
+    """Whether ``flower_axis`` is a flower's axis (point and direction, six finite
+    numbers); a lone petal's is NaN."""
+    fa = np.asarray(flower_axis, dtype=np.float64)
+    return fa.shape == (6,) and bool(np.all(np.isfinite(fa)))
+
+
 def flower_axis_or_guess(vertices, flower_axis) -> tuple[np.ndarray, np.ndarray]:
     """The flower's axis as (point, unit direction); a lone petal has none: the vertical
     line through its centroid stands in."""
-    fa = np.asarray(flower_axis, dtype=np.float64)
-    if fa.shape == (6,) and np.all(np.isfinite(fa)):
+    if has_flower_axis(flower_axis):
+        fa = np.asarray(flower_axis, dtype=np.float64)
         return fa[:3], fa[3:] / np.linalg.norm(fa[3:])
     return np.asarray(vertices).mean(axis=0), np.array([0.0, 0.0, 1.0])
 

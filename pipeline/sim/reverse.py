@@ -26,7 +26,7 @@ import numpy as np
 
 from pipeline.errors import BloomError
 from pipeline.mesh.hinge import edge_lengths, hinge_cos_sin
-from pipeline.sim.budshape import BudShape, inner_sides, recurve_form, recurve_share
+from pipeline.sim.budshape import BudShape, inner_sides, recurve_share
 from pipeline.sim.effects import Params, flower_axis_or_guess
 from pipeline.sim.model import Model, State
 from pipeline.sim.run import Recording, openings
@@ -354,20 +354,16 @@ CLOSE_TRIES = 2
 
 
 def _find_bud_closing(cfg, close, model, positions, rest_angle, params, build_effects, petal,
-                      base, s, x, flower_axis, faces, plane, lifted=True):
+                      base, s, x, flower_axis, faces, plane, lifted=True, bud_shape=None):
     """:func:`open_start`'s bud search at ``close`` (``growth.close``): the bud, the solver,
     and the model, rest angles and effect parameters that grow from it back to the mesh.
     ``lifted``: the path starts from the model nudged toward closing (else from the model
-    itself, along its own path)."""
+    itself, along its own path). ``bud_shape``: a shell's (:func:`bud_shape_of`)."""
     beta = 0.0
     if cfg["effects.curl.enabled"] is True:
         params = params.but(curl={"beta": close * params.curl.beta})
         rest_angle = open_rest_angle(rest_angle, params.curl.beta)
         beta = params.curl.beta
-    bud_shape = None
-    if model.shell is not None:
-        bud_shape = BudShape(inner_sides(positions, model.shell.face_indices, petal, s,
-                                         flower_axis), cfg["growth.cup"], cfg["growth.recurve"])
     model = open_model(model, close, positions, beta, petal, bud_shape)
     if not lifted:
         bud, solver = find_bud(model, positions, build_effects(positions),
@@ -394,6 +390,15 @@ def _find_bud_closing(cfg, close, model, positions, rest_angle, params, build_ef
     return bud, solver, model, rest_angle, params
 
 
+def bud_shape_of(cfg, model: Model, positions, petal, s, flower_axis) -> BudShape | None:
+    """The shell's bud shape the scene asks for (``growth.cup``, ``growth.recurve``; the
+    inside found once for every search); None for the paper's springs."""
+    if getattr(model, "shell", None) is None:
+        return None
+    return BudShape(inner_sides(positions, model.shell.face_indices, petal, s, flower_axis),
+                    cfg["growth.cup"], cfg["growth.recurve"])
+
+
 def open_start(cfg, model: Model, positions, rest_angle, params: Params, build_effects, petal,
                base, s, x, flower_axis, where: str, *, faces=None, plane=None,
                lifted: bool = True, closed_by=None):
@@ -415,11 +420,12 @@ def open_start(cfg, model: Model, positions, rest_angle, params: Params, build_e
     key to change."""
     close = cfg["growth.close"]
     clock = time.perf_counter()
+    shape = bud_shape_of(cfg, model, positions, petal, s, flower_axis)
     for attempt in range(CLOSE_TRIES + 1):
         try:
             found = _find_bud_closing(cfg, close, model, positions, rest_angle, params,
                                       build_effects, petal, base, s, x, flower_axis, faces,
-                                      plane, lifted)
+                                      plane, lifted, shape)
             break
         except NotConverged as exc:
             if attempt == CLOSE_TRIES and lifted:  # the model's own path, before refusing
@@ -453,7 +459,7 @@ def open_start(cfg, model: Model, positions, rest_angle, params: Params, build_e
             try:
                 again = _find_bud_closing(cfg, 2.0 * close, model, positions, rest_angle,
                                           params, build_effects, petal, base, s, x,
-                                          flower_axis, faces, plane, lifted)
+                                          flower_axis, faces, plane, lifted, shape)
             except (NotConverged, ContactError, ValueError) as exc:
                 log.info("growth.start = open: no bud at growth.close = %g (%s); the one at "
                          "%g kept", 2.0 * close, str(exc).split(";")[0], close)
@@ -477,8 +483,7 @@ def open_start(cfg, model: Model, positions, rest_angle, params: Params, build_e
     if sh is not None and sh.bud is not None:
         X = np.asarray(positions, dtype=np.float64)
         form = sh.form_at(X)
-        info["recurve_share"] = recurve_share(
-            X, sh.face_indices, form, recurve_form(X, sh.face_indices, form, sh.bud.inside))
+        info["recurve_share"] = recurve_share(X, sh.face_indices, form, sh.bud.inside)
         shape = ([f"cupped toward the flower's inside (curvature {sh.bud.cup:g} / petal size, "
                   "growth.cup)"] if sh.bud.cup > 0.0 else [])
         if sh.bud.recurve:
