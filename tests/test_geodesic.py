@@ -6,10 +6,9 @@ import numpy as np
 import pytest
 from scipy.sparse.csgraph import dijkstra
 
-from pipeline.flower.axis import find_axes
-from pipeline.mesh import topology
 from pipeline.flower import coords
-from pipeline.mesh import geodesic
+from pipeline.flower.axis import find_axes
+from pipeline.mesh import geodesic, topology
 from pipeline.mesh.geodesic import heat_distance
 from tests import shell_study as study
 

@@ -14,8 +14,8 @@ import numpy as np
 from scipy.sparse.csgraph import dijkstra
 
 from pipeline.mesh.geodesic import curve_load, finer, heat_distance, heat_distances
-from pipeline.mesh.topology import boundary_vertices
 from pipeline.mesh.remesh import boundary_loops, corner_vertices
+from pipeline.mesh.topology import boundary_vertices
 
 
 def _over_the_rim(g, sign, rim, s) -> np.ndarray:
