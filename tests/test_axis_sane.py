@@ -98,6 +98,32 @@ def test_a_rolled_petal_mirrored_only_across_its_length_is_refused_not_grown_cro
     assert err.value.key == "scene.exclude"
 
 
+def test_in_a_file_of_many_flowers_a_petal_with_no_sound_axis_is_held_as_modelled():
+    """Two flowers apart (lone petals of their own flower each, in one file): the rolled
+    oval petal above, whose axis would run across it, is held as modelled (every vertex
+    fixed, s and x 0, named with why) with ``hold_bad``; the other petal's axes are what
+    they are without it. Without ``hold_bad`` it is refused as before."""
+    good = flat_petal()
+    bad = flat_petal(widen=1.3, roll=2.0, widest=0.5)
+    shift = np.array([0.0, 40.0, 0.0])
+    v = np.vstack([good[0], bad[0] + shift])
+    f = np.vstack([good[1], bad[1] + len(good[0])])
+    petal = np.concatenate([good[2], bad[2] + 1])
+    flower = np.array([0, 1])
+    with pytest.raises(BadPetal, match="petal 1: its axis is"):
+        find_axes(v, f, petal, flower=flower)
+    axes = find_axes(v, f, petal, flower=flower, hold_bad=True)
+    assert [p for p, _ in axes.held] == [1] and "as long as the petal" in axes.held[0][1]
+    mine = petal == 1
+    assert axes.base[mine].all() and not axes.on_axis[mine].any()
+    assert np.all(axes.s[mine] == 0.0) and np.all(axes.x[mine] == 0.0)
+    alone = find_axes(*good)
+    other = petal == 0
+    for name in ("base", "on_axis", "s", "x"):
+        assert np.array_equal(getattr(axes, name)[other], getattr(alone, name)), name
+    assert axes.tip[0] == alone.tip[0]
+
+
 @pytest.mark.parametrize("widen, roll", [(1.0, 0.0), (1.15, 0.0), (1.15, 0.5)])
 def test_a_flat_or_rolled_petal_has_a_line_for_its_axis_and_x_on_both_sides(widen, roll):
     """The flat ones were dimontel's failure (all on the axis, x in [0, 1]). An

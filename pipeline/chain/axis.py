@@ -58,7 +58,8 @@ def run(remesh_h5: str | Path, out: str | Path, cfg: Config, *, overwrite: bool 
                                  base_region=region, surface=shell,
                                  planes=src["mesh/plane"] if "mesh/plane" in src else None,
                                  flower_axis=cfg["axis.flower_axis"], up=np.array(DIRECTIONS[up]),
-                                 flower=flower, progress=progress)
+                                 flower=flower, progress=progress,
+                                 hold_bad=flower is not None and int(np.max(flower)) > 0)
             check_axes(axes, petal)  # no NaN, x in [-1, 1], s in [0, 1], a base and a tip
         except BadPetal as exc:
             part = _part_name(src, petal, exc.petal)
@@ -79,9 +80,19 @@ def run(remesh_h5: str | Path, out: str | Path, cfg: Config, *, overwrite: bool 
             log.warning("%d petal(s) had their base on a line (they could spin about it): "
                         "widened to the fixed vertices in brackets: petal(s) %s%s",
                         len(axes.widened), shown, f" and {more} more" if more > 0 else "")
+        if axes.held:  # (one line: a branch of blossoms can have many)
+            named = "; ".join(f"petal {p} ({_part_name(src, petal, p) or 'no part'}): {why}"
+                              for p, why in list(axes.held)[:SHOWN])
+            more = len(axes.held) - SHOWN
+            log.warning("%d petal(s) have no sound axis and are held as modelled (every "
+                        "vertex fixed; the other flowers bloom; scene.exclude leaves a part "
+                        "out): %s%s", len(axes.held), named,
+                        f"; and {more} more" if more > 0 else "")
         _log_axes(axes, petal, flower)
         attrs = {**carried_attrs(src), "flower_axis": axes.flower_axis, "up": up,
                  "flower_count": len(axes.flower_axes)}
+        if axes.held:
+            attrs["held_petals"] = np.asarray([p for p, _ in axes.held], dtype=np.int64)
         with artifact.writing(out, stage="axis", config_json=cfg.to_json(),
                               inputs=artifact.input_hashes(cfg, remesh_h5), attrs=attrs, previous=src) as h5:
             src.copy_to(h5, CARRIED)

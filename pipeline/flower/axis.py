@@ -70,6 +70,8 @@ class PetalAxes:
     #: with several flowers, that of the flower of most petals
     widened: tuple = ()  #: petals whose base was on a line and got more fixed vertices
     flower_axes: np.ndarray = None  #: (K, 6) each flower's axis, as flower_axis (nan if unknown)
+    #: ``(petal, why)`` of each petal with no sound axis held as modelled (``hold_bad``)
+    held: tuple = ()
 
 
 #: a petal's fixed base vertices must stray at least this far (fraction of the petal's
@@ -281,6 +283,7 @@ def check_axes(axes: PetalAxes, petal: np.ndarray) -> None:
     tip_ok[tip_ok] &= (petal[tip[tip_ok]] == np.flatnonzero(tip_ok)) & ~axes.base[tip[tip_ok]]
     fails = ((bad_values > 0) | (lo["x"] < -1.0) | (hi["x"] > 1.0) | (lo["s"] < 0.0)
              | (hi["s"] > 1.0) | (held < 3) | ~tip_ok)
+    fails[[p for p, _ in axes.held]] = False  # (held as modelled: every vertex fixed)
     if not fails.any():
         return
     p = int(np.flatnonzero(fails)[0])
@@ -364,7 +367,7 @@ def find_axes(vertices: np.ndarray, faces: np.ndarray, petal: np.ndarray, *,
               base_mode: str = "auto", base_fraction: float = 0.04, base_region: str = "rim",
               surface: bool = False, planes: np.ndarray | None = None, flower_axis=None,
               up: np.ndarray | None = None, flower: np.ndarray | None = None,
-              progress=None) -> PetalAxes:
+              progress=None, hold_bad: bool = False) -> PetalAxes:
     """Axes of every petal of a cleaned mesh (see the module docstring).
 
     ``base_mode``: auto, narrow, wide, or a direction (+x ... -z) the base end lies
@@ -379,7 +382,9 @@ def find_axes(vertices: np.ndarray, faces: np.ndarray, petal: np.ndarray, *,
     ``flower``: (P,) the flower of each petal (remesh's ``flower/petal_flower``; None: one
     flower): each flower's axis is found from its own petals' planes, and each petal's
     base is the end nearer its own flower's axis. ``progress(what, done, total, detail)``
-    is called per petal.
+    is called per petal. ``hold_bad``: a petal with no sound axis is held as modelled
+    (every vertex fixed, s and x 0; :attr:`PetalAxes.held` names it and why) instead of
+    refused: a file of many flowers, where one blossom must not stop the others.
 
     Raises :class:`BadPetal` (a petal with no sound axis) or :class:`WeakBase`.
     """
@@ -441,7 +446,7 @@ def find_axes(vertices: np.ndarray, faces: np.ndarray, petal: np.ndarray, *,
         lowest.append(given is not None and mine.size == 1)
 
     base = np.zeros(nv, dtype=bool)
-    widened = []
+    widened, as_modelled = [], []
     on_axis = np.zeros(nv, dtype=bool)
     tips = np.zeros(count, dtype=np.int64)
     x = np.zeros(nv)
@@ -449,113 +454,126 @@ def find_axes(vertices: np.ndarray, faces: np.ndarray, petal: np.ndarray, *,
     for p in range(count):
         if progress is not None:
             progress("petal axes", p, count, f"petal {p}")
-        axis_line, lowest_end = axis_lines[flower[p]], lowest[flower[p]]
-        idx = members[p]
-        pts = v[idx]
-        mine_edges = e_order[e_start[p]:e_start[p + 1]]
-        local_edges = np.searchsorted(idx, edges[mine_edges])
-        sub = topology.edge_graph(pts, local_edges)
-        pieces = connected_components(sub, directed=False)[0]
-        if pieces > 1:  # distances along the mesh would be infinite between the pieces
-            raise BadPetal(p, f"in {pieces} pieces (not connected along the mesh): a petal is "
-                           "one connected sheet")
-        direction, proj = _petal_ends(pts, planes[p])
-        if not np.all(np.isfinite(direction)) or np.ptp(proj) <= 0.0:
-            raise BadPetal(p, "no length in its center plane: its vertices do not span a sheet")
-        if base_mode == "auto" and lowest_end:
+        try:
+            axis_line, lowest_end = axis_lines[flower[p]], lowest[flower[p]]
+            idx = members[p]
+            pts = v[idx]
+            mine_edges = e_order[e_start[p]:e_start[p + 1]]
+            local_edges = np.searchsorted(idx, edges[mine_edges])
+            sub = topology.edge_graph(pts, local_edges)
+            pieces = connected_components(sub, directed=False)[0]
+            if pieces > 1:  # distances along the mesh would be infinite between the pieces
+                raise BadPetal(p, f"in {pieces} pieces (not connected along the mesh): a petal is "
+                               "one connected sheet")
+            direction, proj = _petal_ends(pts, planes[p])
+            if not np.all(np.isfinite(direction)) or np.ptp(proj) <= 0.0:
+                raise BadPetal(p, "no length in its center plane: its vertices do not span a sheet")
+            if base_mode == "auto" and lowest_end:
+                span = proj.max() - proj.min()
+                low_end = pts[proj <= proj.min() + 0.15 * span].mean(axis=0) @ given
+                high_end = pts[proj >= proj.max() - 0.15 * span].mean(axis=0) @ given
+                base_low = low_end <= high_end
+            elif base_mode == "auto" and axis_line is not None:
+                lo = _distance_to_line(pts[[np.argmin(proj)]], axis_line)[0]
+                hi = _distance_to_line(pts[[np.argmax(proj)]], axis_line)[0]
+                base_low = lo <= hi
+            elif base_mode in ("auto", "narrow", "wide"):
+                narrow_low = (_end_width(pts, proj, planes[p], True)
+                              <= _end_width(pts, proj, planes[p], False))
+                base_low = narrow_low if base_mode != "wide" else not narrow_low
+            else:
+                toward = np.zeros(3)
+                toward["xyz".index(base_mode[1])] = 1.0 if base_mode[0] == "+" else -1.0
+                base_low = pts[np.argmin(proj)] @ toward >= pts[np.argmax(proj)] @ toward
+            if not base_low:
+                proj = -proj
+                direction = -direction
             span = proj.max() - proj.min()
-            low_end = pts[proj <= proj.min() + 0.15 * span].mean(axis=0) @ given
-            high_end = pts[proj >= proj.max() - 0.15 * span].mean(axis=0) @ given
-            base_low = low_end <= high_end
-        elif base_mode == "auto" and axis_line is not None:
-            lo = _distance_to_line(pts[[np.argmin(proj)]], axis_line)[0]
-            hi = _distance_to_line(pts[[np.argmax(proj)]], axis_line)[0]
-            base_low = lo <= hi
-        elif base_mode in ("auto", "narrow", "wide"):
-            narrow_low = (_end_width(pts, proj, planes[p], True)
-                          <= _end_width(pts, proj, planes[p], False))
-            base_low = narrow_low if base_mode != "wide" else not narrow_low
-        else:
-            toward = np.zeros(3)
-            toward["xyz".index(base_mode[1])] = 1.0 if base_mode[0] == "+" else -1.0
-            base_low = pts[np.argmin(proj)] @ toward >= pts[np.argmax(proj)] @ toward
-        if not base_low:
-            proj = -proj
-            direction = -direction
-        span = proj.max() - proj.min()
-        bnd = boundary[idx]
-        local_faces = np.searchsorted(idx, faces[petal[faces[:, 0]] == p])
-        end = base_edge(pts, local_faces, bnd, proj, base_fraction * span) \
-            if surface or base_region == "edge" else None
-        mine_base = end.copy() if base_region == "edge" else (  # (rim: the paper's)
-            (bnd | (base_region == "band")) & (proj <= proj.min() + base_fraction * span))
-        if mine_base.sum() < 3:  # a petal held by fewer than 3 vertices can spin
-            order = np.argsort(np.where(bnd, proj, np.inf), kind="stable")
-            mine_base[order[:3]] = True
-        # held on a line, it could spin about it: widen the base, within a quarter of the
-        # petal (or base_fraction: the fixed part should stay a base, not become the petal)
-        reach = proj.min() + max(BASE_REACH, base_fraction) * span
-        held = int(mine_base.sum())
-        if not _widen_base(mine_base, bnd, proj, pts, sub, reach):
-            raise WeakBase(p, int(mine_base.sum()), base_width(pts[mine_base], pts))
-        if mine_base.sum() > held:
-            widened.append(p)
-        base[idx] = mine_base
-        dist_base = (base_distance(pts, local_faces, end, mine_base) if surface
-                     else dijkstra(sub, indices=np.flatnonzero(mine_base), min_only=True))
+            bnd = boundary[idx]
+            local_faces = np.searchsorted(idx, faces[petal[faces[:, 0]] == p])
+            end = base_edge(pts, local_faces, bnd, proj, base_fraction * span) \
+                if surface or base_region == "edge" else None
+            mine_base = end.copy() if base_region == "edge" else (  # (rim: the paper's)
+                (bnd | (base_region == "band")) & (proj <= proj.min() + base_fraction * span))
+            if mine_base.sum() < 3:  # a petal held by fewer than 3 vertices can spin
+                order = np.argsort(np.where(bnd, proj, np.inf), kind="stable")
+                mine_base[order[:3]] = True
+            # held on a line, it could spin about it: widen the base, within a quarter of the
+            # petal (or base_fraction: the fixed part should stay a base, not become the petal)
+            reach = proj.min() + max(BASE_REACH, base_fraction) * span
+            held = int(mine_base.sum())
+            if not _widen_base(mine_base, bnd, proj, pts, sub, reach):
+                raise WeakBase(p, int(mine_base.sum()), base_width(pts[mine_base], pts))
+            if mine_base.sum() > held:
+                widened.append(p)
+            base[idx] = mine_base
+            dist_base = (base_distance(pts, local_faces, end, mine_base) if surface
+                         else dijkstra(sub, indices=np.flatnonzero(mine_base), min_only=True))
 
-        # the axis: vertices on the center plane and, of each edge crossing it, the end
-        # nearer the plane (both ends would make a band two vertices wide)
-        side = pts @ planes[p][:3] - planes[p][3]
-        mine_axis = np.abs(side) <= 1e-6 * span
-        side[mine_axis] = 0.0  # on the plane up to rounding: not a crossing
-        cross = local_edges[side[local_edges[:, 0]] * side[local_edges[:, 1]] < 0]
-        far_first = np.abs(side[cross[:, 0]]) > np.abs(side[cross[:, 1]])  # ties: the first
-        mine_axis[np.where(far_first, cross[:, 1], cross[:, 0])] = True
-        if not mine_axis.any():
-            mine_axis[np.argmin(np.abs(side))] = True
-        # the tip: the axis's far end (the petal's far end where the axis stays in the base)
-        tip_local = int(np.flatnonzero(mine_axis)[np.argmax(dist_base[mine_axis])])
-        if not dist_base[tip_local] > 0.0:
-            tip_local = int(np.argmax(dist_base))
+            # the axis: vertices on the center plane and, of each edge crossing it, the end
+            # nearer the plane (both ends would make a band two vertices wide)
+            side = pts @ planes[p][:3] - planes[p][3]
+            mine_axis = np.abs(side) <= 1e-6 * span
+            side[mine_axis] = 0.0  # on the plane up to rounding: not a crossing
+            cross = local_edges[side[local_edges[:, 0]] * side[local_edges[:, 1]] < 0]
+            far_first = np.abs(side[cross[:, 0]]) > np.abs(side[cross[:, 1]])  # ties: the first
+            mine_axis[np.where(far_first, cross[:, 1], cross[:, 0])] = True
+            if not mine_axis.any():
+                mine_axis[np.argmin(np.abs(side))] = True
+            # the tip: the axis's far end (the petal's far end where the axis stays in the base)
+            tip_local = int(np.flatnonzero(mine_axis)[np.argmax(dist_base[mine_axis])])
             if not dist_base[tip_local] > 0.0:
-                raise BadPetal(p, f"all its {len(idx)} vertices are base vertices: no tip beyond "
-                               "its base (a petal of a few triangles; remesh it finer)",
-                               "remesh.petal_vertices")
-        tips[p] = idx[tip_local]
-        # (along the surface, 1 at the tip point: the same point at any resolution)
-        tip_at = tip_distance(dist_base, side, local_faces, dist_base[tip_local]) if surface \
-            else dist_base[tip_local]
-        s[idx] = np.minimum(dist_base / tip_at, 1.0)
-        if surface and base_region == "band":
-            # the band by s, to the nearest row of vertices (the clamp's last row lies
-            # on the band's edge on average, at any resolution: not up to an edge short)
-            banded = _band_by_rows(s[idx], local_edges, base_fraction) | end
-            if not np.array_equal(banded, mine_base):
-                mine_base = banded
-                if not _widen_base(mine_base, bnd, proj, pts, sub, reach):
-                    raise WeakBase(p, int(mine_base.sum()), base_width(pts[mine_base], pts))
-                base[idx] = mine_base
+                tip_local = int(np.argmax(dist_base))
+                if not dist_base[tip_local] > 0.0:
+                    raise BadPetal(p, f"all its {len(idx)} vertices are base vertices: no tip beyond "
+                                   "its base (a petal of a few triangles; remesh it finer)",
+                                   "remesh.petal_vertices")
+            tips[p] = idx[tip_local]
+            # (along the surface, 1 at the tip point: the same point at any resolution)
+            tip_at = tip_distance(dist_base, side, local_faces, dist_base[tip_local]) if surface \
+                else dist_base[tip_local]
+            s[idx] = np.minimum(dist_base / tip_at, 1.0)
+            if surface and base_region == "band":
+                # the band by s, to the nearest row of vertices (the clamp's last row lies
+                # on the band's edge on average, at any resolution: not up to an edge short)
+                banded = _band_by_rows(s[idx], local_edges, base_fraction) | end
+                if not np.array_equal(banded, mine_base):
+                    mine_base = banded
+                    if not _widen_base(mine_base, bnd, proj, pts, sub, reach):
+                        raise WeakBase(p, int(mine_base.sum()), base_width(pts[mine_base], pts))
+                    base[idx] = mine_base
 
-        # orient the plane normal: (normal, base->tip chord, outward) right-handed
-        chord = pts[tip_local] - pts[mine_base].mean(axis=0)
-        outward = pts[mine_axis].mean(axis=0) - pts.mean(axis=0)
-        if np.cross(chord, outward) @ planes[p][:3] < 0:
-            planes[p] = -planes[p]
-            side = -side
-        on_axis[idx] = mine_axis
+            # orient the plane normal: (normal, base->tip chord, outward) right-handed
+            chord = pts[tip_local] - pts[mine_base].mean(axis=0)
+            outward = pts[mine_axis].mean(axis=0) - pts.mean(axis=0)
+            if np.cross(chord, outward) @ planes[p][:3] < 0:
+                planes[p] = -planes[p]
+                side = -side
+            on_axis[idx] = mine_axis
 
-        rim = bnd & ~mine_base & ~mine_axis  # the cross-section coordinate:
-        xs = cross_section(pts, local_faces, rim, side, s[idx]) if surface \
-            else edge_cross_section(sub, mine_axis, rim, side, s[idx])
-        x[idx] = xs
-        _check_line(p, pts, sub, local_edges, mine_axis, dist_base, tip_local, xs)
+            rim = bnd & ~mine_base & ~mine_axis  # the cross-section coordinate:
+            xs = cross_section(pts, local_faces, rim, side, s[idx]) if surface \
+                else edge_cross_section(sub, mine_axis, rim, side, s[idx])
+            x[idx] = xs
+            _check_line(p, pts, sub, local_edges, mine_axis, dist_base, tip_local, xs)
+        except BadPetal as exc:
+            if not hold_bad:
+                raise
+            # a file of many flowers: the petal stays as modelled (every vertex held, no
+            # growth), named; one blossom of a thousand does not stop the others
+            idx = members[p]
+            base[idx], on_axis[idx], s[idx], x[idx] = True, False, 0.0, 0.0
+            tips[p] = idx[-1]
+            if p in widened:
+                widened.remove(p)
+            as_modelled.append((p, exc.reason))
 
     # each petal's base-to-tip chord
     held = np.maximum(np.bincount(petal[base], minlength=count), 1)
     base_centre = np.stack([np.bincount(petal[base], weights=v[base, j], minlength=count)
                             for j in range(3)], 1) / held[:, None]
     chords = v[tips] - base_centre
+    chords[[p for p, _ in as_modelled]] = 0.0  # (a petal held as modelled tells no way up)
     lines = np.full((flowers, 6), np.nan)
     for k, axis_line in enumerate(axis_lines):
         if axis_line is None:
@@ -568,7 +586,8 @@ def find_axes(vertices: np.ndarray, faces: np.ndarray, petal: np.ndarray, *,
             line[:3] = base_centre[mine[0]]
         lines[k] = line
     largest = int(np.argmax(np.bincount(flower, minlength=flowers)))
-    axes = PetalAxes(base, on_axis, tips, planes, x, s, lines[largest].copy(), tuple(widened), lines)
+    axes = PetalAxes(base, on_axis, tips, planes, x, s, lines[largest].copy(), tuple(widened), lines,
+                     tuple(as_modelled))
     check_axes(axes, petal)
     return axes
 
