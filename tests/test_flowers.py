@@ -450,3 +450,53 @@ def test_a_flower_that_cannot_bloom_is_kept_as_modelled_and_named(tmp_path, monk
                                  *SHORT])
     assert r.exit_code != 0 and "simulate.stages" in r.output.splitlines()[-1]
     assert not (tmp_path / "t.h5").exists()
+
+
+def test_a_flower_that_is_a_copy_of_another_blooms_as_it_does_moved(tmp_path):
+    """Instanced blossoms: the third flower is the first one turned and moved (its petals
+    remeshed alike, as remesh does a copy). It is not simulated again: its frames are the
+    first flower's turned and moved, to rounding, and its own problem run alone blooms
+    the same to a millionth of the petal length (the problem is the same, turned)."""
+    from pipeline.chain import problem
+    from pipeline.config import load_config
+    from pipeline.flower.measure import Start
+    from pipeline.mesh.similar import similarity
+    from pipeline.sim.build import Prepared
+
+    v, f, petal, _ = bush(petals=5, vertices=600)
+    first = np.flatnonzero(petal < 5)
+    second = np.flatnonzero((petal >= 5) & (petal < 10))
+    turn = _rotation(np.array([0.3, -0.5, 1.0]))
+    move = np.array([0.5, 4.0, 0.2])
+
+    def faces_of(idx):
+        return np.searchsorted(idx, f[np.isin(f[:, 0], idx)])
+
+    parts = [("Flower.000", v[first], faces_of(first)), ("Flower.001", v[second], faces_of(second)),
+             ("Flower.002", v[first] @ turn.T + move, faces_of(first))]
+    mesh = write_parts(tmp_path / "copies.obj", parts)
+    paths = {k: tmp_path / f"{k}.h5" for k in ("r", "a", "g", "s")}
+    for stage, src, out in (("remesh", mesh, "r"), ("axis", paths["r"], "a"),
+                            ("growth", paths["a"], "g")):
+        r = CliRunner().invoke(cli, ["-q", stage, str(src), "--out", str(paths[out])])
+        assert r.exit_code == 0, r.output
+    r = CliRunner().invoke(cli, ["simulate", str(paths["g"]), "--out", str(paths["s"]), *SHORT])
+    assert r.exit_code == 0, r.output
+    assert "1 of 3 flowers are copies of others" in r.output
+    assert "flower 2 of 3" not in r.output  # (not simulated again)
+    with h5py.File(paths["s"]) as h:
+        X = h["frames/positions"][()]
+    cfg = load_config(None, [s for s in SHORT if s != "--set"])
+    job = problem.Job(cfg, Start("bud", float("nan"), "test"), [], {}, False, False, "test")
+    with h5py.File(paths["g"]) as src:
+        prep = Prepared.from_artifact(src)
+        _, idx0 = prep.flower_part(0)
+        part2, idx2 = prep.flower_part(2)
+        alone = np.asarray(problem.problem(part2, job, tmp_path / "alone.ckpt").rec.positions)
+    size = float(np.ptp(X[0, idx2], axis=0).max())
+    _, rot, shift = similarity(X[0, idx0], X[0, idx2], scaled=False)  # (mesh units)
+    assert np.allclose(rot, turn, atol=1e-9)
+    moved = X[:, idx0] @ rot.T + shift
+    assert np.abs(X[:, idx2] - moved).max() < 1e-9 * size
+    assert np.abs(alone - X[:, idx2]).max() < 1e-6 * size
+    assert np.abs(X[-1, idx2] - X[0, idx2]).max() > 0.05 * size  # (it bloomed)
