@@ -14,10 +14,10 @@ from types import SimpleNamespace
 
 import numpy as np
 
+from pipeline.chain import copies
 from pipeline.config import KEYS, Config
 from pipeline.errors import BloomError
 from pipeline.flower.measure import Start
-from pipeline.mesh.similar import similarity
 from pipeline.progress import Progress
 from pipeline.review import report
 from pipeline.sim import checkpoint
@@ -27,7 +27,7 @@ from pipeline.sim.explicit.semi_implicit import Diverged
 from pipeline.sim.integrators import make_integrator
 from pipeline.sim.model import Control, State
 from pipeline.sim.reverse import distance_to_model, open_start, retrace
-from pipeline.sim.run import Recording, hold_last
+from pipeline.sim.run import hold_last
 from pipeline.sim.run import run as integrate
 from pipeline.sim.solver.newton import NotConverged
 
@@ -107,11 +107,11 @@ def flowers_apart(prep: Prepared, job: Job, ckpt: Path) -> Result:
     copied = 0
     for k in range(count):
         part, idx = prep.flower_part(k)
-        source = _copy_of(k, part, shapes)
+        source = copies.copy_of(k, part, shapes)
         if source is not None:
             j, rot, t = source
             if j in runs:
-                runs[k] = (_moved(runs[j][0], rot, t), idx)
+                runs[k] = (copies.moved(runs[j][0], rot, t), idx)
             else:
                 held.append(k)
             copied += 1
@@ -196,48 +196,6 @@ def flowers_apart(prep: Prepared, job: Job, ckpt: Path) -> Result:
                                          if n in ORDER else len(ORDER)),
                    connections, times, positions, diag, wall, resumed, resumed_step, distance,
                    held, stopped)
-
-
-#: a flower is a copy of another when a rigid motion puts every vertex on the other's to
-#: within this fraction of its size, and its s, x and growth ratios are the other's to
-#: within this (remesh places a copied petal's mesh by the motion that puts the input's
-#: petal on the one it copies, which a file's float32 or 9 decimals leave about 1e-8 off)
-COPY = 1e-6
-
-
-def _copy_of(k: int, part: Prepared, shapes: dict):
-    """``(j, R, t)`` if flower ``k`` (``part``) is flower ``j`` (an earlier one of
-    ``shapes``, which this adds flower ``k`` to otherwise) turned by ``R`` and moved by ``t``: the same
-    faces, petals, fixed base, axis vertices, tips, growth ratios and stiffnesses, and its
-    vertices, s and x those of ``j`` moved (to :data:`COPY`). Instanced blossoms of a
-    branch: the bloom is the same problem turned, so it is found once. None otherwise."""
-    key = (len(part.vertices), len(part.faces), hash(np.ascontiguousarray(part.faces).tobytes()))
-    for j, other in shapes.get(key, ()):
-        if not all(np.array_equal(np.asarray(getattr(other, name)), np.asarray(getattr(part, name)))
-                   for name in ("faces", "petal", "base", "on_axis", "tip", "edges", "hinges")):
-            continue
-        if not all(np.allclose(np.asarray(getattr(other, name), dtype=np.float64),
-                               np.asarray(getattr(part, name), dtype=np.float64),
-                               rtol=0.0, atol=COPY)
-                   for name in ("s", "x", "alpha", "stiffness")):
-            continue
-        found = similarity(np.asarray(other.vertices), np.asarray(part.vertices), scaled=False,
-                           tolerance=COPY)
-        if found is not None:
-            return j, found[1], found[2]
-    shapes.setdefault(key, []).append((k, part))
-    return None
-
-
-def _moved(run: Bloom, rot: np.ndarray, t: np.ndarray) -> Bloom:
-    """A flower's bloom for a copy of it turned by ``rot`` and moved by ``t``: its frames
-    and bud moved, its diagnostics (energies, angles, counts: the same for a turned copy)
-    kept; no wall time of its own."""
-    rec = Recording(list(run.rec.time),
-                    [np.asarray(X) @ rot.T + t for X in run.rec.positions],
-                    run.rec.diagnostics)
-    return Bloom(np.asarray(run.bud) @ rot.T + t, run.bud_info, run.effects, rec, 0.0,
-                 run.resumed, run.resumed_step, run.distance, run.stopped)
 
 
 def problem(prep: Prepared, job: Job, ckpt: Path, label: str = "") -> Bloom:

@@ -1,0 +1,53 @@
+"""Flowers of a file of many that are copies of one another (instanced blossoms of a
+branch): the bloom is the same problem turned, so it is found once and moved
+(:func:`pipeline.chain.problem.flowers_apart`)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from pipeline.mesh.similar import similarity
+from pipeline.sim.run import Recording
+
+#: a flower is a copy of another when a rigid motion puts every vertex on the other's to
+#: within this fraction of its size, and its s, x and growth ratios are the other's to
+#: within this (remesh places a copied petal's mesh by the motion that puts the input's
+#: petal on the one it copies, which a file's float32 or 9 decimals leave about 1e-8 off)
+COPY = 1e-6
+
+
+def copy_of(k: int, part, shapes: dict):
+    """``(j, R, t)`` if flower ``k`` (``part``, a :class:`~pipeline.sim.build.Prepared`)
+    is flower ``j`` (an earlier one of ``shapes``, which this adds flower ``k`` to
+    otherwise) turned by ``R`` and moved by ``t``: the same faces, petals, fixed base,
+    axis vertices, tips, growth ratios and stiffnesses, and its vertices, s and x those of
+    ``j`` moved (to :data:`COPY`). Instanced blossoms of a
+    branch: the bloom is the same problem turned, so it is found once. None otherwise."""
+    key = (len(part.vertices), len(part.faces), hash(np.ascontiguousarray(part.faces).tobytes()))
+    for j, other in shapes.get(key, ()):
+        if not all(np.array_equal(np.asarray(getattr(other, name)), np.asarray(getattr(part, name)))
+                   for name in ("faces", "petal", "base", "on_axis", "tip", "edges", "hinges")):
+            continue
+        if not all(np.allclose(np.asarray(getattr(other, name), dtype=np.float64),
+                               np.asarray(getattr(part, name), dtype=np.float64),
+                               rtol=0.0, atol=COPY)
+                   for name in ("s", "x", "alpha", "stiffness")):
+            continue
+        found = similarity(np.asarray(other.vertices), np.asarray(part.vertices), scaled=False,
+                           tolerance=COPY)
+        if found is not None:
+            return j, found[1], found[2]
+    shapes.setdefault(key, []).append((k, part))
+    return None
+
+
+def moved(run, rot: np.ndarray, t: np.ndarray):
+    """A flower's bloom (:class:`~pipeline.chain.problem.Bloom`) for a copy of it turned by
+    ``rot`` and moved by ``t``: its frames
+    and bud moved, its diagnostics (energies, angles, counts: the same for a turned copy)
+    kept; no wall time of its own."""
+    rec = Recording(list(run.rec.time),
+                    [np.asarray(X) @ rot.T + t for X in run.rec.positions],
+                    run.rec.diagnostics)
+    return type(run)(np.asarray(run.bud) @ rot.T + t, run.bud_info, run.effects, rec, 0.0,
+                     run.resumed, run.resumed_step, run.distance, run.stopped)
