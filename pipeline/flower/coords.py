@@ -13,9 +13,8 @@ from __future__ import annotations
 import numpy as np
 from scipy.sparse.csgraph import dijkstra
 
-from pipeline.mesh.geodesic import curve_load, finer, heat_distance, heat_distances
+from pipeline.mesh.geodesic import curve_load, heat_distance, heat_distances
 from pipeline.mesh.remesh import boundary_loops, corner_vertices
-from pipeline.mesh.topology import boundary_vertices
 
 
 def _over_the_rim(g, sign, rim, s) -> np.ndarray:
@@ -132,16 +131,9 @@ def cross_section(pts, faces, rim, side, s) -> np.ndarray:
     triangles, :func:`pipeline.mesh.geodesic.curve_load`) along the surface (the heat
     method), not from the vertices next to it along edges: the coordinate converges as
     the mesh is refined, on any triangulation. A uniform error of the distances cancels
-    in the ratio. Found on the petal subdivided (:func:`pipeline.mesh.geodesic.finer`):
-    on a coarse mesh the cross-section is only a few edges wide."""
-    n = len(pts)
-    pts, faces, f = finer(pts, faces, {"side": side, "s": s, "rim": rim})
-    side, s = f["side"], f["s"]
-    # (a midpoint on the boundary is on the rim next to a rim vertex: up to the base
-    # and the tip, not up to the next coarse rim vertex only)
-    rim = (f["rim"] > 0.0) & boundary_vertices(faces, len(pts))
+    in the ratio."""
     load = curve_load(pts, faces, side)
     if not load.sum() > 0.0:  # the plane misses the petal: from the vertex nearest it
         load = (np.abs(side) == np.abs(side).min()).astype(np.float64)
     g = np.maximum(heat_distances(pts, faces, [load])[0], 0.0)
-    return _over_the_rim(g, np.sign(side), rim, s)[:n]
+    return _over_the_rim(g, np.sign(side), rim, s)

@@ -128,41 +128,6 @@ def curve_load(vertices: np.ndarray, faces: np.ndarray, level: np.ndarray) -> np
     return out
 
 
-#: :func:`finer`: a sheet is subdivided until it has this many vertices (at most
-#: :data:`FINER_LEVELS` times)
-FINER_VERTICES = 4000
-FINER_LEVELS = 2
-
-
-def finer(vertices: np.ndarray, faces: np.ndarray, fields: dict | None = None,
-          least: int = FINER_VERTICES, levels: int = FINER_LEVELS):
-    """The same piecewise-flat surface on more triangles: each triangle split in four at
-    its edges' midpoints (trimesh's linear subdivision), again until there are ``least``
-    vertices or ``levels`` times. The input's vertices come first, in their order.
-    ``fields``: name -> ``(V,)`` values per vertex, interpolated linearly (a midpoint
-    gets the mean of its edge's ends). Returns ``(vertices, faces, fields)``.
-
-    What for: the heat method's distance converges with the mesh's spacing, and a
-    petal's cross-section is only a few edges wide on a coarse mesh (300 vertices: 2-3
-    edges from the midrib to the rim), where its error is some 15% and depends on how
-    the triangles run (an irregular petal's x was off by 0.08 RMS, a regular one's by
-    0.03). The subdivided surface is the same surface, so the distance on it is the
-    coarse mesh's own, found finely enough (0.016 and 0.018 at two levels)."""
-    import trimesh
-
-    V = np.asarray(vertices, dtype=np.float64)
-    F = np.asarray(faces, dtype=np.int64)
-    names = list(fields or {})
-    values = np.stack([np.asarray(fields[k], dtype=np.float64) for k in names], axis=1) \
-        if names else np.zeros((len(V), 1))
-    for _ in range(levels):
-        if len(V) >= least or len(F) == 0:
-            break
-        V, F, attrs = trimesh.remesh.subdivide(V, F, vertex_attributes={"v": values})
-        values = np.asarray(attrs["v"], dtype=np.float64)
-    return V, F, {k: values[:, i] for i, k in enumerate(names)}
-
-
 def heat_distance(vertices: np.ndarray, faces: np.ndarray, sources, time: float = 1.0):
     """``(V,)`` geodesic distance from ``sources`` (see :func:`heat_distances`)."""
     return heat_distances(vertices, faces, [sources], time)[0]
