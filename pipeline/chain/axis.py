@@ -14,6 +14,7 @@ from pipeline.config import Config
 from pipeline.directions import DIRECTIONS
 from pipeline.errors import BloomError
 from pipeline.flower.axis import BASE_REACH, BadPetal, WeakBase, check_axes, find_axes
+from pipeline.flower.stagger import flower_count
 from pipeline.progress import Steps
 
 log = logging.getLogger("bloom")
@@ -59,7 +60,7 @@ def run(remesh_h5: str | Path, out: str | Path, cfg: Config, *, overwrite: bool 
                                  planes=src["mesh/plane"] if "mesh/plane" in src else None,
                                  flower_axis=cfg["axis.flower_axis"], up=np.array(DIRECTIONS[up]),
                                  flower=flower, progress=progress,
-                                 hold_bad=flower is not None and int(np.max(flower)) > 0)
+                                 hold_bad=flower_count(src) > 1)
             check_axes(axes, petal)  # no NaN, x in [-1, 1], s in [0, 1], a base and a tip
         except BadPetal as exc:
             part = _part_name(src, petal, exc.petal)

@@ -19,14 +19,13 @@ COPY = 1e-6
 def copy_of(k: int, part, shapes: dict):
     """``(j, R, t)`` if flower ``k`` (``part``, a :class:`~pipeline.sim.build.Prepared`)
     is flower ``j`` (an earlier one of ``shapes``, which this adds flower ``k`` to
-    otherwise) turned by ``R`` and moved by ``t``: the same faces, petals, fixed base,
-    axis vertices, tips, growth ratios and stiffnesses, and its vertices, s and x those of
-    ``j`` moved (to :data:`COPY`). Instanced blossoms of a
-    branch: the bloom is the same problem turned, so it is found once. None otherwise."""
+    otherwise) turned by ``R`` and moved by ``t``: the same faces (so edges and hinges),
+    petals, fixed base, axis vertices, tips, growth ratios and stiffnesses, and its
+    vertices, s and x those of ``j`` moved (to :data:`COPY`). None otherwise."""
     key = (len(part.vertices), len(part.faces), hash(np.ascontiguousarray(part.faces).tobytes()))
     for j, other in shapes.get(key, ()):
         if not all(np.array_equal(np.asarray(getattr(other, name)), np.asarray(getattr(part, name)))
-                   for name in ("faces", "petal", "base", "on_axis", "tip", "edges", "hinges")):
+                   for name in ("faces", "petal", "base", "on_axis", "tip")):
             continue
         if not all(np.allclose(np.asarray(getattr(other, name), dtype=np.float64),
                                np.asarray(getattr(part, name), dtype=np.float64),
@@ -43,9 +42,8 @@ def copy_of(k: int, part, shapes: dict):
 
 def moved(run, rot: np.ndarray, t: np.ndarray):
     """A flower's bloom (:class:`~pipeline.chain.problem.Bloom`) for a copy of it turned by
-    ``rot`` and moved by ``t``: its frames
-    and bud moved, its diagnostics (energies, angles, counts: the same for a turned copy)
-    kept; no wall time of its own."""
+    ``rot`` and moved by ``t``: its frames and bud moved, its diagnostics (energies,
+    angles, counts: the same for a turned copy) kept; no wall time of its own."""
     rec = Recording(list(run.rec.time),
                     [np.asarray(X) @ rot.T + t for X in run.rec.positions],
                     run.rec.diagnostics)
