@@ -239,6 +239,39 @@ def test_copied_petals_are_remeshed_once_and_moved():
         assert np.allclose(dk / d0, (1.0 + 0.2 * k), rtol=1e-6, atol=1e-9 * size)
 
 
+def test_a_copied_petal_takes_its_originals_axis_moved():
+    """A petal that is another turned and moved (an instanced blossom's, to rounding)
+    gets that petal's base, axis, tip, s and x, bit for bit, and its center plane moved:
+    a tie decided at rounding is decided alike, so copied blossoms bloom once. A petal
+    a little off a copy finds its own."""
+    v, f, petal = procedural.open_flower(5, 500, seed=1)
+    v = v / clean.mean_edge_length(v, f)
+    rot = _rotation(np.array([0.4, -0.3, 1.0]))
+    t = np.array([40.0, -7.0, 3.0])
+    rng = np.random.default_rng(0)
+    copy = v @ rot.T + t + rng.normal(scale=1e-9, size=v.shape)  # a file's rounding
+    near = v @ rot.T - t + rng.normal(scale=1e-3, size=v.shape)  # not a copy
+    n, count = len(v), petal.max() + 1
+    allv = np.vstack([v, copy, near])
+    allf = np.vstack([f, f + n, f + 2 * n])
+    allp = np.concatenate([petal, petal + count, petal + 2 * count])
+    flower = np.repeat(np.arange(3), count)
+    axes = find_axes(allv, allf, allp, surface=True, base_region="band", base_fraction=0.08,
+                     flower=flower)
+    first, second, third = slice(0, n), slice(n, 2 * n), slice(2 * n, 3 * n)
+    for name in ("base", "on_axis", "s", "x"):
+        got = getattr(axes, name)
+        assert np.array_equal(got[first], got[second]), name
+    assert not np.array_equal(axes.s[first], axes.s[third])  # found on its own
+    assert np.allclose(axes.s[first], axes.s[third], atol=0.05)  # ... and much the same
+    assert np.array_equal(axes.tip[count:2 * count], axes.tip[:count] + n)
+    normal = axes.plane[:count, :3] @ rot.T
+    assert np.allclose(axes.plane[count:2 * count, :3], normal, atol=1e-6)
+    # the moved plane passes through the moved petal
+    side = np.einsum("ij,ij->i", copy, axes.plane[allp[second], :3]) - axes.plane[allp[second], 3]
+    assert np.abs(side[axes.on_axis[second]]).max() < 0.5
+
+
 def test_scene_flower_takes_an_index_as_a_number_in_the_file(tmp_path):
     from pipeline.config import load_config
 
