@@ -239,6 +239,25 @@ def test_copied_petals_are_remeshed_once_and_moved():
         assert np.allclose(dk / d0, (1.0 + 0.2 * k), rtol=1e-6, atol=1e-9 * size)
 
 
+def test_copies_are_found_among_many_shapes_of_one_mesh():
+    """Forty petals of one mesh structure but as many shapes (a branch whose blossoms vary):
+    a copy of the last is still found (an earlier cap compared only the first 8), and a
+    shape is compared with few others."""
+    from pipeline.flower.petals import _copies
+
+    v, f, petal = procedural.open_flower(5, 700, seed=2)
+    idx = np.flatnonzero(petal == 0)
+    pts, lf = v[idx], np.searchsorted(idx, f[np.isin(f[:, 0], idx)])
+    rng = np.random.default_rng(1)
+    shapes = [pts * [1.0, 1.0 + 0.02 * k, 1.0 - 0.01 * k] for k in range(40)]
+    rot = _rotation(np.array([0.2, 0.7, 1.0]))
+    copies = [2.0 * shapes[k] @ rot.T + rng.normal(size=3) for k in (39, 0, 25)]
+    found = _copies(shapes + copies, [lf] * 43, scaled=True)
+    assert all(found[k] is None for k in range(40))
+    assert [found[40 + i][0] for i in range(3)] == [39, 0, 25]
+    assert all(found[40 + i][1] == pytest.approx(2.0) for i in range(3))
+
+
 def test_a_copied_petal_takes_its_originals_axis_moved():
     """A petal that is another turned and moved (an instanced blossom's, to rounding)
     gets that petal's base, axis, tip, s and x, bit for bit, and its center plane moved:

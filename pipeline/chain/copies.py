@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from pipeline.mesh.similar import similarity
+from pipeline.mesh.similar import Copies
 from pipeline.sim.run import Recording
 
 #: a flower is a copy of another when a rigid motion puts every vertex on the other's to
@@ -16,27 +16,31 @@ from pipeline.sim.run import Recording
 COPY = 1e-6
 
 
-def copy_of(k: int, part, shapes: dict):
+def seen() -> Copies:
+    """An empty record of the flowers met so far, for :func:`copy_of`."""
+    return Copies(scaled=False, tolerance=COPY)
+
+
+def copy_of(k: int, part, shapes: Copies):
     """``(j, R, t)`` if flower ``k`` (``part``, a :class:`~pipeline.sim.build.Prepared`)
     is flower ``j`` (an earlier one of ``shapes``, which this adds flower ``k`` to
     otherwise) turned by ``R`` and moved by ``t``: the same faces (so edges and hinges),
     petals, fixed base, axis vertices, tips, growth ratios and stiffnesses, and its
     vertices, s and x those of ``j`` moved (to :data:`COPY`). None otherwise."""
-    key = (len(part.vertices), len(part.faces), hash(np.ascontiguousarray(part.faces).tobytes()))
-    for j, other in shapes.get(key, ()):
-        if not all(np.array_equal(np.asarray(getattr(other, name)), np.asarray(getattr(part, name)))
-                   for name in ("faces", "petal", "base", "on_axis", "tip")):
-            continue
-        if not all(np.allclose(np.asarray(getattr(other, name), dtype=np.float64),
-                               np.asarray(getattr(part, name), dtype=np.float64),
-                               rtol=0.0, atol=COPY)
-                   for name in ("s", "x", "alpha", "stiffness")):
-            continue
-        found = similarity(np.asarray(other.vertices), np.asarray(part.vertices), scaled=False,
-                           tolerance=COPY)
-        if found is not None:
-            return j, found[1], found[2]
-    shapes.setdefault(key, []).append((k, part))
+
+    def alike(original, _rot) -> bool:
+        other = original[1]
+        return (all(np.array_equal(np.asarray(getattr(other, name)), np.asarray(getattr(part, name)))
+                    for name in ("petal", "base", "on_axis", "tip"))
+                and all(np.allclose(np.asarray(getattr(other, name), dtype=np.float64),
+                                    np.asarray(getattr(part, name), dtype=np.float64),
+                                    rtol=0.0, atol=COPY)
+                        for name in ("s", "x", "alpha", "stiffness")))
+
+    found = shapes.find(np.asarray(part.vertices), np.asarray(part.faces), accept=alike)
+    if found is not None:
+        return found[0][0], found[2], found[3]
+    shapes.add(np.asarray(part.vertices), np.asarray(part.faces), (k, part))
     return None
 
 

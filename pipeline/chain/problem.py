@@ -103,7 +103,7 @@ def flowers_apart(prep: Prepared, job: Job, ckpt: Path) -> Result:
     petal = np.asarray(prep.petal)
     petals = len(prep.tip)
     runs, held, refusals = {}, [], []
-    shapes: dict = {}  # (flowers that are copies of another bloom as it does, moved)
+    shapes = copies.seen()  # (flowers that are copies of another bloom as it does, moved)
     copied = 0
     for k in range(count):
         part, idx = prep.flower_part(k)

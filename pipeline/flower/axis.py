@@ -57,7 +57,7 @@ from pipeline.directions import parse_direction
 from pipeline.flower.coords import base_distance, base_edge, cross_section, edge_cross_section, tip_distance
 from pipeline.mesh import symmetry, topology
 from pipeline.mesh.similar import TOLERANCE as COPY
-from pipeline.mesh.similar import similarity
+from pipeline.mesh.similar import Copies
 
 
 @dataclass
@@ -422,7 +422,10 @@ def find_axes(vertices: np.ndarray, faces: np.ndarray, petal: np.ndarray, *,
     face_petal = petal[faces[:, 0]]
     f_order = np.argsort(face_petal, kind="stable")
     f_start = np.r_[0, np.cumsum(np.bincount(face_petal, minlength=count))]
-    done = _Copies()  # petals found, for the copies of them (instanced blossoms)
+    # petals found, for their copies (instanced blossoms): a copy takes its original's
+    # axis moved, so that a base edge or a tip two vertices tie for at rounding is decided
+    # alike on every copy, and copied blossoms bloom once
+    done, ways = Copies(scaled=False, tolerance=COPY), {}
     if planes is None:
         planes = np.array([symmetry.mirror_plane(v[members[p]])[0] for p in range(count)])
     planes = np.array(planes, dtype=np.float64)
@@ -495,10 +498,11 @@ def find_axes(vertices: np.ndarray, faces: np.ndarray, petal: np.ndarray, *,
                 proj = -proj
                 direction = -direction
             local_faces = np.searchsorted(idx, faces[f_order[f_start[p]:f_start[p + 1]]])
-            source = done.find(pts, local_faces, direction)
+            source = done.find(pts, local_faces,  # (its base at the same end)
+                               accept=lambda q, rot, d=direction: ways[q] @ rot.T @ d > 0.0)
             if source is not None:  # a copy of petal q (moved, turned, its base the same
                 # end): q's axis, moved (a near-tie decided at rounding decides it alike)
-                q, rot, t = source
+                q, _, rot, t = source
                 them = members[q]
                 base[idx], on_axis[idx] = base[them], on_axis[them]
                 s[idx], x[idx] = s[them], x[them]
@@ -575,7 +579,8 @@ def find_axes(vertices: np.ndarray, faces: np.ndarray, petal: np.ndarray, *,
                 else edge_cross_section(sub, mine_axis, rim, side, s[idx])
             x[idx] = xs
             _check_line(p, pts, sub, local_edges, mine_axis, dist_base, tip_local, xs)
-            done.add(p, pts, local_faces, direction)
+            done.add(pts, local_faces, p)
+            ways[p] = direction
         except BadPetal as exc:
             if not hold_bad:
                 raise
@@ -610,43 +615,6 @@ def find_axes(vertices: np.ndarray, faces: np.ndarray, petal: np.ndarray, *,
                      tuple(as_modelled))
     check_axes(axes, petal)
     return axes
-
-
-class _Copies:
-    """The petals whose axes are found, so that a copy of one (an instanced blossom's
-    petal: the same faces, its vertices the other's turned and moved to within
-    :data:`~pipeline.mesh.similar.TOLERANCE` of its size, its base at the same end)
-    takes that petal's axis moved rather than finding its own: a base edge or a tip
-    that two vertices tie for at rounding would otherwise be decided one way on one
-    copy and the other on the next, and copied blossoms would no longer bloom once.
-    Candidates are looked up by their faces and the sum of their squared distances from
-    their centroid (a rigid motion keeps it), so a thousand petals of one mesh but
-    different shapes are not compared pair by pair."""
-
-    def __init__(self):
-        self.found: dict = {}
-
-    @staticmethod
-    def _key(pts, local_faces):
-        centred = pts - pts.mean(axis=0)
-        return ((len(pts), hash(np.ascontiguousarray(local_faces).tobytes())),
-                float(np.sum(centred * centred)))
-
-    def find(self, pts, local_faces, direction):
-        """``(q, R, t)``: petal ``q``, found before, is this one's original (``pts = q's
-        R + t``), or None."""
-        key, spread = self._key(pts, local_faces)
-        for q, spread_q, pts_q, faces_q, direction_q in self.found.get(key, ()):
-            if abs(spread - spread_q) > COPY * spread or not np.array_equal(faces_q, local_faces):
-                continue
-            moved = similarity(pts_q, pts, scaled=False, tolerance=COPY)
-            if moved is not None and float(moved[1] @ direction_q @ direction) > 0.0:
-                return q, moved[1], moved[2]
-        return None
-
-    def add(self, p, pts, local_faces, direction) -> None:
-        key, spread = self._key(pts, local_faces)
-        self.found.setdefault(key, []).append((p, spread, pts, local_faces, direction))
 
 
 def _check_line(p: int, pts: np.ndarray, sub, local_edges: np.ndarray, mine_axis: np.ndarray,

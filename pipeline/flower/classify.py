@@ -63,7 +63,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from pipeline.mesh import clean, topology
-from pipeline.mesh.similar import similarity
+from pipeline.mesh.similar import Copies
 from pipeline.mesh.thickness import thickness
 
 KINDS = ("petal", "thick petal", "stem", "leaf", "sepal", "stamen", "pistil", "receptacle", "other")
@@ -90,9 +90,6 @@ ON_AXIS = 0.05  #: a part is on the axis when its centroid is nearer than its ow
 WHORL_DEGREES = 30.0
 #: a flower's ring is sought from at most this many seeds (quantiles of petal area)
 RING_SEEDS = 32
-#: a part is compared with at most this many earlier parts of its mesh structure to find
-#: the one it is a copy of
-COPY_SHAPES = 8
 
 NAMES = {
     "petal": "petal", "stem": "stem", "stalk": "stem", "leaf": "leaf", "leaves": "leaf",
@@ -577,21 +574,15 @@ def classify(parts) -> list[Verdict]:
     owner: list[int] = []
     masks: list = []
     alike: list[bool] = []
-    seen: dict = {}
+    seen: dict = {}  # parts measured (split or not), for their copies
     measured: list = []
     for i, p in enumerate(parts):
         v, f = np.asarray(p.vertices, dtype=np.float64), np.asarray(p.faces)
         split = hinted[i] in (None, "petal")  # a name that decides the kind needs no pieces
         # a part that is a moved, turned or scaled copy of an earlier one (instanced
         # blossoms) is measured as that one, moved
-        key = (split, len(v), len(f), hash(np.ascontiguousarray(f).tobytes()))
-        copy = None
-        for j in seen.get(key, ()):
-            if np.array_equal(np.asarray(parts[j].faces), f):
-                copy = similarity(np.asarray(parts[j].vertices, dtype=np.float64), v)
-                if copy is not None:
-                    copy = (j, *copy)
-                    break
+        mine = seen.setdefault(split, Copies())
+        copy = mine.find(v, f)
         if copy is not None:
             j, k, rot, t = copy
             pieces = [_moved_shape(shape, k, rot, t) for shape in measured[j][0]]
@@ -600,9 +591,7 @@ def classify(parts) -> list[Verdict]:
             pieces, piece_masks, same = _part_units(v, f) if split else ([], [], False)
             if not pieces:
                 pieces, piece_masks = [_measure(v, f)], [None]
-            shapes = seen.setdefault(key, [])
-            if len(shapes) < COPY_SHAPES:
-                shapes.append(i)
+            mine.add(v, f, i)
         measured.append((pieces, piece_masks, same))
         units += pieces
         masks += piece_masks

@@ -27,7 +27,7 @@ import numpy as np
 
 from pipeline.errors import BloomError
 from pipeline.mesh import clean, remesh, repair, symmetry, topology
-from pipeline.mesh.similar import similarity
+from pipeline.mesh.similar import Copies
 
 #: how close to the center plane (in mean edges) a vertex is snapped onto it before the
 #: cut, with and without a remesh after (remeshed souki202: 0.05 gives min angle 6.0
@@ -167,10 +167,6 @@ def _build(v, f, petal, report, *, target_edge, petal_vertices, symmetrize, drop
                   part=np.concatenate(out_part), thickness=np.concatenate(out_thick) * again)
 
 
-#: a part or a petal is compared with at most this many earlier ones of its mesh
-#: structure to find the one it is a copy of
-COPY_SHAPES = 8
-
 #: petals are remeshed in worker processes when there are at least this many
 PARALLEL_PETALS = 8
 
@@ -222,23 +218,13 @@ def _copies(points: list, faces: list, scaled: bool) -> list:
     ``k`` (an earlier one, remeshed itself) times ``s``, turned by ``R`` and moved by
     ``t`` (``s`` = 1 unless ``scaled``). Sheets are compared only when their faces are
     the same array (instanced copies are), by the best similarity transform
-    (:func:`pipeline.mesh.similar.similarity`), reflections refused."""
-    buckets: dict = {}
+    (:class:`pipeline.mesh.similar.Copies`), reflections refused."""
+    seen = Copies(scaled, COPY)
     out = []
     for p, (pts, lf) in enumerate(zip(points, faces, strict=True)):
-        key = (len(pts), len(lf), hash(np.ascontiguousarray(lf).tobytes()))
-        found = None
-        for k in buckets.get(key, ()):
-            if not np.array_equal(faces[k], lf):
-                continue
-            found = similarity(points[k], pts, scaled, COPY)
-            if found is not None:
-                found = (k, *found)
-                break
+        found = seen.find(pts, lf)
         if found is None:
-            shapes = buckets.setdefault(key, [])
-            if len(shapes) < COPY_SHAPES:
-                shapes.append(p)
+            seen.add(pts, lf, p)
         out.append(found)
     return out
 
@@ -551,7 +537,7 @@ def prepare_parts(mesh_file, *, where: str, target_edge: float = 0.0, petal_vert
     problems, failing, dropped, notes, info = [], [], [], [], []
     found = {}  # part index -> {"pieces": petal pieces, "area": their area (one side), "lost": ...}
     rest = {}  # part index -> (vertices, faces): a whole flower's pieces that are not petals
-    cleaned_parts, cleaned_faces, outcomes, copies = {}, {}, {}, 0
+    seen, outcomes, copies = {}, {}, 0  # parts cleaned (by kind), for their copies
     for i, (part, verdict) in enumerate(zip(parts, verdicts, strict=True)):
         report("cleaning petal parts", i, len(parts), f"part {part.name!r}")
         role = "petal" if chosen[i] else "excluded" if excluded[i] else "kept"
@@ -567,25 +553,16 @@ def prepare_parts(mesh_file, *, where: str, target_edge: float = 0.0, petal_vert
             rest[i] = (np.asarray(part.vertices), unique[i][~verdict.faces])
         # a part that is a moved, turned or scaled copy of one cleaned before (instanced
         # blossoms) gives that part's sheets, moved
-        key = (verdict.kind, len(part.vertices), len(part_faces),
-               hash(np.ascontiguousarray(part_faces).tobytes()))
-        copy = None
-        for j in cleaned_parts.get(key, ()):
-            if np.array_equal(cleaned_faces[j], part_faces):
-                copy = similarity(np.asarray(parts[j].vertices, dtype=np.float64),
-                                  np.asarray(part.vertices, dtype=np.float64))
-                if copy is not None:
-                    done = _moved_part(outcomes[j], i, *copy)
-                    copies += 1
-                    break
-        if copy is None:
+        mine = seen.setdefault(verdict.kind, Copies())
+        copy = mine.find(part.vertices, part_faces)
+        if copy is not None:
+            done = _moved_part(outcomes[copy[0]], i, *copy[1:])
+            copies += 1
+        else:
             done = _part_sheets(part, part_faces, verdict, i, dust=dust, closed_parts=closed_parts)
             if done.sheets and not done.problem:
-                shapes = cleaned_parts.setdefault(key, [])
-                if len(shapes) < COPY_SHAPES:
-                    shapes.append(i)
-                    cleaned_faces[i] = part_faces
-                    outcomes[i] = done
+                mine.add(part.vertices, part_faces, i)
+                outcomes[i] = done
             notes += done.notes
         for name, value in vars(done.counts).items():
             if name != "notes":

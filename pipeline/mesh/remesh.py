@@ -16,6 +16,8 @@ share the quality measures and the rules for what a move may do to the rim.
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 
 from pipeline.mesh import topology
@@ -429,8 +431,12 @@ def isotropic(vertices: np.ndarray, faces: np.ndarray, h: float, *,
         feature = np.flatnonzero(fixed)
         # the remesher returns feature vertices first, in order, then the others
         try:
-            v, f = gpytoolbox.remesh_botsch(v, f.astype(np.int32), iterations, float(h), True,
-                                            feature=feature.astype(np.int32))
+            with warnings.catch_warnings():  # (a sheet with no inner vertex: a no-op, said
+                # once per petal of a branch's thousands)
+                warnings.filterwarnings("ignore", "All vertices in the input mesh",
+                                        UserWarning)
+                v, f = gpytoolbox.remesh_botsch(v, f.astype(np.int32), iterations, float(h),
+                                                True, feature=feature.astype(np.int32))
         except (MemoryError, RuntimeError) as exc:
             raise ValueError(f"the remesher failed ({type(exc).__name__}: {exc})") from None
         v, f = np.asarray(v, dtype=np.float64), np.asarray(f, dtype=np.int64)

@@ -53,3 +53,51 @@ def similarity(a: np.ndarray, b: np.ndarray, scaled: bool = True,
     if np.abs(s * a @ rot.T + t - b).max() > tolerance * size:
         return None
     return s, rot, t
+
+
+class Copies:
+    """The point sets seen so far, to find which one a new set is a copy of
+    (:func:`similarity`: moved, turned and, if ``scaled``, scaled; its points in the same
+    order, its faces the same array). Sets are indexed by their faces and by the shape of
+    their spread (the ratios of their covariance's eigenvalues to its trace: a copy has the
+    same), so a new set is compared only with the few of its shape: a thousand blossoms of
+    one mesh structure but different shapes cost a look-up each, not a thousand
+    comparisons."""
+
+    #: the width of a bin of the spread's ratios (a copy's are its original's to rounding)
+    BIN = 1e-4
+
+    def __init__(self, scaled: bool = True, tolerance: float = TOLERANCE):
+        self.scaled, self.tolerance = scaled, tolerance
+        self.bins: dict = {}
+
+    def _keys(self, points: np.ndarray, faces: np.ndarray):
+        centred = points - points.mean(axis=0)
+        w = np.linalg.eigvalsh(centred.T @ centred)
+        trace = float(w.sum())
+        ratios = w[1:] / trace if trace > 0.0 else np.zeros(2)
+        cell = tuple(int(r) for r in np.floor(ratios / self.BIN))
+        structure = (len(points), len(faces), hash(np.ascontiguousarray(faces).tobytes()))
+        return structure, cell
+
+    def find(self, points, faces, accept=None):
+        """``(payload, s, R, t)`` of a set added before that ``points`` (with ``faces``)
+        is a copy of (``points = s original R^T + t``), or None. ``accept(payload, R)``,
+        if given, must also agree (a petal's base at the same end)."""
+        points = np.asarray(points, dtype=np.float64)
+        structure, (a, b) = self._keys(points, faces)
+        for da in (-1, 0, 1):
+            for db in (-1, 0, 1):
+                for original, its_faces, payload in self.bins.get((structure, (a + da, b + db)), ()):
+                    if not np.array_equal(its_faces, faces):
+                        continue
+                    found = similarity(original, points, self.scaled, self.tolerance)
+                    if found is not None and (accept is None or accept(payload, found[1])):
+                        return (payload, *found)
+        return None
+
+    def add(self, points, faces, payload) -> None:
+        """Remember ``points`` (with ``faces``) as an original, named by ``payload``."""
+        points = np.asarray(points, dtype=np.float64)
+        structure, cell = self._keys(points, faces)
+        self.bins.setdefault((structure, cell), []).append((points, np.asarray(faces), payload))
