@@ -240,9 +240,9 @@ def test_copied_petals_are_remeshed_once_and_moved():
 
 
 def test_copies_are_found_among_many_shapes_of_one_mesh():
-    """Forty petals of one mesh structure but as many shapes (a branch whose blossoms vary):
-    a copy of the last is still found (an earlier cap compared only the first 8), and a
-    shape is compared with few others."""
+    """Forty petals of one mesh structure but as many shapes (a branch whose blossoms vary,
+    1% apart): each is its own, and a copy of the last is still found (an earlier cap
+    compared only the first 8), as is one written out to 6 decimals of a metre."""
     from pipeline.flower.petals import _copies
 
     v, f, petal = procedural.open_flower(5, 700, seed=2)
@@ -252,14 +252,16 @@ def test_copies_are_found_among_many_shapes_of_one_mesh():
     shapes = [pts * [1.0, 1.0 + 0.02 * k, 1.0 - 0.01 * k] for k in range(40)]
     rot = _rotation(np.array([0.2, 0.7, 1.0]))
     copies = [2.0 * shapes[k] @ rot.T + rng.normal(size=3) for k in (39, 0, 25)]
-    found = _copies(shapes + copies, [lf] * 43, scaled=True)
+    # as Blender's OBJ exporter writes a 4 mm petal a metre out: 6 decimals of a metre
+    copies.append(np.round(0.004 * shapes[7] @ rot.T + [1.5, 0.3, 2.0], 6))
+    found = _copies(shapes + copies, [lf] * 44, scaled=True)
     assert all(found[k] is None for k in range(40))
-    assert [found[40 + i][0] for i in range(3)] == [39, 0, 25]
-    assert all(found[40 + i][1] == pytest.approx(2.0) for i in range(3))
+    assert [found[40 + i][0] for i in range(4)] == [39, 0, 25, 7]
+    assert [found[40 + i][1] for i in range(4)] == pytest.approx([2.0, 2.0, 2.0, 0.004], rel=1e-4)
 
 
 def test_a_copied_petal_takes_its_originals_axis_moved():
-    """A petal that is another turned and moved (an instanced blossom's, to rounding)
+    """A petal that is another turned, moved and scaled (an instanced blossom's, to rounding)
     gets that petal's base, axis, tip, s and x, bit for bit, and its center plane moved:
     a tie decided at rounding is decided alike, so copied blossoms bloom once. A petal
     a little off a copy finds its own."""
@@ -268,7 +270,7 @@ def test_a_copied_petal_takes_its_originals_axis_moved():
     rot = _rotation(np.array([0.4, -0.3, 1.0]))
     t = np.array([40.0, -7.0, 3.0])
     rng = np.random.default_rng(0)
-    copy = v @ rot.T + t + rng.normal(scale=1e-9, size=v.shape)  # a file's rounding
+    copy = 1.3 * v @ rot.T + t + rng.normal(scale=1e-9, size=v.shape)  # scaled; rounding
     near = v @ rot.T - t + rng.normal(scale=1e-3, size=v.shape)  # not a copy
     n, count = len(v), petal.max() + 1
     allv = np.vstack([v, copy, near])

@@ -6,19 +6,21 @@ from __future__ import annotations
 
 import numpy as np
 
-from pipeline.mesh.similar import Copies
+from pipeline.mesh.similar import AS_EXPORTED, Copies
 from pipeline.sim.run import Recording
 
-#: a flower is a copy of another when a rigid motion puts every vertex on the other's to
-#: within this fraction of its size, and its s, x and growth ratios are the other's to
-#: within this (remesh places a copied petal's mesh by the motion that puts the input's
-#: petal on the one it copies, which a file's float32 or 9 decimals leave about 1e-8 off)
+#: a copied flower's s, x and growth ratios are its original's to within this (bloom
+#: axis gives a copied petal its original's, so they are equal)
 COPY = 1e-6
 
 
 def seen() -> Copies:
-    """An empty record of the flowers met so far, for :func:`copy_of`."""
-    return Copies(scaled=False, tolerance=COPY)
+    """An empty record of the flowers met so far, for :func:`copy_of`. A copy's vertices
+    lie on its original's moved to within :data:`~pipeline.mesh.similar.AS_EXPORTED` of
+    its size: remesh places each copied petal by the motion that puts the input's petal
+    on its original, and a file's 6 decimals or float32 leave that motion up to 1e-4 of a
+    small petal off, differently for each petal of a blossom."""
+    return Copies(scaled=False, tolerance=AS_EXPORTED)
 
 
 def copy_of(k: int, part, shapes: Copies):
@@ -26,7 +28,7 @@ def copy_of(k: int, part, shapes: Copies):
     is flower ``j`` (an earlier one of ``shapes``, which this adds flower ``k`` to
     otherwise) turned by ``R`` and moved by ``t``: the same faces (so edges and hinges),
     petals, fixed base, axis vertices, tips, growth ratios and stiffnesses, and its
-    vertices, s and x those of ``j`` moved (to :data:`COPY`). None otherwise."""
+    vertices those of ``j`` moved (:func:`seen`), its s and x to :data:`COPY`. None otherwise."""
 
     def alike(original, _rot) -> bool:
         other = original[1]

@@ -425,7 +425,7 @@ def find_axes(vertices: np.ndarray, faces: np.ndarray, petal: np.ndarray, *,
     # petals found, for their copies (instanced blossoms): a copy takes its original's
     # axis moved, so that a base edge or a tip two vertices tie for at rounding is decided
     # alike on every copy, and copied blossoms bloom once
-    done, ways = Copies(scaled=False, tolerance=COPY), {}
+    done, ways = Copies(scaled=True, tolerance=COPY), {}
     if planes is None:
         planes = np.array([symmetry.mirror_plane(v[members[p]])[0] for p in range(count)])
     planes = np.array(planes, dtype=np.float64)
@@ -500,15 +500,15 @@ def find_axes(vertices: np.ndarray, faces: np.ndarray, petal: np.ndarray, *,
             local_faces = np.searchsorted(idx, faces[f_order[f_start[p]:f_start[p + 1]]])
             source = done.find(pts, local_faces,  # (its base at the same end)
                                accept=lambda q, rot, d=direction: ways[q] @ rot.T @ d > 0.0)
-            if source is not None:  # a copy of petal q (moved, turned, its base the same
-                # end): q's axis, moved (a near-tie decided at rounding decides it alike)
-                q, _, rot, t = source
+            if source is not None:  # a copy of petal q (moved, turned, scaled, its base the
+                # same end): q's axis, moved (a near-tie at rounding is decided alike)
+                q, scale, rot, t = source
                 them = members[q]
                 base[idx], on_axis[idx] = base[them], on_axis[them]
                 s[idx], x[idx] = s[them], x[them]
                 tips[p] = idx[np.searchsorted(them, tips[q])]
                 normal = rot @ planes[q][:3]
-                planes[p] = np.r_[normal, planes[q][3] + normal @ t]
+                planes[p] = np.r_[normal, scale * planes[q][3] + normal @ t]
                 if q in widened:
                     widened.append(p)
                 continue

@@ -208,10 +208,6 @@ def _each_petal(tasks: list, workers: int):
         yield from pool.map(_one_task, tasks, chunksize=1)
 
 
-#: a petal is a copy of another when a rigid motion and a uniform scale put one on the
-#: other to within this fraction of its size
-COPY = 1e-6
-
 
 def _copies(points: list, faces: list, scaled: bool) -> list:
     """For each sheet: None if it is remeshed itself, else ``(k, s, R, t)``: it is sheet
@@ -219,7 +215,7 @@ def _copies(points: list, faces: list, scaled: bool) -> list:
     ``t`` (``s`` = 1 unless ``scaled``). Sheets are compared only when their faces are
     the same array (instanced copies are), by the best similarity transform
     (:class:`pipeline.mesh.similar.Copies`), reflections refused."""
-    seen = Copies(scaled, COPY)
+    seen = Copies(scaled)
     out = []
     for p, (pts, lf) in enumerate(zip(points, faces, strict=True)):
         found = seen.find(pts, lf)
