@@ -192,6 +192,9 @@ SCHEMA: dict[str, Any] = {
         "steps": Key(int, 200_000, "number of time steps", low=1),
         "frames": Key(int, 121, "number of frames stored, the first at t = 0", low=2),
         "h": Key(float, 1.0, "time step (paper: 1.0)", low=0.0, low_open=True),
+        "workers": Key(int, 0, "processes that bloom a file's flowers side by side (a bush, a "
+                       "branch: each flower a problem of its own); 0: the CPUs this process may "
+                       "use, at most 4; 1: none. The result is the same bit for bit", low=0),
         "eta": Key(float, 0.1, "damping factor of the semi-implicit scheme (Eq. 8): 1/2 is "
                    "Verlet, smaller damps", low=0.0, high=0.5),
         "integrator": Key(str, "quasi-static", "quasi-static (the path of equilibria along "

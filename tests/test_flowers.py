@@ -456,6 +456,30 @@ def test_each_flower_of_a_file_blooms_as_it_would_alone(tmp_path):
     assert opening[-1].min() > 1.0  # (every petal opened some)
 
 
+def test_flowers_bloom_side_by_side_to_the_same_bits(tmp_path):
+    """simulate.workers: the flowers of a file bloomed in one process and in two forked
+    ones give the same sim.h5 arrays bit for bit, and the same log, flower after flower
+    (a worker's log is written by the parent as its flower comes back)."""
+    growth = _bush_growth(tmp_path)
+    out, logs = {}, {}
+    for n in (1, 2):
+        path = tmp_path / f"s{n}.h5"
+        r = CliRunner().invoke(cli, ["simulate", str(growth), "--out", str(path), *SHORT,
+                                     "--set", f"simulate.workers={n}"])
+        assert r.exit_code == 0, r.output
+        logs[n] = [line for line in r.output.splitlines()
+                   if line.startswith(("flower ", "growth.start")) or "vertices (" in line]
+        with h5py.File(path) as h:
+            out[n] = {k: h[k][()] for k in ("frames/positions", "frames/time",
+                                             "diagnostics/opening_angle_per_petal")}
+    assert "3 of 3 flowers to bloom, 2 side by side" in r.output
+    for key, value in out[1].items():
+        np.testing.assert_array_equal(out[2][key], value, err_msg=key)
+    assert logs[2] == logs[1]
+    assert [line.split(":")[0] for line in logs[2] if line.startswith("flower ")] == [
+        "flower 0 of 3", "flower 1 of 3", "flower 2 of 3"]
+
+
 def test_a_flower_that_cannot_bloom_is_kept_as_modelled_and_named(tmp_path, monkeypatch):
     """One flower of three whose bloom is refused: the others bloom, it stays as
     modelled in every frame, the log says why in a warning naming it, sim.h5 and the

@@ -1,6 +1,6 @@
 """Flowers of a file of many that are copies of one another (instanced blossoms of a
 branch): the bloom is the same problem turned, so it is found once and moved
-(:func:`pipeline.chain.problem.flowers_apart`)."""
+(:func:`pipeline.chain.flowers.flowers_apart`)."""
 
 from __future__ import annotations
 

@@ -1,8 +1,7 @@
 """One bloom problem of the simulate stage (:mod:`pipeline.chain.simulate`): a whole
-file, or one flower of a file of many (:func:`problem`); a file's flowers run one after
-another and put together (:func:`flowers_apart`); the solver's failures as one line
-naming the key (:func:`refusal`); the checkpoints a run writes as it goes
-(:class:`Saver`)."""
+file, or one flower of a file of many (:func:`problem`; a file's flowers are put together
+in :mod:`pipeline.chain.flowers`); the solver's failures as one line naming the key
+(:func:`refusal`); the checkpoints a run writes as it goes (:class:`Saver`)."""
 
 from __future__ import annotations
 
@@ -10,11 +9,9 @@ import logging
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from types import SimpleNamespace
 
 import numpy as np
 
-from pipeline.chain import copies
 from pipeline.config import KEYS, Config
 from pipeline.errors import BloomError
 from pipeline.flower.measure import Start
@@ -22,7 +19,7 @@ from pipeline.progress import Progress
 from pipeline.review import report
 from pipeline.sim import checkpoint
 from pipeline.sim.build import Prepared
-from pipeline.sim.effects import ORDER, Params
+from pipeline.sim.effects import Params
 from pipeline.sim.explicit.semi_implicit import Diverged
 from pipeline.sim.integrators import make_integrator
 from pipeline.sim.model import Control, State
@@ -85,117 +82,6 @@ def unlink_checkpoints(ckpt: Path) -> None:
     flower's."""
     for path in [ckpt, *ckpt.parent.glob(ckpt.name + "-*")]:
         path.unlink(missing_ok=True)
-
-
-#: a file of many flowers: how each frame's diagnostic of the whole is made of the
-#: flowers' (the rest are sums: energies, counts)
-_SAME = ("growth", "curl_factor")
-_LARGEST = ("max_speed", "center_plane_drift", "stable_step")
-
-
-def flowers_apart(prep: Prepared, job: Job, ckpt: Path) -> Result:
-    """Each flower of a file of many as a problem of its own (:func:`problem`), put
-    together. A flower whose bloom is refused is kept as modelled (its frames the
-    model; its petals opened 0 deg), with a warning naming it and why; the run is
-    refused only if every flower is."""
-    flower = np.asarray(prep.flower)
-    count = int(flower.max()) + 1
-    petal = np.asarray(prep.petal)
-    petals = len(prep.tip)
-    runs, held, refusals = {}, [], []
-    shapes = copies.seen()  # (flowers that are copies of another bloom as it does, moved)
-    copied = 0
-    for k in range(count):
-        part, idx = prep.flower_part(k)
-        source = copies.copy_of(k, part, shapes)
-        if source is not None:
-            j, rot, t = source
-            if j in runs:
-                runs[k] = (copies.moved(runs[j][0], rot, t), idx)
-            else:
-                held.append(k)
-            copied += 1
-            continue
-        log.info("flower %d of %d: %d petal(s), %d vertices", k, count, len(part.tip), len(idx))
-        try:
-            runs[k] = (problem(part, job, ckpt.with_name(f"{ckpt.name}-flower{k}"),
-                                label=f"flower {k}"), idx)
-        except BloomError as exc:
-            log.warning("flower %d could not bloom; it is kept as modelled: %s", k,
-                        str(exc).removeprefix(f"{job.where}: "))
-            held.append(k)
-            refusals.append(exc)
-    if copied:
-        log.info("%d of %d flowers are copies of others (moved and turned, their petals "
-                 "remeshed alike): each blooms as its original does, moved", copied, count)
-    if not runs:
-        raise refusals[0]
-    some = next(iter(runs.values()))[0]
-    times = np.asarray(some.rec.time)
-    frames = len(times)
-    positions = np.repeat(np.asarray(prep.vertices, dtype=np.float64)[None], frames, axis=0)
-    bud = np.array(prep.vertices, dtype=np.float64)
-    per_petal = np.zeros((frames, petals))
-    diag: dict = {}
-    names, pairs, broken = set(), [], []
-    info: dict = {}
-    wall, resumed, resumed_step = 0.0, None, 0
-    stopped = []
-    for run_, idx in runs.values():
-        positions[:, idx] = np.asarray(run_.rec.positions)
-        bud[idx] = run_.bud
-        mine = np.unique(petal[idx])
-        if run_.stopped:
-            stopped.append((run_.stopped[0], int(mine[run_.stopped[1]])))
-        arrays = run_.rec.arrays()
-        if "opening_angle_per_petal" in arrays:
-            per_petal[:, mine] = arrays["opening_angle_per_petal"]
-        for name, values in arrays.items():
-            if name in ("opening_angle", "opening_angle_per_petal"):
-                continue
-            values = np.asarray(values, dtype=np.float64)
-            if name not in diag:
-                diag[name] = values.copy()
-            elif name in _LARGEST:
-                diag[name] = np.maximum(diag[name], values)
-            elif name not in _SAME:
-                diag[name] = diag[name] + values
-        names.update(run_.effects.names)
-        c = run_.effects.connections
-        if c is not None:
-            pairs.append(idx[np.asarray(c.pairs, dtype=np.int64)])
-            broken.append(np.asarray(c.broken_step))
-        for key, value in run_.bud_info.items():
-            info.setdefault(key, []).append(value)
-        wall += run_.wall
-        if run_.resumed is not None:
-            resumed, resumed_step = run_.resumed, max(resumed_step, run_.resumed_step)
-    diag["opening_angle_per_petal"] = per_petal
-    diag["opening_angle"] = per_petal.mean(axis=1)
-    bud_info = {}
-    for key, values in info.items():  # the flowers' figures of their bud searches
-        if isinstance(values[0], str):
-            bud_info[key] = ",".join(sorted(set(values)))
-        elif key in ("bud_seconds", "bud_newton_iterations"):
-            bud_info[key] = sum(values)
-        elif key == "bud_close":
-            bud_info[key] = min(values)
-        elif key == "recurve_share":
-            bud_info[key] = max(values)
-    start_open = job.start.start == "open"
-    distance = None
-    if start_open:
-        model = np.asarray(prep.vertices)
-        bud_info["bud_distance"] = distance_to_model(bud, model, petal, prep.base)
-        distance = distance_to_model(positions[-1], model, petal, prep.base)
-    connections = None
-    if pairs:
-        connections = SimpleNamespace(pairs=np.concatenate(pairs),
-                                      broken_step=np.concatenate(broken))
-    return Result(bud, bud_info, sorted(names, key=lambda n: ORDER.index(n)
-                                         if n in ORDER else len(ORDER)),
-                   connections, times, positions, diag, wall, resumed, resumed_step, distance,
-                   held, stopped)
 
 
 def problem(prep: Prepared, job: Job, ckpt: Path, label: str = "") -> Bloom:

@@ -14,7 +14,8 @@ import numpy as np
 from pipeline import artifact
 from pipeline.config import Config
 from pipeline.errors import BloomError
-from pipeline.flower.petals import prepare_parts, workers_for
+from pipeline.flower.petals import prepare_parts
+from pipeline.forks import workers
 from pipeline.io import binding, userasset
 from pipeline.io.meshfile import read_parts
 from pipeline.progress import Steps
@@ -60,7 +61,7 @@ def run(mesh: str | Path | None, out: str | Path, cfg: Config, *, overwrite: boo
                                closed_parts=cfg["remesh.closed_parts"],
                                petals_globs=cfg["scene.petals"], exclude_globs=cfg["scene.exclude"],
                                flower=cfg["scene.flower"], progress=progress,
-                               workers=workers_for(cfg["remesh.workers"]))
+                               workers=workers(cfg["remesh.workers"]))
     report = result.report
     with Steps("remesh", str(mesh_path)) as progress:
         separation = _separated(result, cfg, mesh_path, mesh_file, progress)

@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from pipeline import artifact
-from pipeline.chain import carried_attrs, problem
+from pipeline.chain import carried_attrs, flowers, problem
 from pipeline.config import Config
 from pipeline.errors import BloomError
 from pipeline.flower import stagger
@@ -46,7 +46,7 @@ def run(growth_h5: str | Path, out: str | Path, cfg: Config, *, overwrite: bool 
     ``resume``: continue from the checkpoint an interrupted run of the same inputs and
     config left next to ``out``. ``progress``: a bar (default: when stderr is a
     terminal). A file of many flowers staggered in time blooms flower by flower, each a
-    problem of its own (:func:`pipeline.chain.problem.flowers_apart`): a flower that cannot bloom is kept as
+    problem of its own (:func:`pipeline.chain.flowers.flowers_apart`): a flower that cannot bloom is kept as
     modelled, named in a warning and in the report, and the others bloom."""
     where = str(cfg.path) if cfg.path else "defaults"
     out = artifact.check_output(out, "simulate", overwrite)
@@ -63,7 +63,7 @@ def run(growth_h5: str | Path, out: str | Path, cfg: Config, *, overwrite: bool 
         model_positions = np.asarray(v) if start.start == "open" else None
         job = problem.Job(cfg, start, names, inputs, resume, progress, where)
         result = (problem.Result.of(problem.problem(prep, job, ckpt)) if prep.flower is None
-                  else problem.flowers_apart(prep, job, ckpt))
+                  else flowers.flowers_apart(prep, job, ckpt))
         v, positions, diag = result.bud, np.asarray(result.positions), result.diag
         bud_info, resumed, resumed_step, wall = (result.bud_info, result.resumed,
                                                  result.resumed_step, result.wall)

@@ -25,6 +25,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from pipeline import forks
 from pipeline.errors import BloomError
 from pipeline.mesh import clean, remesh, repair, symmetry, topology
 from pipeline.mesh.similar import Copies
@@ -171,40 +172,20 @@ def _build(v, f, petal, report, *, target_edge, petal_vertices, symmetrize, drop
 PARALLEL_PETALS = 8
 
 
-def workers_for(setting: int) -> int:
-    """How many processes remesh petals: ``setting`` (``remesh.workers``) if positive,
-    else the CPUs this process may run on, at most 4."""
-    import os
-
-    if setting > 0:
-        return int(setting)
-    try:
-        return max(1, min(4, len(os.sched_getaffinity(0))))
-    except AttributeError:  # not Linux
-        return max(1, min(4, os.cpu_count() or 1))
-
-
 def _each_petal(tasks: list, workers: int):
     """:func:`_one_petal` of every task, yielded in order: in this process, or (``workers``
     > 1, at least ``PARALLEL_PETALS`` petals, and a system that forks) in a pool of
     forked processes. Each petal's result depends on the petal alone, so the output is
     the same bit for bit either way.
 
-    Forked, not spawned: a spawned worker imports the main module again (``python -m
-    stages`` would run the command again in it) and pays the imports (seconds). What a
-    worker runs (remeshing, numba kernels, k-d trees) starts no thread pool of its own
-    that a fork could leave locked (Embree's, from the ray casts before, is not used)."""
-    import multiprocessing
-
-    if (workers <= 1 or len(tasks) < PARALLEL_PETALS
-            or "fork" not in multiprocessing.get_all_start_methods()):
+    Forked (:mod:`pipeline.forks`): what a worker runs (remeshing, numba kernels, k-d
+    trees) starts no thread pool of its own that a fork could leave locked (Embree's,
+    from the ray casts before, is not used)."""
+    if workers <= 1 or len(tasks) < PARALLEL_PETALS or not forks.can_fork():
         for task in tasks:
             yield _one_petal(*task)
         return
-    from concurrent.futures import ProcessPoolExecutor
-
-    context = multiprocessing.get_context("fork")
-    with ProcessPoolExecutor(min(workers, len(tasks)), mp_context=context) as pool:
+    with forks.pool(min(workers, len(tasks))) as pool:
         yield from pool.map(_one_task, tasks, chunksize=1)
 
 
@@ -509,7 +490,7 @@ def prepare_parts(mesh_file, *, where: str, target_edge: float = 0.0, petal_vert
     then go through steps 3 to 5 of :func:`prepare`. Parts that are not petals are
     returned untouched in ``kept_parts`` (and a whole flower's other pieces, under its
     index). ``progress(what, done, total, detail)``, if given, is called as the petals are
-    done; ``workers`` processes remesh them (:func:`workers_for`).
+    done; ``workers`` processes remesh them (:func:`pipeline.forks.workers`).
 
     Raises one :class:`BloomError` naming every petal part that cannot be simulated (and,
     when no petal is left, what every part is).

@@ -15,7 +15,8 @@ import numpy as np
 
 from pipeline.chain import run_scene
 from pipeline.errors import BloomError
-from pipeline.flower.petals import prepare_parts, workers_for
+from pipeline.flower.petals import prepare_parts
+from pipeline.forks import workers
 from pipeline.io.meshfile import MeshFile, Part
 from pipeline.mesh import procedural, topology
 from pipeline.sim.build import Prepared
@@ -159,14 +160,14 @@ def studio_flower(faces: int = 100_000, petals: int = 12, seed: int = 0):
 
 def remesh_cost(faces: int = 100_000, seed: int = 0) -> dict:
     """The remesh stage's library work (:func:`pipeline.flower.petals.prepare_parts`, default
-    config, petals in :func:`pipeline.flower.petals.workers_for` processes) on
+    config, petals in :func:`pipeline.forks.workers` processes) on
     :func:`studio_flower`: wall and CPU seconds (CPU: this process's and its finished
     workers', which other jobs on the machine do not inflate), the peak resident memory
     of this process and of its largest worker, and what came out."""
     v, f = studio_flower(faces, seed=seed)
     mesh_file = MeshFile([Part("flower", v, f)], None, None)
     t0, c0 = time.perf_counter(), _cpu()
-    result = prepare_parts(mesh_file, where="studio_flower", workers=workers_for(0))
+    result = prepare_parts(mesh_file, where="studio_flower", workers=workers(0))
     wall, cpu = time.perf_counter() - t0, _cpu() - c0
     peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0  # kB on Linux
     worker_peak = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024.0

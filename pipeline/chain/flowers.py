@@ -1,0 +1,218 @@
+"""A file of many flowers in the simulate stage (:func:`flowers_apart`): each flower a
+problem of its own (:func:`pipeline.chain.problem.problem`), a copy of another bloomed
+once and moved (:mod:`pipeline.chain.copies`), the others side by side in
+``simulate.workers`` forked processes, put together into one bloom."""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+from pathlib import Path
+from types import SimpleNamespace
+
+import numpy as np
+
+from pipeline.chain import copies, problem
+from pipeline.chain.problem import Job, Result
+from pipeline.errors import BloomError
+from pipeline.forks import can_fork, pool, workers
+from pipeline.progress import Progress
+from pipeline.sim.build import Prepared
+from pipeline.sim.effects import ORDER
+from pipeline.sim.reverse import distance_to_model
+
+log = logging.getLogger("bloom")
+
+#: a file of many flowers: how each frame's diagnostic of the whole is made of the
+#: flowers' (the rest are sums: energies, counts)
+_SAME = ("growth", "curl_factor")
+_LARGEST = ("max_speed", "center_plane_drift", "stable_step")
+
+#: what a forked worker blooms from, inherited from the parent (not sent): the file's
+#: :class:`Prepared`, the :class:`Job` and the checkpoint path
+_TASK: tuple | None = None
+
+
+class _Kept(logging.Handler):
+    """A forked worker's log: kept, and sent back with the flower's bloom, so that the
+    log reads flower after flower as it does in one process."""
+
+    lines: list = []
+
+    def emit(self, record: logging.LogRecord) -> None:
+        self.lines.append((record.levelno, record.getMessage()))
+
+
+def _worker_start() -> None:
+    """A forked worker's start: the parent's thread pool has no threads in it here, and
+    the log is kept for the parent (:class:`_Kept`)."""
+    from pipeline.sim import threads
+
+    threads._POOL = None
+    bloom = logging.getLogger("bloom")
+    bloom.handlers, bloom.propagate = [_Kept()], False
+
+
+def _bloom_flower(k: int):
+    """Flower ``k``'s bloom (:func:`~pipeline.chain.problem.problem`), as ``(k, bloom, None, log)``, or ``(k,
+    None, why, log)`` where it is refused; ``log``: a worker's log lines (level,
+    message), else none. Its effects are kept as what the put-together bloom reads of
+    them (their names, the connection springs), so that a worker can send it back."""
+    _Kept.lines = []
+    k, run, why = _bloom_one(k)
+    return k, run, why, _Kept.lines
+
+
+def _bloom_one(k: int):
+    prep, job, ckpt = _TASK
+    part, idx = prep.flower_part(k)
+    log.info("flower %d of %d: %d petal(s), %d vertices", k, int(np.max(prep.flower)) + 1,
+             len(part.tip), len(idx))
+    try:
+        run = problem.problem(part, job, ckpt.with_name(f"{ckpt.name}-flower{k}"),
+                              label=f"flower {k}")
+    except BloomError as exc:
+        return k, None, str(exc).removeprefix(f"{job.where}: ")
+    c = run.effects.connections
+    kept = SimpleNamespace(names=list(run.effects.names), connections=None if c is None else
+                           SimpleNamespace(pairs=np.asarray(c.pairs),
+                                           broken_step=np.asarray(c.broken_step)))
+    return k, dataclasses.replace(run, effects=kept), None
+
+
+def _bloom_all(prep: Prepared, job: Job, ckpt: Path, own: list, count: int):
+    """``(k, bloom or None, why refused or None)`` of each flower of ``own``, in order: in
+    this process, or (``simulate.workers`` > 1, two flowers or more, a system that
+    forks) in a pool of forked processes, each flower's problem its own, so the blooms
+    are the same bits either way (:mod:`pipeline.forks`). A worker starts with no
+    thread pool (the parent's has no threads in it after the fork). A worker shows no bar and keeps its
+    log: this process writes each flower's log as it comes back, in order, and counts
+    the flowers."""
+    global _TASK
+    many = workers(job.cfg["simulate.workers"])
+    forks = can_fork()
+    _TASK = (prep, job if many <= 1 or len(own) < 2 or not forks
+             else dataclasses.replace(job, progress=False), ckpt)
+    try:
+        if many <= 1 or len(own) < 2 or not forks:
+            for k in own:
+                yield _bloom_one(k)
+            return
+        log.info("%d of %d flowers to bloom, %d side by side (simulate.workers)", len(own),
+                 count, min(many, len(own)))
+        with (pool(min(many, len(own)), initializer=_worker_start) as workers_,
+              Progress(len(own), "simulate flowers", job.progress) as bar):
+            for k, run, why, lines in workers_.map(_bloom_flower, own, chunksize=1):
+                for level, line in lines:
+                    log.log(level, "%s", line)
+                bar.update()
+                yield k, run, why
+    finally:
+        _TASK = None
+
+
+def flowers_apart(prep: Prepared, job: Job, ckpt: Path) -> Result:
+    """Each flower of a file of many as a problem of its own (:func:`~pipeline.chain.problem.problem`), put
+    together. A flower whose bloom is refused is kept as modelled (its frames the
+    model; its petals opened 0 deg), with a warning naming it and why; the run is
+    refused only if every flower is."""
+    flower = np.asarray(prep.flower)
+    count = int(flower.max()) + 1
+    petal = np.asarray(prep.petal)
+    petals = len(prep.tip)
+    shapes = copies.seen()  # (flowers that are copies of another bloom as it does, moved)
+    source, idx_of = {}, {}
+    for k in range(count):
+        part, idx_of[k] = prep.flower_part(k)
+        source[k] = copies.copy_of(k, part, shapes)
+    own = [k for k in range(count) if source[k] is None]
+    blooms, refusals = {}, []
+    for k, run, why in _bloom_all(prep, job, ckpt, own, count):
+        if run is None:
+            log.warning("flower %d could not bloom; it is kept as modelled: %s", k, why)
+            refusals.append(why)
+        else:
+            blooms[k] = run
+    copied = count - len(own)
+    if copied:
+        log.info("%d of %d flowers are copies of others (moved and turned, their petals "
+                 "remeshed alike): each blooms as its original does, moved", copied, count)
+    if not blooms:
+        raise BloomError(refusals[0], where=job.where)
+    runs, held = {}, []
+    for k in range(count):
+        j = k if source[k] is None else source[k][0]
+        if j not in blooms:
+            held.append(k)
+        elif j == k:
+            runs[k] = (blooms[k], idx_of[k])
+        else:
+            runs[k] = (copies.moved(blooms[j], *source[k][1:]), idx_of[k])
+    some = next(iter(runs.values()))[0]
+    times = np.asarray(some.rec.time)
+    frames = len(times)
+    positions = np.repeat(np.asarray(prep.vertices, dtype=np.float64)[None], frames, axis=0)
+    bud = np.array(prep.vertices, dtype=np.float64)
+    per_petal = np.zeros((frames, petals))
+    diag: dict = {}
+    names, pairs, broken = set(), [], []
+    info: dict = {}
+    wall, resumed, resumed_step = 0.0, None, 0
+    stopped = []
+    for run_, idx in runs.values():
+        positions[:, idx] = np.asarray(run_.rec.positions)
+        bud[idx] = run_.bud
+        mine = np.unique(petal[idx])
+        if run_.stopped:
+            stopped.append((run_.stopped[0], int(mine[run_.stopped[1]])))
+        arrays = run_.rec.arrays()
+        if "opening_angle_per_petal" in arrays:
+            per_petal[:, mine] = arrays["opening_angle_per_petal"]
+        for name, values in arrays.items():
+            if name in ("opening_angle", "opening_angle_per_petal"):
+                continue
+            values = np.asarray(values, dtype=np.float64)
+            if name not in diag:
+                diag[name] = values.copy()
+            elif name in _LARGEST:
+                diag[name] = np.maximum(diag[name], values)
+            elif name not in _SAME:
+                diag[name] = diag[name] + values
+        names.update(run_.effects.names)
+        c = run_.effects.connections
+        if c is not None:
+            pairs.append(idx[np.asarray(c.pairs, dtype=np.int64)])
+            broken.append(np.asarray(c.broken_step))
+        for key, value in run_.bud_info.items():
+            info.setdefault(key, []).append(value)
+        wall += run_.wall
+        if run_.resumed is not None:
+            resumed, resumed_step = run_.resumed, max(resumed_step, run_.resumed_step)
+    diag["opening_angle_per_petal"] = per_petal
+    diag["opening_angle"] = per_petal.mean(axis=1)
+    bud_info = {}
+    for key, values in info.items():  # the flowers' figures of their bud searches
+        if isinstance(values[0], str):
+            bud_info[key] = ",".join(sorted(set(values)))
+        elif key in ("bud_seconds", "bud_newton_iterations"):
+            bud_info[key] = sum(values)
+        elif key == "bud_close":
+            bud_info[key] = min(values)
+        elif key == "recurve_share":
+            bud_info[key] = max(values)
+    start_open = job.start.start == "open"
+    distance = None
+    if start_open:
+        model = np.asarray(prep.vertices)
+        bud_info["bud_distance"] = distance_to_model(bud, model, petal, prep.base)
+        distance = distance_to_model(positions[-1], model, petal, prep.base)
+    connections = None
+    if pairs:
+        connections = SimpleNamespace(pairs=np.concatenate(pairs),
+                                      broken_step=np.concatenate(broken))
+    return Result(bud, bud_info, sorted(names, key=lambda n: ORDER.index(n)
+                                         if n in ORDER else len(ORDER)),
+                   connections, times, positions, diag, wall, resumed, resumed_step, distance,
+                   held, stopped)
+
+

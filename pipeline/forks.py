@@ -1,0 +1,53 @@
+"""A pool of forked worker processes (:func:`pool`): petals remeshed side by side, a
+file's flowers bloomed side by side. Forked, not spawned: a spawned worker imports the
+command again (``python -m stages`` would run it again in the worker) and pays the
+imports (seconds). A worker dies with the process that forked it: a run killed outright
+(SIGKILL, a farm's time limit) leaves no worker behind holding its output pipes."""
+
+from __future__ import annotations
+
+import multiprocessing
+import os
+import signal
+
+_PARENT: int | None = None  #: the pid of the process whose pool a worker is in
+
+
+def workers(setting: int) -> int:
+    """How many processes a pool gets: ``setting`` (``remesh.workers``,
+    ``simulate.workers``) if positive, else the CPUs this process may run on, at most 4."""
+    if setting > 0:
+        return int(setting)
+    try:
+        return max(1, min(4, len(os.sched_getaffinity(0))))
+    except AttributeError:  # not Linux
+        return max(1, min(4, os.cpu_count() or 1))
+
+
+def can_fork() -> bool:
+    """Whether this system starts processes by forking (Linux, not Windows)."""
+    return "fork" in multiprocessing.get_all_start_methods()
+
+
+def _die_with_parent(initializer) -> None:
+    try:  # Linux: the kernel kills the worker when its parent goes (prctl PR_SET_PDEATHSIG)
+        import ctypes
+
+        ctypes.CDLL(None, use_errno=True).prctl(1, int(signal.SIGKILL))
+    except (OSError, AttributeError):  # elsewhere, a worker outlives a killed parent
+        pass
+    if os.getppid() != _PARENT:  # the parent went before the prctl above
+        os._exit(1)
+    if initializer is not None:
+        initializer()
+
+
+def pool(workers: int, initializer=None):
+    """A :class:`~concurrent.futures.ProcessPoolExecutor` of ``workers`` forked
+    processes that die with this one, each started by ``initializer()`` if given."""
+    from concurrent.futures import ProcessPoolExecutor
+
+    global _PARENT
+    _PARENT = os.getpid()
+    return ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("fork"),
+                               initializer=_die_with_parent, initargs=(initializer,))
