@@ -54,16 +54,18 @@ def _worker_start() -> None:
 
 
 def _bloom_flower(k: int):
-    """Flower ``k``'s bloom (:func:`~pipeline.chain.problem.problem`), as ``(k, bloom, None, log)``, or ``(k,
-    None, why, log)`` where it is refused; ``log``: a worker's log lines (level,
-    message), else none. Its effects are kept as what the put-together bloom reads of
-    them (their names, the connection springs), so that a worker can send it back."""
+    """In a forked worker: :func:`_bloom_one`, with the log lines (level, message) it
+    wrote, for the parent to write."""
     _Kept.lines = []
     k, run, why = _bloom_one(k)
     return k, run, why, _Kept.lines
 
 
 def _bloom_one(k: int):
+    """Flower ``k``'s bloom (:func:`~pipeline.chain.problem.problem`), as ``(k, bloom,
+    None)``, or ``(k, None, why)`` where it is refused. Its effects are kept as what the
+    put-together bloom reads of them (their names, the connection springs), so that a
+    worker can send it back."""
     prep, job, ckpt = _TASK
     part, idx = prep.flower_part(k)
     log.info("flower %d of %d: %d petal(s), %d vertices", k, int(np.max(prep.flower)) + 1,
@@ -85,9 +87,9 @@ def _bloom_all(prep: Prepared, job: Job, ckpt: Path, own: list, count: int):
     this process, or (``simulate.workers`` > 1, two flowers or more, a system that
     forks) in a pool of forked processes, each flower's problem its own, so the blooms
     are the same bits either way (:mod:`pipeline.forks`). A worker starts with no
-    thread pool (the parent's has no threads in it after the fork). A worker shows no bar and keeps its
-    log: this process writes each flower's log as it comes back, in order, and counts
-    the flowers."""
+    thread pool (the parent's has no threads in it after the fork), shows no bar and
+    keeps its log: this process writes each flower's log as it comes back, in order,
+    and counts the flowers."""
     global _TASK
     many = workers(job.cfg["simulate.workers"])
     forks = can_fork()
@@ -112,10 +114,10 @@ def _bloom_all(prep: Prepared, job: Job, ckpt: Path, own: list, count: int):
 
 
 def flowers_apart(prep: Prepared, job: Job, ckpt: Path) -> Result:
-    """Each flower of a file of many as a problem of its own (:func:`~pipeline.chain.problem.problem`), put
-    together. A flower whose bloom is refused is kept as modelled (its frames the
-    model; its petals opened 0 deg), with a warning naming it and why; the run is
-    refused only if every flower is."""
+    """Each flower of a file of many as a problem of its own
+    (:func:`~pipeline.chain.problem.problem`), put together. A flower whose bloom is
+    refused is kept as modelled (its frames the model; its petals opened 0 deg), with a
+    warning naming it and why; the run is refused only if every flower is."""
     flower = np.asarray(prep.flower)
     count = int(flower.max()) + 1
     petal = np.asarray(prep.petal)

@@ -46,8 +46,9 @@ def run(growth_h5: str | Path, out: str | Path, cfg: Config, *, overwrite: bool 
     ``resume``: continue from the checkpoint an interrupted run of the same inputs and
     config left next to ``out``. ``progress``: a bar (default: when stderr is a
     terminal). A file of many flowers staggered in time blooms flower by flower, each a
-    problem of its own (:func:`pipeline.chain.flowers.flowers_apart`): a flower that cannot bloom is kept as
-    modelled, named in a warning and in the report, and the others bloom."""
+    problem of its own (:func:`pipeline.chain.flowers.flowers_apart`): a flower that
+    cannot bloom is kept as modelled, named in a warning and in the report, and the
+    others bloom."""
     where = str(cfg.path) if cfg.path else "defaults"
     out = artifact.check_output(out, "simulate", overwrite)
     sim = cfg.section("simulate")
