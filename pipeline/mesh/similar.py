@@ -71,8 +71,10 @@ class Copies:
     one mesh structure but different shapes cost a look-up each, not a thousand
     comparisons."""
 
-    #: the width of a bin of the spread's ratios (a copy's are its original's to rounding)
-    BIN = 1e-4
+    #: the width of a bin of the spread's ratios, in tolerances: a copy's points within
+    #: ``tolerance`` of its size move each ratio by at most about 4 tolerances, so a copy
+    #: is in its original's bin or the next
+    BIN = 5.0
 
     def __init__(self, scaled: bool = True, tolerance: float = AS_EXPORTED):
         self.scaled, self.tolerance = scaled, tolerance
@@ -83,7 +85,7 @@ class Copies:
         w = np.linalg.eigvalsh(centred.T @ centred)
         trace = float(w.sum())
         ratios = w[1:] / trace if trace > 0.0 else np.zeros(2)
-        cell = tuple(int(r) for r in np.floor(ratios / self.BIN))
+        cell = tuple(int(r) for r in np.floor(ratios / (self.BIN * self.tolerance)))
         structure = (len(points), len(faces), hash(np.ascontiguousarray(faces).tobytes()))
         return structure, cell
 
