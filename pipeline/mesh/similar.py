@@ -65,48 +65,78 @@ def similarity(a: np.ndarray, b: np.ndarray, scaled: bool = True,
 class Copies:
     """The point sets seen so far, to find which one a new set is a copy of
     (:func:`similarity`: moved, turned and, if ``scaled``, scaled; its points in the same
-    order, its faces the same array). Sets are indexed by their faces and by the shape of
-    their spread (the ratios of their covariance's eigenvalues to its trace: a copy has the
-    same), so a new set is compared only with the few of its shape: a thousand blossoms of
-    one mesh structure but different shapes cost a look-up each, not a thousand
-    comparisons."""
+    order, its faces the same array). Sets are indexed by their faces and by five numbers
+    a copy shares with its original (:meth:`_features`), so a new set is compared only
+    with the few of nearly its shape: a thousand blossoms of one mesh structure but
+    different shapes cost a look-up each, not a thousand comparisons."""
 
-    #: the width of a bin of the spread's ratios, in tolerances: a copy's points within
-    #: ``tolerance`` of its size move each ratio by at most about 4 tolerances, so a copy
-    #: is in its original's bin or the next
-    BIN = 5.0
+    #: the width of an index cell, in tolerances: a copy whose points lie within
+    #: ``tolerance`` of its size from its original's moves each feature by at most about
+    #: 8 tolerances (a radius over the RMS radius, on a petal 3.5 times as long as that),
+    #: under half a cell, so its original is in its cell or the next on its nearer side
+    CELL = 20.0
 
     def __init__(self, scaled: bool = True, tolerance: float = AS_EXPORTED):
         self.scaled, self.tolerance = scaled, tolerance
         self.bins: dict = {}
 
-    def _keys(self, points: np.ndarray, faces: np.ndarray):
+    @staticmethod
+    def _radii(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """What a moved, turned and scaled copy (its points in the same order) shares with
+        its original: the two larger eigenvalues of its spread over their sum, and every
+        vertex's distance from the centroid over the RMS distance."""
         centred = points - points.mean(axis=0)
         w = np.linalg.eigvalsh(centred.T @ centred)
         trace = float(w.sum())
-        ratios = w[1:] / trace if trace > 0.0 else np.zeros(2)
-        cell = tuple(int(r) for r in np.floor(ratios / (self.BIN * self.tolerance)))
+        if trace <= 0.0:
+            return np.zeros(2), np.zeros(len(points))
+        return w[1:] / trace, np.linalg.norm(centred, axis=1) / np.sqrt(trace / len(points))
+
+    @classmethod
+    def _features(cls, points: np.ndarray) -> np.ndarray:
+        """Five of those numbers: the two ratios, and the radii of three vertices (the
+        first, one at a third, one at two thirds)."""
+        ratios, radii = cls._radii(points)
+        n = len(points)
+        return np.r_[ratios, radii[[0, n // 3, (2 * n) // 3]]]
+
+    def _cells(self, points: np.ndarray, faces: np.ndarray, near: bool):
+        """The index keys of ``points``: its own cell, or (``near``) that and every cell
+        one over on a feature's nearer side (32 in all)."""
         structure = (len(points), len(faces), hash(np.ascontiguousarray(faces).tobytes()))
-        return structure, cell
+        scaled = self._features(points) / (self.CELL * self.tolerance)
+        own = np.floor(scaled).astype(np.int64)
+        if not near:
+            return [(structure, tuple(own.tolist()))]
+        side = np.where(scaled - own < 0.5, -1, 1)
+        keys = []
+        for corner in range(1 << len(own)):
+            step = np.array([(corner >> i) & 1 for i in range(len(own))]) * side
+            keys.append((structure, tuple((own + step).tolist())))
+        return keys
 
     def find(self, points, faces, accept=None):
         """``(payload, s, R, t)`` of a set added before that ``points`` (with ``faces``)
         is a copy of (``points = s original R^T + t``), or None. ``accept(payload, R)``,
         if given, must also agree (a petal's base at the same end)."""
         points = np.asarray(points, dtype=np.float64)
-        structure, (a, b) = self._keys(points, faces)
-        for da in (-1, 0, 1):
-            for db in (-1, 0, 1):
-                for original, its_faces, payload in self.bins.get((structure, (a + da, b + db)), ()):
-                    if not np.array_equal(its_faces, faces):
-                        continue
-                    found = similarity(original, points, self.scaled, self.tolerance)
-                    if found is not None and (accept is None or accept(payload, found[1])):
-                        return (payload, *found)
+        if not self.bins:
+            return None
+        radii = self._radii(points)[1]
+        for key in self._cells(points, faces, near=True):
+            for original, its_faces, its_radii, payload in self.bins.get(key, ()):
+                # (every radius within half a cell first: one pass, where the fit is an SVD)
+                if (np.abs(its_radii - radii).max() > 0.5 * self.CELL * self.tolerance
+                        or not np.array_equal(its_faces, faces)):
+                    continue
+                found = similarity(original, points, self.scaled, self.tolerance)
+                if found is not None and (accept is None or accept(payload, found[1])):
+                    return (payload, *found)
         return None
 
     def add(self, points, faces, payload) -> None:
         """Remember ``points`` (with ``faces``) as an original, named by ``payload``."""
         points = np.asarray(points, dtype=np.float64)
-        structure, cell = self._keys(points, faces)
-        self.bins.setdefault((structure, cell), []).append((points, np.asarray(faces), payload))
+        key = self._cells(points, faces, near=False)[0]
+        self.bins.setdefault(key, []).append((points, np.asarray(faces), self._radii(points)[1],
+                                              payload))
