@@ -252,12 +252,12 @@ def test_copies_are_found_among_many_shapes_of_one_mesh():
     shapes = [pts * [1.0, 1.0 + 0.02 * k, 1.0 - 0.01 * k] for k in range(40)]
     rot = _rotation(np.array([0.2, 0.7, 1.0]))
     copies = [2.0 * shapes[k] @ rot.T + rng.normal(size=3) for k in (39, 0, 25)]
-    # as Blender's OBJ exporter writes a 4 mm petal a metre out: 6 decimals of a metre
-    copies.append(np.round(0.004 * shapes[7] @ rot.T + [1.5, 0.3, 2.0], 6))
+    # as Blender's OBJ exporter writes a 1 cm petal a metre out: 6 decimals of a metre
+    copies.append(np.round(0.01 * shapes[7] @ rot.T + [1.5, 0.3, 2.0], 6))
     found = _copies(shapes + copies, [lf] * 44, scaled=True)
     assert all(found[k] is None for k in range(40))
     assert [found[40 + i][0] for i in range(4)] == [39, 0, 25, 7]
-    assert [found[40 + i][1] for i in range(4)] == pytest.approx([2.0, 2.0, 2.0, 0.004], rel=1e-4)
+    assert [found[40 + i][1] for i in range(4)] == pytest.approx([2.0, 2.0, 2.0, 0.01], rel=1e-4)
 
 
 def test_a_copied_petal_takes_its_originals_axis_moved():
