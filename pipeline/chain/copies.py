@@ -6,12 +6,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from pipeline.mesh.similar import AS_EXPORTED, Copies
+from pipeline.mesh.similar import AS_EXPORTED, TOLERANCE, Copies
 from pipeline.sim.run import Recording
 
 #: a copied flower's s, x and growth ratios are its original's to within this (bloom
 #: axis gives a copied petal its original's, so they are equal)
-COPY = 1e-6
+COPY = TOLERANCE
 
 
 def seen() -> Copies:

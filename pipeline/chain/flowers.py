@@ -28,8 +28,9 @@ log = logging.getLogger("bloom")
 _SAME = ("growth", "curl_factor")
 _LARGEST = ("max_speed", "center_plane_drift", "stable_step")
 
-#: what a forked worker blooms from, inherited from the parent (not sent): the file's
-#: :class:`Prepared`, the :class:`Job` and the checkpoint path
+#: what a forked worker blooms from, inherited from the parent (not sent): each flower's
+#: problem and vertices (:meth:`~pipeline.sim.build.Prepared.flower_part`), the
+#: :class:`Job` and the checkpoint path
 _TASK: tuple | None = None
 
 
@@ -66,10 +67,10 @@ def _bloom_one(k: int):
     None)``, or ``(k, None, why)`` where it is refused. Its effects are kept as what the
     put-together bloom reads of them (their names, the connection springs), so that a
     worker can send it back."""
-    prep, job, ckpt = _TASK
-    part, idx = prep.flower_part(k)
-    log.info("flower %d of %d: %d petal(s), %d vertices", k, int(np.max(prep.flower)) + 1,
-             len(part.tip), len(idx))
+    parts, job, ckpt = _TASK
+    part, idx = parts[k]
+    log.info("flower %d of %d: %d petal(s), %d vertices", k, len(parts), len(part.tip),
+             len(idx))
     try:
         run = problem.problem(part, job, ckpt.with_name(f"{ckpt.name}-flower{k}"),
                               label=f"flower {k}")
@@ -82,7 +83,7 @@ def _bloom_one(k: int):
     return k, dataclasses.replace(run, effects=kept), None
 
 
-def _bloom_all(prep: Prepared, job: Job, ckpt: Path, own: list, count: int):
+def _bloom_all(parts: list, job: Job, ckpt: Path, own: list):
     """``(k, bloom or None, why refused or None)`` of each flower of ``own``, in order: in
     this process, or (``simulate.workers`` > 1, two flowers or more, a system that
     forks) in a pool of forked processes, each flower's problem its own, so the blooms
@@ -93,7 +94,7 @@ def _bloom_all(prep: Prepared, job: Job, ckpt: Path, own: list, count: int):
     global _TASK
     many = workers(job.cfg["simulate.workers"])
     forks = can_fork()
-    _TASK = (prep, job if many <= 1 or len(own) < 2 or not forks
+    _TASK = (parts, job if many <= 1 or len(own) < 2 or not forks
              else dataclasses.replace(job, progress=False), ckpt)
     try:
         if many <= 1 or len(own) < 2 or not forks:
@@ -101,7 +102,7 @@ def _bloom_all(prep: Prepared, job: Job, ckpt: Path, own: list, count: int):
                 yield _bloom_one(k)
             return
         log.info("%d of %d flowers to bloom, %d side by side (simulate.workers)", len(own),
-                 count, min(many, len(own)))
+                 len(parts), min(many, len(own)))
         with (pool(min(many, len(own)), initializer=_worker_start) as workers_,
               Progress(len(own), "simulate flowers", job.progress) as bar):
             for k, run, why, lines in workers_.map(_bloom_flower, own, chunksize=1):
@@ -123,13 +124,11 @@ def flowers_apart(prep: Prepared, job: Job, ckpt: Path) -> Result:
     petal = np.asarray(prep.petal)
     petals = len(prep.tip)
     shapes = copies.seen()  # (flowers that are copies of another bloom as it does, moved)
-    source, idx_of = {}, {}
-    for k in range(count):
-        part, idx_of[k] = prep.flower_part(k)
-        source[k] = copies.copy_of(k, part, shapes)
+    parts = [prep.flower_part(k) for k in range(count)]  # (part, its vertices here)
+    source = {k: copies.copy_of(k, part, shapes) for k, (part, _) in enumerate(parts)}
     own = [k for k in range(count) if source[k] is None]
     blooms, refusals = {}, []
-    for k, run, why in _bloom_all(prep, job, ckpt, own, count):
+    for k, run, why in _bloom_all(parts, job, ckpt, own):
         if run is None:
             log.warning("flower %d could not bloom; it is kept as modelled: %s", k, why)
             refusals.append(why)
@@ -147,9 +146,9 @@ def flowers_apart(prep: Prepared, job: Job, ckpt: Path) -> Result:
         if j not in blooms:
             held.append(k)
         elif j == k:
-            runs[k] = (blooms[k], idx_of[k])
+            runs[k] = (blooms[k], parts[k][1])
         else:
-            runs[k] = (copies.moved(blooms[j], *source[k][1:]), idx_of[k])
+            runs[k] = (copies.moved(blooms[j], *source[k][1:]), parts[k][1])
     some = next(iter(runs.values()))[0]
     times = np.asarray(some.rec.time)
     frames = len(times)

@@ -189,7 +189,6 @@ def _each_petal(tasks: list, workers: int):
         yield from pool.map(_one_task, tasks, chunksize=1)
 
 
-
 def _copies(points: list, faces: list, scaled: bool) -> list:
     """For each sheet: None if it is remeshed itself, else ``(k, s, R, t)``: it is sheet
     ``k`` (an earlier one, remeshed itself) times ``s``, turned by ``R`` and moved by
