@@ -530,17 +530,9 @@ def test_a_flower_that_cannot_bloom_is_kept_as_modelled_and_named(tmp_path, monk
     assert not (tmp_path / "t.h5").exists()
 
 
-def test_a_flower_that_is_a_copy_of_another_blooms_as_it_does_moved(tmp_path):
-    """Instanced blossoms: the third flower is the first one turned and moved (its petals
-    remeshed alike, as remesh does a copy). It is not simulated again: its frames are the
-    first flower's turned and moved, to rounding, and its own problem run alone blooms
-    the same to a millionth of the petal length (the problem is the same, turned)."""
-    from pipeline.chain import problem
-    from pipeline.config import load_config
-    from pipeline.flower.measure import Start
-    from pipeline.mesh.similar import similarity
-    from pipeline.sim.build import Prepared
-
+def _copied_bush(tmp_path):
+    """Three open lilies, the third the first turned and moved: its growth.h5 (remesh,
+    axis and growth run), and ``(vertices, faces, petal, turn, move)``."""
     v, f, petal, _ = bush(petals=5, vertices=600)
     first = np.flatnonzero(petal < 5)
     second = np.flatnonzero((petal >= 5) & (petal < 10))
@@ -558,6 +550,21 @@ def test_a_flower_that_is_a_copy_of_another_blooms_as_it_does_moved(tmp_path):
                             ("growth", paths["a"], "g")):
         r = CliRunner().invoke(cli, ["-q", stage, str(src), "--out", str(paths[out])])
         assert r.exit_code == 0, r.output
+    return paths, (v, f, petal, turn, move)
+
+
+def test_a_flower_that_is_a_copy_of_another_blooms_as_it_does_moved(tmp_path):
+    """Instanced blossoms: the third flower is the first one turned and moved (its petals
+    remeshed alike, as remesh does a copy). It is not simulated again: its frames are the
+    first flower's turned and moved, to rounding, and its own problem run alone blooms
+    the same to a millionth of the petal length (the problem is the same, turned)."""
+    from pipeline.chain import problem
+    from pipeline.config import load_config
+    from pipeline.flower.measure import Start
+    from pipeline.mesh.similar import similarity
+    from pipeline.sim.build import Prepared
+
+    paths, (v, f, petal, turn, move) = _copied_bush(tmp_path)
     r = CliRunner().invoke(cli, ["simulate", str(paths["g"]), "--out", str(paths["s"]), *SHORT])
     assert r.exit_code == 0, r.output
     assert "1 of 3 flowers are copies of others" in r.output
@@ -578,3 +585,39 @@ def test_a_flower_that_is_a_copy_of_another_blooms_as_it_does_moved(tmp_path):
     assert np.abs(X[:, idx2] - moved).max() < 1e-9 * size
     assert np.abs(alone - X[:, idx2]).max() < 1e-6 * size
     assert np.abs(X[-1, idx2] - X[0, idx2]).max() > 0.05 * size  # (it bloomed)
+
+
+def test_a_copy_that_would_pass_through_a_neighbour_blooms_on_its_own(tmp_path, monkeypatch):
+    """A copy's original has other neighbours than the copy: when the original's bloom,
+    moved, passes through a neighbour of the copy, the copy blooms on its own and keeps
+    the bloom that crosses less. Here the moved bloom is pushed into the second flower
+    (as rounding can send a copy's path another way); the copy's own bloom is clear of
+    it, so it is kept: flower 2's frames are its own problem's, and no frame the user
+    sees (staggered) has a crossing."""
+    from pipeline.chain import copies, problem
+    from pipeline.config import load_config
+    from pipeline.flower.measure import Start
+    from pipeline.sim.build import Prepared
+
+    paths, (v, f, petal, turn, move) = _copied_bush(tmp_path)
+    with h5py.File(paths["g"]) as src:
+        prep = Prepared.from_artifact(src)
+        _, idx1 = prep.flower_part(1)
+        part2, idx2 = prep.flower_part(2)
+        into = 0.8 * (np.asarray(prep.vertices)[idx1].mean(axis=0)
+                      - np.asarray(prep.vertices)[idx2].mean(axis=0))
+    original = copies.moved
+    monkeypatch.setattr(copies, "moved", lambda run, rot, t: original(run, rot, t + into))
+    r = CliRunner().invoke(cli, ["simulate", str(paths["g"]), "--out", str(paths["s"]), *SHORT])
+    assert r.exit_code == 0, r.output
+    assert "1 copied flower(s) pass through a neighbour when moved (flower 2 in" in r.output
+    assert "flower 2 blooms on its own: it crosses a neighbour in 0 frame(s)" in r.output
+    with h5py.File(paths["s"]) as h:
+        X = h["frames/positions"][()]
+        assert not h["diagnostics/intersecting"][()].any()
+        assert h.attrs["summary"].startswith("sound"), h.attrs["summary"]
+    cfg = load_config(None, [s for s in SHORT if s != "--set"])
+    job = problem.Job(cfg, Start("bud", float("nan"), "test"), [], {}, False, False, "test")
+    alone = np.asarray(problem.problem(part2, job, tmp_path / "alone.ckpt").rec.positions)
+    size = float(np.ptp(X[0, idx2], axis=0).max())
+    assert np.abs(alone - X[:, idx2]).max() < 1e-9 * size

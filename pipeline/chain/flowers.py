@@ -15,11 +15,13 @@ import numpy as np
 from pipeline.chain import copies, problem
 from pipeline.chain.problem import Job, Result
 from pipeline.errors import BloomError
+from pipeline.flower import stagger
 from pipeline.forks import can_fork, pool, workers
 from pipeline.progress import Progress
 from pipeline.sim.build import Prepared
 from pipeline.sim.effects import ORDER
 from pipeline.sim.reverse import distance_to_model
+from pipeline.sim.terms.contact import crossings_between
 
 log = logging.getLogger("bloom")
 
@@ -114,11 +116,75 @@ def _bloom_all(parts: list, job: Job, ckpt: Path, own: list):
         _TASK = None
 
 
-def flowers_apart(prep: Prepared, job: Job, ckpt: Path) -> Result:
+def _crossings(k: int, positions, parts: list, prep: Prepared, starts, boxes) -> int:
+    """How many frames the user sees (staggered by ``starts``) flower ``k`` passes through
+    a flower whose box (over the whole bloom, ``boxes (flowers, 2, 3)``) meets its own:
+    on those flowers' vertices only."""
+    lo, hi = boxes[:, 0], boxes[:, 1]
+    near = np.flatnonzero(np.all((lo <= hi[k]) & (hi >= lo[k]), axis=1))
+    near = near[near != k]
+    if not len(near):
+        return 0
+    group = [k, *near.tolist()]
+    sub = np.concatenate([parts[j][1] for j in group])
+    local = np.repeat(np.arange(len(group)), [len(parts[j][1]) for j in group])
+    new = np.full(len(prep.vertices), -1, dtype=np.int64)
+    new[sub] = np.arange(len(sub))
+    faces = np.asarray(prep.faces, dtype=np.int64)
+    faces = new[faces[np.all(new[faces] >= 0, axis=1)]]
+    seen = positions[:, sub]
+    if starts is not None:
+        seen = stagger.staggered(seen, local, np.asarray(starts)[group])
+    return int(np.sum(crossings_between(seen, faces, local != 0)))
+
+
+def _own_where_copies_cross(runs: dict, source: dict, parts: list, prep: Prepared, job: Job,
+                            ckpt: Path, positions, starts) -> None:
+    """A copy blooms as its original does, moved; but the original's neighbours are not
+    its own. Each copy whose moved bloom passes through a neighbouring flower, in a frame
+    the user sees, blooms on its own as well (rounding can pick another branch of its
+    path), and keeps the bloom that crosses in fewer frames: ``runs`` and ``positions``
+    updated in place, the choice logged."""
+    copied = sorted(k for k in runs if source[k] is not None)
+    if not copied:
+        return
+    boxes = np.stack([np.stack([positions[:, idx].min(axis=(0, 1)),
+                                positions[:, idx].max(axis=(0, 1))]) for _, idx in parts])
+    crossing = {k: n for k in copied
+                if (n := _crossings(k, positions, parts, prep, starts, boxes))}
+    if not crossing:
+        return
+    log.info("%d copied flower(s) pass through a neighbour when moved (%s): each blooms on "
+             "its own", len(crossing), ", ".join(f"flower {k} in {n} frame(s)"
+                                                  for k, n in crossing.items()))
+    for k, run, why in _bloom_all(parts, job, ckpt, list(crossing)):
+        idx = parts[k][1]
+        if run is None:
+            log.info("flower %d: its own bloom is refused (%s); it blooms as flower %d, "
+                     "moved", k, why, source[k][0])
+            continue
+        kept = positions[:, idx].copy()
+        positions[:, idx] = np.asarray(run.rec.positions)
+        own = _crossings(k, positions, parts, prep, starts, boxes)
+        if own < crossing[k]:
+            runs[k] = (run, idx)
+            log.info("flower %d blooms on its own: it crosses a neighbour in %d frame(s), "
+                     "%d as a copy", k, own, crossing[k])
+        else:
+            positions[:, idx] = kept
+            log.info("flower %d blooms as flower %d, moved: on its own it crosses a "
+                     "neighbour in %d frame(s), %d as a copy", k, source[k][0], own,
+                     crossing[k])
+
+
+def flowers_apart(prep: Prepared, job: Job, ckpt: Path, starts=None) -> Result:
     """Each flower of a file of many as a problem of its own
     (:func:`~pipeline.chain.problem.problem`), put together. A flower whose bloom is
     refused is kept as modelled (its frames the model; its petals opened 0 deg), with a
-    warning naming it and why; the run is refused only if every flower is."""
+    warning naming it and why; the run is refused only if every flower is. A copy of
+    another flower blooms as it does, moved, unless that passes through a neighbour in a
+    frame the user sees (staggered by ``starts``): then it blooms on its own
+    (:func:`_own_where_copies_cross`)."""
     flower = np.asarray(prep.flower)
     count = int(flower.max()) + 1
     petal = np.asarray(prep.petal)
@@ -153,6 +219,9 @@ def flowers_apart(prep: Prepared, job: Job, ckpt: Path) -> Result:
     times = np.asarray(some.rec.time)
     frames = len(times)
     positions = np.repeat(np.asarray(prep.vertices, dtype=np.float64)[None], frames, axis=0)
+    for run_, idx in runs.values():
+        positions[:, idx] = np.asarray(run_.rec.positions)
+    _own_where_copies_cross(runs, source, parts, prep, job, ckpt, positions, starts)
     bud = np.array(prep.vertices, dtype=np.float64)
     per_petal = np.zeros((frames, petals))
     diag: dict = {}
@@ -161,7 +230,6 @@ def flowers_apart(prep: Prepared, job: Job, ckpt: Path) -> Result:
     wall, resumed, resumed_step = 0.0, None, 0
     stopped = []
     for run_, idx in runs.values():
-        positions[:, idx] = np.asarray(run_.rec.positions)
         bud[idx] = run_.bud
         mine = np.unique(petal[idx])
         if run_.stopped:

@@ -64,7 +64,7 @@ def run(growth_h5: str | Path, out: str | Path, cfg: Config, *, overwrite: bool 
         model_positions = np.asarray(v) if start.start == "open" else None
         job = problem.Job(cfg, start, names, inputs, resume, progress, where)
         result = (problem.Result.of(problem.problem(prep, job, ckpt)) if prep.flower is None
-                  else flowers.flowers_apart(prep, job, ckpt))
+                  else flowers.flowers_apart(prep, job, ckpt, starts))
         v, positions, diag = result.bud, np.asarray(result.positions), result.diag
         bud_info, resumed, resumed_step, wall = (result.bud_info, result.resumed,
                                                  result.resumed_step, result.wall)
