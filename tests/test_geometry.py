@@ -192,3 +192,41 @@ def test_sharp_ears_on_the_rim_are_dropped_in_mirror_pairs():
     assert dropped == 4 and len(f2) == sheet + 1 and len(v2) == 26
     assert np.all(triangle_angles(v2, f2).min(axis=1) > 10.0)
     assert np.array_equal(v2, np.vstack([v[:25], v[29:]]))  # (both of each pair gone)
+
+
+def test_compiled_edges_and_components_are_numpys_and_scipys():
+    """The compiled edge list and component labels are, array for array, what
+    np.unique of the edges' codes and scipy's connected components (relabelled by
+    first vertex) give, on meshes with non-manifold edges, stray vertices and edges as
+    cells."""
+    import scipy.sparse as sp
+    from scipy.sparse.csgraph import connected_components
+
+    def by_numpy(f):
+        key = np.sort(topology.half_edges(f)[0], axis=1)
+        n = int(key.max()) + 1
+        u, inverse, count = np.unique(key[:, 0] * n + key[:, 1], return_inverse=True,
+                                      return_counts=True)
+        return np.stack([u // n, u % n], axis=1), inverse.reshape(-1), count
+
+    def by_scipy(cells, vertex_count):
+        m = cells.shape[1]
+        rows = np.concatenate([cells[:, k] for k in range(m)])
+        cols = np.concatenate([cells[:, (k + 1) % m] for k in range(m)])
+        graph = sp.coo_matrix((np.ones(rows.size), (rows, cols)),
+                              shape=(vertex_count, vertex_count))
+        _, labels = connected_components(graph, directed=False)
+        _, first = np.unique(labels, return_index=True)
+        rank = np.empty_like(first)
+        rank[np.argsort(first)] = np.arange(first.size)
+        return rank[labels]
+
+    rng = np.random.default_rng(5)
+    for _ in range(100):
+        n = int(rng.integers(3, 60))
+        f = rng.integers(0, n, (int(rng.integers(1, 90)), 3))
+        for got, want in zip(topology.unique_edges(f), by_numpy(f), strict=True):
+            np.testing.assert_array_equal(got, want)
+        np.testing.assert_array_equal(topology.components(f, n + 3), by_scipy(f, n + 3))
+        e = f[:, :2]
+        np.testing.assert_array_equal(topology.components(e, n), by_scipy(e, n))

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 import scipy.sparse as sp
-from scipy.sparse.csgraph import connected_components
+from numba import njit
 
 
 def half_edges(faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -31,14 +31,44 @@ def unique_edges(faces: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]
     each edge (1 on the boundary, 2 inside, more where the mesh is non-manifold).
     """
     he, _ = half_edges(faces)
-    key = np.sort(he, axis=1)
-    # one int64 per edge (i n + j sorts as (i, j) does): np.unique on rows sorts a
-    # structured view, several times slower on 100,000 faces
-    n = int(key.max()) + 1 if key.size else 1
-    code = key[:, 0] * n + key[:, 1]
-    uniq, he_edge, count = np.unique(code, return_inverse=True, return_counts=True)
-    edges = np.stack([uniq // n, uniq % n], axis=1)
-    return edges, he_edge.reshape(-1), count
+    if not len(he):
+        return np.zeros((0, 2), dtype=np.int64), np.zeros(0, dtype=np.int64), np.zeros(
+            0, dtype=np.int64)
+    # (compiled: a petal's remesh asks this for every change it tries, tens of thousands
+    # of times on a branch of blossoms)
+    return _unique_edges(np.ascontiguousarray(he))
+
+
+@njit(cache=True)
+def _unique_edges(he):
+    """:func:`unique_edges` of the half-edges ``he (3F, 2)``: each edge as one int64,
+    ``i n + j`` (sorts as ``(i, j)`` does), sorted stably; the same arrays as
+    ``np.unique(code, return_inverse=True, return_counts=True)``."""
+    m = he.shape[0]
+    n = 0
+    for k in range(m):
+        n = max(n, he[k, 0] + 1, he[k, 1] + 1)
+    code = np.empty(m, dtype=np.int64)
+    for k in range(m):
+        i, j = he[k, 0], he[k, 1]
+        code[k] = min(i, j) * n + max(i, j)
+    order = np.argsort(code, kind="mergesort")
+    he_edge = np.empty(m, dtype=np.int64)
+    uniq = np.empty(m, dtype=np.int64)
+    count = np.zeros(m, dtype=np.int64)
+    e = -1
+    for r in range(m):
+        c = code[order[r]]
+        if e < 0 or c != uniq[e]:
+            e += 1
+            uniq[e] = c
+        he_edge[order[r]] = e
+        count[e] += 1
+    edges = np.empty((e + 1, 2), dtype=np.int64)
+    for k in range(e + 1):
+        edges[k, 0] = uniq[k] // n
+        edges[k, 1] = uniq[k] % n
+    return edges, he_edge, count[:e + 1].copy()
 
 
 def boundary_vertices(faces: np.ndarray, vertex_count: int) -> np.ndarray:
@@ -90,17 +120,39 @@ def hinges(faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 def components(faces: np.ndarray, vertex_count: int) -> np.ndarray:
     """``(V,) int``: connected-component label of every vertex, numbered by first vertex.
     ``faces`` ``(k, m)``: triangles, or any cells of ``m`` vertices (edges: ``m = 2``)."""
-    f = np.asarray(faces, dtype=np.int64)
-    m = f.shape[1]
-    rows = np.concatenate([f[:, k] for k in range(m)])
-    cols = np.concatenate([f[:, (k + 1) % m] for k in range(m)])
-    graph = sp.coo_matrix((np.ones(rows.size), (rows, cols)), shape=(vertex_count, vertex_count))
-    _, labels = connected_components(graph, directed=False)
-    # relabel in order of each component's first vertex, so labels do not depend on scipy
-    _, first = np.unique(labels, return_index=True)
-    rank = np.empty_like(first)
-    rank[np.argsort(first)] = np.arange(first.size)
-    return rank[labels]
+    f = np.ascontiguousarray(faces, dtype=np.int64).reshape(len(faces), -1)
+    return _components(f, int(vertex_count))
+
+
+@njit(cache=True)
+def _components(f, vertex_count):
+    """:func:`components` (compiled: asked for every petal, and again as each is
+    remeshed): union-find over the cells, then each label the rank of its component's
+    first vertex."""
+    root = np.arange(vertex_count)
+    for r in range(f.shape[0]):
+        for k in range(f.shape[1]):
+            a, b = f[r, k], f[r, (k + 1) % f.shape[1]]
+            while root[a] != a:
+                root[a] = root[root[a]]
+                a = root[a]
+            while root[b] != b:
+                root[b] = root[root[b]]
+                b = root[b]
+            if a != b:
+                root[max(a, b)] = min(a, b)
+    label = np.empty(vertex_count, dtype=np.int64)
+    rank = np.full(vertex_count, -1, dtype=np.int64)
+    count = 0
+    for i in range(vertex_count):
+        a = i
+        while root[a] != a:
+            a = root[a]
+        if rank[a] < 0:
+            rank[a] = count
+            count += 1
+        label[i] = rank[a]
+    return label
 
 
 def edge_graph(vertices: np.ndarray, edges: np.ndarray) -> sp.csr_matrix:
