@@ -94,7 +94,9 @@ SCHEMA: dict[str, Any] = {
                        "(each flower holds its bud, then blooms as the run does, then holds; "
                        "the render and the export run that many frames longer). Staggered "
                        "flowers bloom as problems apart (contact among each flower's own "
-                       "petals); 0: all together, one problem, contact between flowers too. "
+                       "petals; flowers that would pass through each other bloom together, "
+                       "and start together); 0: all together, one problem, contact between "
+                       "flowers too. "
                        "auto: a quarter of simulate.frames for a file of many flowers",
                        low=0, auto=True),
         "stagger_seed": Key(int, 0, "seed of the flowers' start frames within scene.stagger "

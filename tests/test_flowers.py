@@ -621,3 +621,93 @@ def test_a_copy_that_would_pass_through_a_neighbour_blooms_on_its_own(tmp_path, 
     alone = np.asarray(problem.problem(part2, job, tmp_path / "alone.ckpt").rec.positions)
     size = float(np.ptp(X[0, idx2], axis=0).max())
     assert np.abs(alone - X[:, idx2]).max() < 1e-9 * size
+
+
+def test_flowers_that_cross_blooming_apart_bloom_together(tmp_path, monkeypatch):
+    """Staggered flowers bloom apart, each at its own stage of growth: where two pass
+    through each other in a frame the user sees, they bloom together, as one problem
+    with contact between them, each petal opening about its own flower's axis, and
+    start together. Here flower 1's bloom apart is pushed into flower 0 mid-bloom (as
+    a path swinging wide would); together they are clear of each other. Their frames are
+    those of their problem together, to the bit; sim.h5 names the problem of each
+    flower, and the export staggers the two as one."""
+    import dataclasses
+
+    from pipeline.chain import problem
+    from pipeline.config import load_config
+    from pipeline.flower import stagger
+    from pipeline.flower.measure import Start
+    from pipeline.sim.build import Prepared
+    from pipeline.sim.run import Recording
+
+    growth = _bush_growth(tmp_path)
+    with h5py.File(growth) as src:
+        prep = Prepared.from_artifact(src)
+        both, idx = prep.flowers_part([0, 1])
+        v = np.asarray(prep.vertices)
+        flower = np.asarray(prep.flower)
+        into = 0.6 * (v[flower == 0].mean(axis=0) - v[flower == 1].mean(axis=0))
+        axes = np.asarray(src["flower/axis"])
+    # each petal's flower's axis: the two lilies lean their own ways
+    np.testing.assert_array_equal(both.flower_axis, axes[[0] * 5 + [1] * 5])
+    assert np.degrees(np.arccos(np.clip(axes[0, 3:] @ axes[1, 3:], -1, 1))) > 5.0
+    original = problem.problem
+
+    def pushed(part, job, ckpt, label=""):
+        run = original(part, job, ckpt, label)
+        if label != "flower 1":
+            return run
+        frames = [np.asarray(X) + (into if 0 < i < len(run.rec.positions) - 1 else 0.0)
+                  for i, X in enumerate(run.rec.positions)]
+        return dataclasses.replace(run, rec=Recording(list(run.rec.time), frames,
+                                                      run.rec.diagnostics))
+
+    monkeypatch.setattr(problem, "problem", pushed)
+    short = [s.replace("collisions.enabled=false", "collisions.enabled=true")
+             .replace("scene.stagger=2", "scene.stagger=4") for s in SHORT]  # (starts 2, 1, 0)
+    out = tmp_path / "s.h5"
+    r = CliRunner().invoke(cli, ["simulate", str(growth), "--out", str(out), *short])
+    assert r.exit_code == 0, r.output
+    assert "flowers 0, 1 pass through each other in" in r.output
+    assert "flowers 0, 1 bloom together: the flowers cross in 0 frame(s)" in r.output
+    with h5py.File(out) as h:
+        X = h["frames/positions"][()]
+        assert h["flower/together"][()].tolist() == [0, 0, 2]
+        assert not h["diagnostics/intersecting"][()].any()
+        assert h.attrs["summary"].startswith("sound"), h.attrs["summary"]
+        cfg = load_config(None, [s for s in short if s != "--set"])
+        starts = stagger.of_run(h, cfg)
+    assert starts.tolist() == [1, 1, 0]  # (2, 1, 0 apart)
+    job = problem.Job(cfg, Start("bud", float("nan"), "test"), ["collisions"], {}, False,
+                      False, "test")
+    together = np.asarray(original(both, job, tmp_path / "both.ckpt").rec.positions)
+    np.testing.assert_array_equal(X[:, idx], together)
+
+
+def test_each_petals_axis_is_the_flowers_axis_where_all_are_one():
+    """A part of several flowers carries each petal's flower's axis ``(P, 6)``: where
+    every row is the one flower's axis, the opening frames, the inner sides, the
+    closing lift and the petals' layers are those of the flower's axis ``(6,)``."""
+    from pipeline.flower.measure import PetalFrames
+    from pipeline.sim.budshape import inner_sides
+    from pipeline.sim.effects import flower_axis_or_guess, petal_layers
+    from pipeline.sim.reverse import closing_lift
+
+    v, f, petal, _ = bush(petals=5, vertices=600)
+    first = petal < 5
+    v, petal = v[first], petal[first]
+    f = f[np.all(first[f], axis=1)]
+    axes = find_axes(v, f, petal)
+    one = np.asarray(axes.flower_axis)
+    each = np.tile(one, (5, 1))
+    a = PetalFrames.from_mesh(v, petal, axes.base, axes.on_axis, axes.tip, axes.plane, one)
+    b = PetalFrames.from_mesh(v, petal, axes.base, axes.on_axis, axes.tip, axes.plane, each)
+    np.testing.assert_array_equal(a.outward_dirs, b.outward_dirs)
+    np.testing.assert_array_equal(inner_sides(v, f, petal, axes.s, one),
+                                  inner_sides(v, f, petal, axes.s, each))
+    (p1, up1), (p5, up5) = flower_axis_or_guess(v, one), flower_axis_or_guess(v, each)
+    np.testing.assert_allclose(closing_lift(v, axes.s, axes.x, axes.base, up1, 0.3),
+                               closing_lift(v, axes.s, axes.x, axes.base, up5[petal], 0.3),
+                               rtol=1e-15, atol=0)
+    np.testing.assert_allclose(petal_layers(v, petal, p1, up1), petal_layers(v, petal, p5, up5),
+                               rtol=1e-12)

@@ -18,6 +18,7 @@ from pipeline.errors import BloomError
 from pipeline.flower import stagger
 from pipeline.forks import can_fork, pool, workers
 from pipeline.progress import Progress
+from pipeline.review import report
 from pipeline.sim.build import Prepared
 from pipeline.sim.effects import ORDER
 from pipeline.sim.reverse import distance_to_model
@@ -116,26 +117,49 @@ def _bloom_all(parts: list, job: Job, ckpt: Path, own: list):
         _TASK = None
 
 
-def _crossings(k: int, positions, parts: list, prep: Prepared, starts, boxes) -> int:
-    """How many frames the user sees (staggered by ``starts``) flower ``k`` passes through
-    a flower whose box (over the whole bloom, ``boxes (flowers, 2, 3)``) meets its own:
-    on those flowers' vertices only."""
-    lo, hi = boxes[:, 0], boxes[:, 1]
-    near = np.flatnonzero(np.all((lo <= hi[k]) & (hi >= lo[k]), axis=1))
-    near = near[near != k]
-    if not len(near):
-        return 0
-    group = [k, *near.tolist()]
-    sub = np.concatenate([parts[j][1] for j in group])
-    local = np.repeat(np.arange(len(group)), [len(parts[j][1]) for j in group])
+def _seen_crossing(members: list, positions, parts: list, prep: Prepared, starts,
+                   against_first: bool = False, frames=None) -> np.ndarray:
+    """``(T',)`` whether a flower of ``members`` passes through another of them in each
+    frame the user sees (staggered by ``starts``; ``frames``: only those), on their
+    vertices only. ``against_first``: only the first against the others."""
+    sub = np.concatenate([parts[j][1] for j in members])
+    local = np.repeat(np.arange(len(members)), [len(parts[j][1]) for j in members])
     new = np.full(len(prep.vertices), -1, dtype=np.int64)
     new[sub] = np.arange(len(sub))
     faces = np.asarray(prep.faces, dtype=np.int64)
     faces = new[faces[np.all(new[faces] >= 0, axis=1)]]
     seen = positions[:, sub]
     if starts is not None:
-        seen = stagger.staggered(seen, local, np.asarray(starts)[group])
-    return int(np.sum(crossings_between(seen, faces, local != 0)))
+        seen = stagger.staggered(seen, local, np.asarray(starts)[members])
+    if frames is not None:  # (frames of the whole: past this one's last, it holds it)
+        seen = seen[np.minimum(frames, len(seen) - 1)]
+    return np.asarray(crossings_between(seen, faces, local != 0 if against_first else local),
+                      dtype=bool)
+
+
+def _boxes(positions, parts: list) -> np.ndarray:
+    """``(K, 2, 3)`` each flower's box over the whole bloom."""
+    return np.stack([np.stack([positions[:, idx].min(axis=(0, 1)),
+                               positions[:, idx].max(axis=(0, 1))]) for _, idx in parts])
+
+
+def _near(k: int, boxes) -> np.ndarray:
+    """The flowers whose box meets flower ``k``'s, but ``k``."""
+    lo, hi = boxes[:, 0], boxes[:, 1]
+    near = np.flatnonzero(np.all((lo <= hi[k]) & (hi >= lo[k]), axis=1))
+    return near[near != k]
+
+
+def _crossings(k: int, positions, parts: list, prep: Prepared, starts, boxes,
+               frames=None) -> int:
+    """How many frames the user sees (staggered by ``starts``; ``frames``: of those)
+    flower ``k`` passes through a flower whose box (over the whole bloom, ``boxes
+    (flowers, 2, 3)``) meets its own: on those flowers' vertices only."""
+    near = _near(k, boxes)
+    if not len(near):
+        return 0
+    return int(_seen_crossing([k, *near.tolist()], positions, parts, prep, starts,
+                              against_first=True, frames=frames).sum())
 
 
 def _own_where_copies_cross(runs: dict, source: dict, parts: list, prep: Prepared, job: Job,
@@ -148,10 +172,13 @@ def _own_where_copies_cross(runs: dict, source: dict, parts: list, prep: Prepare
     copied = sorted(k for k in runs if source[k] is not None)
     if not copied:
         return
-    boxes = np.stack([np.stack([positions[:, idx].min(axis=(0, 1)),
-                                positions[:, idx].max(axis=(0, 1))]) for _, idx in parts])
+    whole = _seen_crossing(list(range(len(parts))), positions, parts, prep, starts)
+    if not whole.any():  # (one look at the whole first: a branch has a thousand copies)
+        return
+    at = np.flatnonzero(whole)
+    boxes = _boxes(positions, parts)
     crossing = {k: n for k in copied
-                if (n := _crossings(k, positions, parts, prep, starts, boxes))}
+                if (n := _crossings(k, positions, parts, prep, starts, boxes, frames=at))}
     if not crossing:
         return
     log.info("%d copied flower(s) pass through a neighbour when moved (%s): each blooms on "
@@ -175,6 +202,89 @@ def _own_where_copies_cross(runs: dict, source: dict, parts: list, prep: Prepare
             log.info("flower %d blooms as flower %d, moved: on its own it crosses a "
                      "neighbour in %d frame(s), %d as a copy", k, source[k][0], own,
                      crossing[k])
+
+
+#: flowers that cross blooming apart bloom together only if that ends as near the model
+#: (an open start): within this factor of the farthest of their blooms apart, or
+#: :data:`pipeline.review.report.OFF_MODEL` (contact between them can hold a flower off
+#: its model)
+TOGETHER_OFF = 1.5
+
+
+def _together_where_flowers_cross(runs: dict, parts: list, prep: Prepared, job: Job,
+                                  ckpt: Path, positions, starts):
+    """Flowers that bloom apart can pass through each other: in the frames the user
+    sees (staggered by ``starts``), each flower is at its own stage of growth. The
+    flowers that do (found pair by pair) bloom together, each cluster as one problem
+    with contact between them too (:meth:`~pipeline.sim.build.Prepared.flowers_part`),
+    starting at one frame: the earliest start among them. Kept where it leaves fewer
+    frames crossing in the whole and ends as near the model (:data:`TOGETHER_OFF`);
+    ``runs`` and ``positions`` updated in place, the choice logged. Returns ``(K,)``
+    each flower's problem (its first flower), or None where each blooms apart."""
+    if starts is None or job.cfg["effects.collisions.enabled"] is False:
+        return None
+    count = len(parts)
+    everyone = list(range(count))
+    whole = _seen_crossing(everyone, positions, parts, prep, starts)
+    if not whole.any():
+        return None
+    at = np.flatnonzero(whole)
+    boxes = _boxes(positions, parts)
+    pairs = [(k, int(j)) for k in sorted(runs) for j in _near(k, boxes) if j > k and j in runs
+             and _seen_crossing([k, int(j)], positions, parts, prep, starts, frames=at).any()]
+    root = list(range(count))
+
+    def find(k):
+        while root[k] != k:
+            root[k] = root[root[k]]
+            k = root[k]
+        return k
+
+    for a, b in pairs:
+        root[find(b)] = find(a)
+    clusters = {}
+    for k in sorted({q for pair in pairs for q in pair}):
+        clusters.setdefault(find(k), []).append(k)
+    cluster = np.arange(count)
+    names = job.names if "collisions" in job.names else [*job.names, "collisions"]
+    together = dataclasses.replace(job, names=names)
+    for c, members in enumerate(clusters.values()):
+        label = "flowers " + ", ".join(map(str, members))
+        log.info("%s pass through each other in %d of %d frames, blooming apart: they "
+                 "bloom together, as one problem with contact between them, from frame %d",
+                 label, int(whole.sum()), len(whole), int(np.asarray(starts)[members].min()))
+        part, idx = prep.flowers_part(members)
+        try:
+            run = problem.problem(part, together, ckpt.with_name(f"{ckpt.name}-together{c}"),
+                                  label=label)
+        except BloomError as exc:
+            log.info("%s: together they find no bloom (%s); they bloom apart", label,
+                     str(exc).removeprefix(f"{job.where}: "))
+            continue
+        apart = [runs[k][0].distance for k in members]
+        if run.distance is not None and None not in apart and run.distance > max(
+                TOGETHER_OFF * max(apart), report.OFF_MODEL):
+            log.info("%s bloom apart: together they end %.3g petal lengths from the model, "
+                     "apart %.3g at most", label, run.distance, max(apart))
+            continue
+        kept = positions[:, idx].copy()
+        positions[:, idx] = np.asarray(run.rec.positions)
+        joined = cluster.copy()
+        joined[members] = members[0]
+        moved = stagger.together(starts, joined)
+        after = _seen_crossing(everyone, positions, parts, prep, moved)
+        if after.sum() < whole.sum():
+            log.info("%s bloom together: the flowers cross in %d frame(s), %d apart", label,
+                     int(after.sum()), int(whole.sum()))
+            for k in members:
+                runs.pop(k, None)
+            runs[members[0]] = (run, idx)
+            cluster, whole = joined, after
+        else:
+            positions[:, idx] = kept
+            log.info("%s bloom apart: together the flowers cross in %d frame(s), %d apart",
+                     label, int(after.sum()), int(whole.sum()))
+    return cluster if np.any(cluster != np.arange(count)) else None
 
 
 def flowers_apart(prep: Prepared, job: Job, ckpt: Path, starts=None) -> Result:
@@ -222,6 +332,7 @@ def flowers_apart(prep: Prepared, job: Job, ckpt: Path, starts=None) -> Result:
     for run_, idx in runs.values():
         positions[:, idx] = np.asarray(run_.rec.positions)
     _own_where_copies_cross(runs, source, parts, prep, job, ckpt, positions, starts)
+    together = _together_where_flowers_cross(runs, parts, prep, job, ckpt, positions, starts)
     bud = np.array(prep.vertices, dtype=np.float64)
     per_petal = np.zeros((frames, petals))
     diag: dict = {}
@@ -282,6 +393,6 @@ def flowers_apart(prep: Prepared, job: Job, ckpt: Path, starts=None) -> Result:
     return Result(bud, bud_info, sorted(names, key=lambda n: ORDER.index(n)
                                          if n in ORDER else len(ORDER)),
                    connections, times, positions, diag, wall, resumed, resumed_step, distance,
-                   held, stopped)
+                   held, stopped, together)
 
 

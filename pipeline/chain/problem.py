@@ -67,6 +67,9 @@ class Result:
     distance: float | None
     held: list = field(default_factory=list)
     stopped: list = field(default_factory=list)  #: (growth reached, petal) per bloom held
+    #: a file of many flowers: ``(K,)`` each flower's problem, the first flower in it
+    #: (flowers that bloom together start together), or None: each its own
+    together: np.ndarray | None = None
 
     @classmethod
     def of(cls, run: Bloom) -> Result:

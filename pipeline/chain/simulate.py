@@ -104,6 +104,8 @@ def run(growth_h5: str | Path, out: str | Path, cfg: Config, *, overwrite: bool 
                      attrs["distance_to_model"])
         names = report.petal_names(petal, src["mesh/part_names"], src["mesh/part"]) \
             if "mesh/part_names" in src and "mesh/part" in src else None
+        if result.together is not None:  # (flowers that bloom together start together)
+            starts = stagger.together(starts, result.together)
         seen = positions if starts is None else stagger.staggered(positions, prep.flower, starts)
         sound = report.soundness(positions, prep.faces,
                                  diag.get("opening_angle_per_petal", np.zeros((len(positions), 0))),
@@ -131,6 +133,11 @@ def run(growth_h5: str | Path, out: str | Path, cfg: Config, *, overwrite: bool 
                 artifact.put(h5, "open/bud", v, "(V, 3) the bud found from it (frame 0)")
             for name, values in diag.items():
                 artifact.put(h5, f"diagnostics/{name}", values)
+            if result.together is not None:
+                artifact.put(h5, "flower/together", result.together,
+                             "(K,) each flower's problem (the first flower in it): flowers "
+                             "that would pass through each other blooming apart bloom "
+                             "together, and start together")
             if result.connections is not None:
                 c = result.connections
                 artifact.put(h5, "effects/connections/pairs", c.pairs,

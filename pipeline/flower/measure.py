@@ -32,7 +32,7 @@ class PetalFrames:
     def from_mesh(cls, vertices, petal, base, on_axis, tips, plane,
                   flower_axis=None) -> PetalFrames:
         """``flower_axis``: (6,) point and unit direction from the receptacle toward
-        the tips (nan or None: a lone petal, none)."""
+        the tips (nan or None: a lone petal, none), or ``(P, 6)`` each petal's flower's."""
         v = np.asarray(vertices, dtype=np.float64)
         count = int(petal.max()) + 1 if len(petal) else 0
         centers, chords, outs = [], [], []
@@ -51,7 +51,8 @@ class PetalFrames:
             if np.linalg.norm(out) < 1e-9:  # a flat petal: take its normal (plane x chord)
                 out = np.cross(plane[p, :3], chord)
             out /= np.linalg.norm(out)
-            away = _away((center, centroid), chord, length, flower_axis)
+            away = _away((center, centroid), chord, length, flower_axis if flower_axis is None
+                         or np.ndim(flower_axis) == 1 else flower_axis[p])
             if away is not None and out @ away < 0.0:
                 out = -out
             centers.append(center)

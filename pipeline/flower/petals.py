@@ -189,6 +189,36 @@ def _each_petal(tasks: list, workers: int):
         yield from pool.map(_one_task, tasks, chunksize=1)
 
 
+#: what a forked worker cleans parts from (inherited from the parent, not sent): the
+#: tasks ``(part, its faces, verdict, index)`` and the dust and closed-parts settings
+_PART_TASKS: tuple | None = None
+
+
+def _clean_part(k: int) -> _PartSheets:
+    tasks, dust, closed_parts = _PART_TASKS
+    part, part_faces, verdict, i = tasks[k]
+    return _part_sheets(part, part_faces, verdict, i, dust=dust, closed_parts=closed_parts)
+
+
+def _each_part(tasks: list, dust: float, closed_parts: str, workers: int):
+    """:func:`_part_sheets` of every task ``(part, faces, verdict, index)``, yielded in
+    order: in this process, or (``workers`` > 1, at least ``PARALLEL_PETALS`` parts, a
+    system that forks) in forked processes, the parts inherited (a part's outcome
+    depends on the part alone: the same bits either way)."""
+    global _PART_TASKS
+    _PART_TASKS = (tasks, dust, closed_parts)
+    try:
+        if workers <= 1 or len(tasks) < PARALLEL_PETALS or not forks.can_fork():
+            for k in range(len(tasks)):
+                yield _clean_part(k)
+            return
+        with forks.pool(min(workers, len(tasks))) as pool:
+            yield from pool.map(_clean_part, range(len(tasks)), chunksize=max(
+                1, len(tasks) // (32 * workers)))
+    finally:
+        _PART_TASKS = None
+
+
 def _copies(points: list, faces: list, scaled: bool) -> list:
     """For each sheet: None if it is remeshed itself, else ``(k, s, R, t)``: it is sheet
     ``k`` (an earlier one, remeshed itself) times ``s``, turned by ``R`` and moved by
@@ -513,9 +543,10 @@ def prepare_parts(mesh_file, *, where: str, target_edge: float = 0.0, petal_vert
     problems, failing, dropped, notes, info = [], [], [], [], []
     found = {}  # part index -> {"pieces": petal pieces, "area": their area (one side), "lost": ...}
     rest = {}  # part index -> (vertices, faces): a whole flower's pieces that are not petals
-    seen, outcomes, copies = {}, {}, 0  # parts cleaned (by kind), for their copies
+    # the parts to clean: each a copy of an earlier one (instanced blossoms: then it gives
+    # that part's sheets, moved) or cleaned itself, side by side in ``workers`` processes
+    seen, plan, copies = {}, {}, 0  # plan: part index -> (its faces, copy found or None)
     for i, (part, verdict) in enumerate(zip(parts, verdicts, strict=True)):
-        report("cleaning petal parts", i, len(parts), f"part {part.name!r}")
         role = "petal" if chosen[i] else "excluded" if excluded[i] else "kept"
         info.append({"name": part.name, "kind": verdict.kind, "reason": _one_line(verdict.reason),
                      "role": role})
@@ -527,18 +558,25 @@ def prepare_parts(mesh_file, *, where: str, target_edge: float = 0.0, petal_vert
             # a whole flower in one mesh: its petal pieces are the petals, the rest is kept
             part_faces = unique[i][verdict.faces]
             rest[i] = (np.asarray(part.vertices), unique[i][~verdict.faces])
-        # a part that is a moved, turned or scaled copy of one cleaned before (instanced
-        # blossoms) gives that part's sheets, moved
         mine = seen.setdefault(verdict.kind, Copies())
         copy = mine.find(part.vertices, part_faces)
-        if copy is not None:
-            done = _moved_part(outcomes[copy[0]], i, *copy[1:])
+        if copy is None:
+            mine.add(part.vertices, part_faces, i)
+        plan[i] = (part_faces, copy)
+    tasks = [(parts[i], plan[i][0], verdicts[i], i) for i in plan if plan[i][1] is None]
+    outcomes = {}
+    for k, done in enumerate(_each_part(tasks, dust, closed_parts, workers)):
+        report("cleaning petal parts", k, len(tasks), f"part {parts[tasks[k][3]].name!r}")
+        outcomes[tasks[k][3]] = done
+    for i, (part_faces, copy) in plan.items():
+        part = parts[i]
+        original = None if copy is None else outcomes[copy[0]]
+        if original is not None and original.sheets and not original.problem:
+            done = _moved_part(original, i, *copy[1:])
             copies += 1
-        else:
-            done = _part_sheets(part, part_faces, verdict, i, dust=dust, closed_parts=closed_parts)
-            if done.sheets and not done.problem:
-                mine.add(part.vertices, part_faces, i)
-                outcomes[i] = done
+        else:  # (itself; or a copy of a part that gave no sheet: cleaned itself too)
+            done = outcomes[i] if copy is None else _part_sheets(
+                part, part_faces, verdicts[i], i, dust=dust, closed_parts=closed_parts)
             notes += done.notes
         for name, value in vars(done.counts).items():
             if name != "notes":
@@ -551,7 +589,7 @@ def prepare_parts(mesh_file, *, where: str, target_edge: float = 0.0, petal_vert
             failing.append(part.name)
         if done.dropped:
             dropped.append(done.dropped)
-            info[-1]["role"] = "kept"  # carried forward untouched, as a part that is not a petal
+            info[i]["role"] = "kept"  # carried forward untouched, as a part that is not a petal
             rest.pop(i, None)
     if copies:
         notes.append(f"{copies} petal part(s) are copies of others (moved, turned or scaled): "

@@ -67,14 +67,29 @@ def flower_count(src) -> int:
 
 
 def of_run(src, cfg) -> np.ndarray | None:
-    """The start frames of a simulate artifact's flowers as the scene sets them, or None
-    when there is nothing to stagger (one flower, no spread)."""
+    """The start frames of a simulate artifact's flowers as the scene sets them (flowers
+    that bloomed together, ``flower/together``, start together: :func:`together`), or
+    None when there is nothing to stagger (one flower, no spread)."""
     flowers = flower_count(src)
     wide = spread(cfg, flowers, len(src["frames/positions"]))
     if wide <= 0 or flowers <= 1:
         return None
     starts = start_frames(flowers, wide, cfg["scene.stagger_seed"])
+    if "flower/together" in src:
+        starts = together(starts, src["flower/together"])
     return starts if starts.any() else None
+
+
+def together(starts, cluster) -> np.ndarray:
+    """``starts`` with the flowers that bloom together (``cluster (K,)``: each flower's
+    cluster, the same number for flowers of one problem) starting at the earliest of
+    their frames."""
+    out = np.array(starts, dtype=np.int64)
+    cluster = np.asarray(cluster, dtype=np.int64)
+    for c in np.unique(cluster):
+        mine = cluster == c
+        out[mine] = out[mine].min()
+    return out
 
 
 def vertex_flowers(src) -> np.ndarray:

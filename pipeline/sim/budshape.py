@@ -106,13 +106,17 @@ def inner_sides(positions, faces, petal, s, flower_axis) -> np.ndarray:
     X = np.asarray(positions, dtype=np.float64)
     F = np.asarray(faces)
     point, up = flower_axis_or_guess(X, flower_axis)
+    owner = np.asarray(petal)[F[:, 0]]
+    each = up.ndim == 2  # (each petal's flower's axis)
+    if each:
+        point, up = point[owner], up[owner]
     inward = np.broadcast_to(up, (len(F), 3))
     if has_flower_axis(flower_axis):
         radial = X[F].mean(axis=1) - point
-        radial -= np.outer(radial @ up, up)
+        radial -= (np.einsum("ij,ij->i", radial, up)[:, None] * up if each
+                   else np.outer(radial @ up, up))
         inward = inward - radial / np.maximum(np.linalg.norm(radial, axis=1), 1e-300)[:, None]
     normal = np.cross(X[F[:, 1]] - X[F[:, 0]], X[F[:, 2]] - X[F[:, 0]])
     along = np.einsum("ij,ij->i", normal, inward) * (np.asarray(s)[F].mean(axis=1) < 0.5)
-    owner = np.asarray(petal)[F[:, 0]]
     total = np.bincount(owner, weights=along, minlength=int(owner.max()) + 1)
     return np.where(total[owner] >= 0.0, 1.0, -1.0)

@@ -38,7 +38,9 @@ class Prepared:
     x: np.ndarray  #: (V,) across, -1 .. 1
     tip: np.ndarray  #: (P,) tip vertex of each petal
     plane: np.ndarray  #: (P, 4) each petal's center plane
-    flower_axis: np.ndarray  #: (6,) point and direction (nan for a lone petal)
+    #: (6,) point and direction (nan for a lone petal); (P, 6) each petal's flower's, in
+    #: a part of several flowers that bloom as one problem (:meth:`flowers_part`)
+    flower_axis: np.ndarray
     edges: np.ndarray  #: (E, 2)
     alpha: np.ndarray  #: (E,) growth ratios
     stiffness: np.ndarray  #: (E,) factors on simulate.stretch_stiffness
@@ -94,7 +96,14 @@ class Prepared:
         """Flower ``k`` of a file of many (:attr:`flower`) as a problem of its own: its
         vertices, faces, petals (numbered from 0 in their order), edges and hinges
         renumbered, its axis the flower's; and ``(n,)`` its vertices' indices here."""
-        idx = np.flatnonzero(np.asarray(self.flower) == k)
+        return self.flowers_part([k])
+
+    def flowers_part(self, ks) -> tuple[Prepared, np.ndarray]:
+        """Flowers ``ks`` of a file of many as one problem (:meth:`flower_part` of one):
+        contact between them too, and each petal's flower's axis (``flower_axis``
+        ``(P, 6)``) where there are several."""
+        ks = sorted(int(k) for k in ks)
+        idx = np.flatnonzero(np.isin(np.asarray(self.flower), ks))
         new = np.full(len(self.vertices), -1, dtype=np.int64)
         new[idx] = np.arange(len(idx))
         petal = np.asarray(self.petal)
@@ -114,13 +123,20 @@ class Prepared:
         def part(a):
             return None if a is None else np.asarray(a)[idx]
 
+        axis = np.asarray(self.flower_axis)
+        if self.flower_axes is not None:
+            axes = np.asarray(self.flower_axes, dtype=np.float64)
+            axis = axes[ks[0]]
+            if len(ks) > 1:  # (each petal's flower's)
+                of = np.zeros(len(petals), dtype=np.int64)
+                of[renumber[petal[idx]]] = np.asarray(self.flower)[idx]
+                axis = axes[of]
+
         return Prepared(
             np.asarray(self.vertices)[idx], faces, renumber[petal[idx]],
             np.asarray(self.base)[idx], np.asarray(self.on_axis)[idx], np.asarray(self.s)[idx],
             np.asarray(self.x)[idx], new[np.asarray(self.tip)[petals]],
-            np.asarray(self.plane)[petals],
-            np.asarray(self.flower_axes, dtype=np.float64)[k] if self.flower_axes is not None
-            else np.asarray(self.flower_axis), edges, np.asarray(self.alpha)[on_edge],
+            np.asarray(self.plane)[petals], axis, edges, np.asarray(self.alpha)[on_edge],
             np.asarray(self.stiffness)[on_edge], hinges, np.asarray(self.rest_angle)[on_hinge],
             part(self.thickness), part(self.patch)), idx
 

@@ -81,26 +81,36 @@ class Params:
 
 def petal_layers(vertices, petal, axis_point, axis_dir) -> np.ndarray:
     """``(P,)`` mean distance of each petal's vertices from the flower's axis, with a
-    tiny tie-break by petal id: inner petals have lower values."""
-    r = np.asarray(vertices) - axis_point
-    radial = np.linalg.norm(r - np.outer(r @ axis_dir, axis_dir), axis=1)
+    tiny tie-break by petal id: inner petals have lower values. ``axis_point`` and
+    ``axis_dir`` ``(3,)``, or ``(P, 3)`` each petal's flower's."""
+    petal = np.asarray(petal)
+    point, direction = np.asarray(axis_point), np.asarray(axis_dir)
+    if point.ndim == 2:  # (each petal's flower's)
+        r = np.asarray(vertices) - point[petal]
+        d = direction[petal]
+        radial = np.linalg.norm(r - np.einsum("ij,ij->i", r, d)[:, None] * d, axis=1)
+    else:
+        r = np.asarray(vertices) - point
+        radial = np.linalg.norm(r - np.outer(r @ direction, direction), axis=1)
     count = int(petal.max()) + 1
     return np.array([radial[petal == p].mean() + 1e-9 * p for p in range(count)])
 
 
 def has_flower_axis(flower_axis) -> bool:
     """Whether ``flower_axis`` is a flower's axis (point and direction, six finite
-    numbers); a lone petal's is NaN."""
+    numbers; or ``(P, 6)``, each petal's flower's, of flowers that bloom as one problem);
+    a lone petal's is NaN."""
     fa = np.asarray(flower_axis, dtype=np.float64)
-    return fa.shape == (6,) and bool(np.all(np.isfinite(fa)))
+    return fa.shape[-1:] == (6,) and fa.ndim <= 2 and fa.size > 0 and bool(np.all(np.isfinite(fa)))
 
 
 def flower_axis_or_guess(vertices, flower_axis) -> tuple[np.ndarray, np.ndarray]:
-    """The flower's axis as (point, unit direction); a lone petal has none: the vertical
-    line through its centroid stands in."""
+    """The flower's axis as (point, unit direction), ``(3,)`` each, or ``(P, 3)`` each for
+    a ``(P, 6)`` axis (each petal's flower's); a lone petal has none: the vertical line
+    through its centroid stands in."""
     if has_flower_axis(flower_axis):
         fa = np.asarray(flower_axis, dtype=np.float64)
-        return fa[:3], fa[3:] / np.linalg.norm(fa[3:])
+        return fa[..., :3], fa[..., 3:] / np.linalg.norm(fa[..., 3:], axis=-1, keepdims=True)
     return np.asarray(vertices).mean(axis=0), np.array([0.0, 0.0, 1.0])
 
 

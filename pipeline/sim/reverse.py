@@ -239,7 +239,7 @@ def closing_lift(positions, s, x, pinned, up, size: float) -> np.ndarray:
     flower's axis, toward its open side; ``s`` along the petal, ``x`` across it): every
     petal is nudged into a cup that closes over the flower, not one that folds under it."""
     s, x = np.asarray(s, dtype=np.float64), np.asarray(x, dtype=np.float64)
-    lift = size * 0.5 * (s ** 2 + x ** 2)[:, None] * np.asarray(up)[None, :]
+    lift = size * 0.5 * (s ** 2 + x ** 2)[:, None] * np.asarray(up)  # ((3,) or (V, 3))
     lift[np.asarray(pinned, bool)] = 0.0
     return lift
 
@@ -371,6 +371,8 @@ def _find_bud_closing(cfg, close, model, positions, rest_angle, params, build_ef
                                petal=np.asarray(petal), beta=beta)
         return bud, solver, model, rest_angle, params
     _, up = flower_axis_or_guess(positions, flower_axis)
+    if up.ndim == 2:  # (each petal's flower's axis)
+        up = up[np.asarray(petal)]
     size = LIFT * petal_lengths(positions, petal, base).mean()
     if faces is not None and plane is not None:
         lift, folded = unfolded_lift(positions, faces, petal, plane, s, x, base, up, size)

@@ -326,20 +326,21 @@ def _pairs(pairs) -> str:
     return ", ".join(f"{a}-{b}" for a, b in pairs) or "(none found pairwise)"
 
 
-def crossings_between(frames, faces, side) -> list[bool]:
-    """For each frame ``(V, 3)`` of ``frames``, whether a triangle of one side passes
-    through one of the other (ipctk's exact edge-through-triangle test): ``side (V,)``
-    each vertex's side, 0 or 1; two triangles of one side are not looked at."""
+def crossings_between(frames, faces, group) -> list[bool]:
+    """For each frame ``(V, 3)`` of ``frames``, whether a triangle of one group passes
+    through one of another (ipctk's exact edge-through-triangle test): ``group (V,)``
+    each vertex's group (a flower, a side); two triangles of one group are not looked
+    at."""
     ipctk = one_thread()
     F = np.asfortranarray(faces, dtype=np.int32)
     E = ipctk.edges(F)
-    side32 = np.ascontiguousarray(side, dtype=np.int32)  # (lives as long as the mesh)
+    group32 = np.ascontiguousarray(group, dtype=np.int32)  # (lives as long as the mesh)
     mesh, out = None, []
     for X in frames:
         X = np.asfortranarray(X, dtype=np.float64)
         if mesh is None:
             mesh = ipctk.CollisionMesh(X, E, F)
-            mesh.can_collide = ipctk.make_vertex_patches_filter(side32)
+            mesh.can_collide = ipctk.make_vertex_patches_filter(group32)
         out.append(bool(ipctk.has_intersections(mesh, X)))
     return out
 
