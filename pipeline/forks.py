@@ -11,6 +11,8 @@ import os
 import signal
 
 _PARENT: int | None = None  #: the pid of the process whose pool a worker is in
+#: a pool is started for at least this many tasks (fewer run in this process)
+MANY = 8
 
 
 def workers(setting: int) -> int:
@@ -51,3 +53,17 @@ def pool(workers: int, initializer=None):
     _PARENT = os.getpid()
     return ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("fork"),
                                initializer=_die_with_parent, initargs=(initializer,))
+
+
+def each(fn, count: int, workers: int):
+    """``fn(k)`` for ``k`` in ``range(count)``, yielded in order: in this process, or
+    (``workers`` > 1, at least :data:`MANY` tasks, a system that forks) in a pool of
+    forked processes. ``fn`` (a module's function) reads task ``k`` from what the
+    processes share at the fork (a module global set before this is called), so the
+    tasks are not sent; each result depends on its task alone, the same bits either way."""
+    if workers <= 1 or count < MANY or not can_fork():
+        for k in range(count):
+            yield fn(k)
+        return
+    with pool(min(workers, count)) as workers_:
+        yield from workers_.map(fn, range(count), chunksize=max(1, count // (32 * workers)))

@@ -62,6 +62,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from pipeline import forks
 from pipeline.mesh import clean, topology
 from pipeline.mesh.similar import Copies
 from pipeline.mesh.thickness import thickness
@@ -546,13 +547,40 @@ def voxel_cubes(vertices: np.ndarray, faces: np.ndarray) -> tuple[int, float] | 
     return max(1, len(f) // 12), step
 
 
-def classify(parts) -> list[Verdict]:
+#: what a forked worker measures parts from (inherited, not sent): ``(part, split)``
+_TASKS: list | None = None
+
+
+def _measured(k: int):
+    """Part ``k`` of :data:`_TASKS` measured: ``(pieces, their face masks, alike)``, its
+    pieces (``split``) or the part whole."""
+    part, split = _TASKS[k]
+    v, f = np.asarray(part.vertices, dtype=np.float64), np.asarray(part.faces)
+    pieces, piece_masks, same = _part_units(v, f) if split else ([], [], False)
+    if not pieces:
+        pieces, piece_masks = [_measure(v, f)], [None]
+    return pieces, piece_masks, same
+
+
+def _each_measured(tasks: list, workers: int) -> list:
+    """:func:`_measured` of every task, in order, in ``workers`` processes
+    (:func:`pipeline.forks.each`)."""
+    global _TASKS
+    _TASKS = tasks
+    try:
+        return list(forks.each(_measured, len(tasks), workers))
+    finally:
+        _TASKS = None
+
+
+def classify(parts, workers: int = 1) -> list[Verdict]:
     """Tell each part of a flower model what it is.
 
     Parameters
     ----------
     parts : sequence of objects with ``name``, ``vertices (V, 3)`` and ``faces (F, 3)``
         (:class:`pipeline.io.meshfile.Part`), in any units.
+    workers : processes to measure the parts in (:mod:`pipeline.forks`).
 
     Returns
     -------
@@ -575,7 +603,7 @@ def classify(parts) -> list[Verdict]:
     masks: list = []
     alike: list[bool] = []
     seen: dict = {}  # parts measured (split or not), for their copies
-    measured: list = []
+    copies: list = []
     for i, p in enumerate(parts):
         v, f = np.asarray(p.vertices, dtype=np.float64), np.asarray(p.faces)
         split = hinted[i] in (None, "petal")  # a name that decides the kind needs no pieces
@@ -583,15 +611,20 @@ def classify(parts) -> list[Verdict]:
         # blossoms) is measured as that one, moved
         mine = seen.setdefault(split, Copies())
         copy = mine.find(v, f)
-        if copy is not None:
-            j, k, rot, t = copy
+        if copy is None:
+            mine.add(v, f, i)
+        copies.append(copy)
+    own = [i for i in range(len(parts)) if copies[i] is None]
+    done = dict(zip(own, _each_measured([(parts[i], hinted[i] in (None, "petal")) for i in own],
+                                        workers), strict=True))
+    measured: list = []
+    for i in range(len(parts)):
+        if copies[i] is not None:
+            j, k, rot, t = copies[i]
             pieces = [_moved_shape(shape, k, rot, t) for shape in measured[j][0]]
             piece_masks, same = measured[j][1], measured[j][2]
         else:
-            pieces, piece_masks, same = _part_units(v, f) if split else ([], [], False)
-            if not pieces:
-                pieces, piece_masks = [_measure(v, f)], [None]
-            mine.add(v, f, i)
+            pieces, piece_masks, same = done[i]
         measured.append((pieces, piece_masks, same))
         units += pieces
         masks += piece_masks

@@ -168,20 +168,16 @@ def _build(v, f, petal, report, *, target_edge, petal_vertices, symmetrize, drop
                   part=np.concatenate(out_part), thickness=np.concatenate(out_thick) * again)
 
 
-#: petals are remeshed in worker processes when there are at least this many
-PARALLEL_PETALS = 8
-
-
 def _each_petal(tasks: list, workers: int):
     """:func:`_one_petal` of every task, yielded in order: in this process, or (``workers``
-    > 1, at least ``PARALLEL_PETALS`` petals, and a system that forks) in a pool of
+    > 1, at least :data:`pipeline.forks.MANY` petals, and a system that forks) in a pool of
     forked processes. Each petal's result depends on the petal alone, so the output is
     the same bit for bit either way.
 
     Forked (:mod:`pipeline.forks`): what a worker runs (remeshing, numba kernels, k-d
     trees) starts no thread pool of its own that a fork could leave locked (Embree's,
     from the ray casts before, is not used)."""
-    if workers <= 1 or len(tasks) < PARALLEL_PETALS or not forks.can_fork():
+    if workers <= 1 or len(tasks) < forks.MANY or not forks.can_fork():
         for task in tasks:
             yield _one_petal(*task)
         return
@@ -202,19 +198,12 @@ def _clean_part(k: int) -> _PartSheets:
 
 def _each_part(tasks: list, dust: float, closed_parts: str, workers: int):
     """:func:`_part_sheets` of every task ``(part, faces, verdict, index)``, yielded in
-    order: in this process, or (``workers`` > 1, at least ``PARALLEL_PETALS`` parts, a
-    system that forks) in forked processes, the parts inherited (a part's outcome
-    depends on the part alone: the same bits either way)."""
+    order, in ``workers`` processes (:func:`pipeline.forks.each`: a part's outcome
+    depends on the part alone)."""
     global _PART_TASKS
     _PART_TASKS = (tasks, dust, closed_parts)
     try:
-        if workers <= 1 or len(tasks) < PARALLEL_PETALS or not forks.can_fork():
-            for k in range(len(tasks)):
-                yield _clean_part(k)
-            return
-        with forks.pool(min(workers, len(tasks))) as pool:
-            yield from pool.map(_clean_part, range(len(tasks)), chunksize=max(
-                1, len(tasks) // (32 * workers)))
+        yield from forks.each(_clean_part, len(tasks), workers)
     finally:
         _PART_TASKS = None
 
@@ -533,7 +522,8 @@ def prepare_parts(mesh_file, *, where: str, target_edge: float = 0.0, petal_vert
     # close a sheet into a "solid"); the parts themselves are kept as read
     unique = [_unique_faces(p.faces) for p in parts]
     report("classifying parts", 0, len(parts))
-    verdicts = classify([_Judged(p.name, p.vertices, u) for p, u in zip(parts, unique, strict=True)])
+    verdicts = classify([_Judged(p.name, p.vertices, u) for p, u in zip(parts, unique, strict=True)],
+                        workers=workers)
     names = [p.name for p in parts]
     chosen = select(names, verdicts, petals_globs, exclude_globs)
     excluded = [not c and any(fnmatch.fnmatchcase(n, g) for g in exclude_globs)
