@@ -115,10 +115,14 @@ def problem(prep: Prepared, job: Job, ckpt: Path, label: str = "") -> Bloom:
     rest_angle = prep.rest_angle
     max_edge = prep.max_grown_edge()  # once: the bud search changes the model's rest lengths
 
-    def build_effects(positions):
+    def build_effects(positions, apart: bool = True):
         return prep.effects(job.names, params, positions=positions, rest_angle=rest_angle,
                             max_edge=max_edge,
-                            pushback=sim["integrator"] != "quasi-static")
+                            pushback=sim["integrator"] != "quasi-static", apart=apart)
+
+    # flowers that bloom together: the bud search with contact within each, the bloom
+    # with contact between them too
+    apart = not prep.together
 
     inputs = job.inputs
     model_positions = np.asarray(v) if start.start == "open" else None
@@ -163,7 +167,7 @@ def problem(prep: Prepared, job: Job, ckpt: Path, label: str = "") -> Bloom:
             # a bud that is not perfectly symmetric, the same at any resolution, from the
             # first growth on (a random nudge per vertex picks a branch per mesh)
             integrator.nudge = prep.imperfection(sim["imperfection"])
-        effects = build_effects(v0)
+        effects = build_effects(v0, apart)
         state = State.at_rest(model, v0, control)
         effects.constrain(state.forces)
         path = ckpt if lifted else ckpt.with_name(ckpt.name + "-unlifted")
@@ -207,7 +211,7 @@ def problem(prep: Prepared, job: Job, ckpt: Path, label: str = "") -> Bloom:
                         "an equilibrium at its growth)", failed.growth,
                         int(petal[failed.vertex]))
             integrator = fresh_integrator()  # (its nudge at the start, as the search's)
-            effects = build_effects(model_positions)
+            effects = build_effects(model_positions, apart)
             with Progress(steps, f"{what} (the path back)", progress) as bar:
                 try:
                     rec, wall = retrace(

@@ -57,6 +57,9 @@ class Prepared:
     #: (K, 6) each flower's axis, point and direction (``flower/axis``), or None: one
     #: flower, :attr:`flower_axis`
     flower_axes: np.ndarray | None = None
+    #: flowers that bloom together (:meth:`flowers_part`): the bud search keeps contact
+    #: within each (:attr:`flower` apart), the bloom has contact between them too
+    together: bool = False
 
     @classmethod
     def from_artifact(cls, src) -> Prepared:
@@ -132,13 +135,19 @@ class Prepared:
                 of[renumber[petal[idx]]] = np.asarray(self.flower)[idx]
                 axis = axes[of]
 
+        together = {}
+        if len(ks) > 1:  # (each flower's bud its own; the bloom one)
+            together = {"flower": np.searchsorted(ks, np.asarray(self.flower)[idx]),
+                        "flower_axes": None if self.flower_axes is None
+                        else np.asarray(self.flower_axes, dtype=np.float64)[ks],
+                        "together": True}
         return Prepared(
             np.asarray(self.vertices)[idx], faces, renumber[petal[idx]],
             np.asarray(self.base)[idx], np.asarray(self.on_axis)[idx], np.asarray(self.s)[idx],
             np.asarray(self.x)[idx], new[np.asarray(self.tip)[petals]],
             np.asarray(self.plane)[petals], axis, edges, np.asarray(self.alpha)[on_edge],
             np.asarray(self.stiffness)[on_edge], hinges, np.asarray(self.rest_angle)[on_hinge],
-            part(self.thickness), part(self.patch)), idx
+            part(self.thickness), part(self.patch), **together), idx
 
     def model(self, stretch: float, bending: float, mass: float = 1.0, pinned=None) -> Model:
         """The springs (``stretch`` times each edge's stiffness factor) and hinges
@@ -186,17 +195,20 @@ class Prepared:
         return model
 
     def effects(self, names, params: fx.Params, *, positions=None, rest_angle=None,
-                max_edge: float | None = None, pushback: bool = True) -> fx.Effects:
+                max_edge: float | None = None, pushback: bool = True,
+                apart: bool = True) -> fx.Effects:
         """The effects ``names`` (those the scene enabled), built at ``positions`` (default
         the rest state) with the parameters ``params``. ``max_edge``: the
         longest edge the collision grid must hold (default: the longest fully grown edge).
         ``pushback``: with the dynamic integrators' push-back arrays (False: the
-        quasi-static solver's contact, which does not read them)."""
+        quasi-static solver's contact, which does not read them). ``apart``: flowers
+        (:attr:`flower`) each with contact among its own petals (False: between flowers
+        too)."""
         positions = self.vertices if positions is None else positions
         if max_edge is None:
             max_edge = self.max_grown_edge()
         return fx.build(names, vertices=positions, faces=self.faces, petal=self.petal,
-                        patch=self.patch, flower=self.flower,
+                        patch=self.patch, flower=self.flower if apart else None,
                         pinned=self.base, on_axis=self.on_axis, plane=self.plane, s=self.s,
                         rest_angle=self.rest_angle if rest_angle is None else rest_angle,
                         flower_axis=self.flower_axis, max_edge=max_edge, params=params,
