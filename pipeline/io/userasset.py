@@ -234,42 +234,93 @@ def _read_gltf(path: Path, where: str) -> Asset:
 
 # --- in an artifact ------------------------------------------------------------------------
 
+#: the per-part arrays of :func:`write`, each stored once for all parts, concatenated
+#: (``<name>``), with where each part's run starts (``<name>_offsets``, ``(P + 1,)``) and,
+#: for those a part may lack, whether it has one (``<name>_given``, ``(P,)``)
+_PACKED = (("points", "(n, 3) each part's vertices, in the file's order", False),
+           ("face_counts", "(m,) corners of each polygon", False),
+           ("face_indices", "(sum face_counts,) into the part's points", False),
+           ("face_material", "(m,) into the part's materials, -1: none", False),
+           ("uv", "(k, 2) texture coordinates", True),
+           ("uv_indices", "per face corner, into the part's uv", True),
+           ("normals", "(j, 3) the file's normals", True),
+           ("normal_indices", "per face corner, into the part's normals", True))
+
+
 def write(h5, asset: Asset) -> None:
-    """Store ``asset`` under ``input/asset`` of an open HDF5 file (see :func:`read`)."""
-
-
+    """Store ``asset`` under ``input/asset`` of an open HDF5 file (see :func:`read`):
+    each array once for all parts, concatenated (a branch of 5,000 parts wrote 25,000
+    datasets, and every later stage copied them)."""
     group = h5.require_group(GROUP)
     group.attrs["doc"] = ("the input's parts as the file gives them (input units and axes), "
-                          "for the export; part i is part i of mesh/part_names")
+                          "for the export; part i is part i of mesh/part_names; each array "
+                          "of all parts concatenated, <name>_offsets where each part's starts")
     group.attrs["up"] = asset.up or ""
     group.attrs["meters_per_unit"] = float(asset.meters_per_unit or 0.0)
-    for i, p in enumerate(asset.parts):
-        base = f"{GROUP}/{i}"
-        put(h5, f"{base}/points", p.points, "(n, 3) the part's vertices, in the file's order")
-        put(h5, f"{base}/face_counts", p.face_counts, "(m,) corners of each polygon")
-        put(h5, f"{base}/face_indices", p.face_indices, "(sum face_counts,) into points")
-        if p.uv is not None:
-            put(h5, f"{base}/uv", p.uv, "(k, 2) texture coordinates")
-            if p.uv_indices is not None:
-                put(h5, f"{base}/uv_indices", p.uv_indices, "per face corner, into uv")
-        if p.normals is not None:
-            put(h5, f"{base}/normals", p.normals, "(j, 3) the file's normals")
-            if p.normal_indices is not None:
-                put(h5, f"{base}/normal_indices", p.normal_indices, "per face corner, into normals")
-        put(h5, f"{base}/face_material", p.face_material if p.face_material is not None
-            else np.full(len(p.face_counts), -1, dtype=np.int64), "(m,) into materials, -1: none")
-        h5[base].create_dataset("materials", data=np.array(p.materials, dtype=object),
-                                dtype=h5py.string_dtype("utf-8"))
-        h5[base].attrs["name"] = p.name
+    parts = asset.parts
+    put(h5, f"{GROUP}/names", np.array([p.name for p in parts], dtype=object).astype(
+        h5py.string_dtype("utf-8")) if parts else np.zeros(0, dtype=h5py.string_dtype("utf-8")),
+        "(P,) each part's name")
+    for name, doc, optional in _PACKED:
+        runs = [getattr(p, name) for p in parts]
+        if name == "face_material":
+            runs = [r if r is not None else np.full(len(p.face_counts), -1, dtype=np.int64)
+                    for r, p in zip(runs, parts, strict=True)]
+        given = np.array([r is not None for r in runs], dtype=bool)
+        arrays = [np.asarray(r) for r in runs if r is not None]
+        width = () if name not in ("points", "uv", "normals") else (
+            (3,) if name != "uv" else (2,))
+        dtype = np.float64 if width else np.int64
+        data = (np.concatenate([a.reshape((-1, *width)).astype(dtype) for a in arrays])
+                if arrays else np.zeros((0, *width), dtype=dtype))
+        lengths = [0 if r is None else len(np.asarray(r)) for r in runs]
+        put(h5, f"{GROUP}/{name}", data, doc)
+        put(h5, f"{GROUP}/{name}_offsets", np.cumsum([0, *lengths]).astype(np.int64),
+            f"(P + 1,) where each part's {name} starts")
+        if optional:
+            put(h5, f"{GROUP}/{name}_given", given, f"(P,) whether a part has {name}")
+    materials = [list(p.materials) for p in parts]
+    put(h5, f"{GROUP}/materials", np.array([m for ms in materials for m in ms], dtype=object)
+        .astype(h5py.string_dtype("utf-8")) if any(materials)
+        else np.zeros(0, dtype=h5py.string_dtype("utf-8")), "material names, part after part")
+    put(h5, f"{GROUP}/materials_offsets",
+        np.cumsum([0, *[len(m) for m in materials]]).astype(np.int64),
+        "(P + 1,) where each part's materials start")
+
+
+def _text(value) -> str:
+    return value.decode() if isinstance(value, bytes) else str(value)
 
 
 def read(src) -> Asset | None:
     """The asset stored in an artifact (an :class:`~pipeline.artifact.Artifact` or an
-    h5py File), or None if it holds none."""
+    h5py File), or None if it holds none. Reads the packed layout :func:`write` writes,
+    and the one of a part per group an earlier version wrote."""
     f = getattr(src, "file", src)
     if GROUP not in f:
         return None
     group = f[GROUP]
+    up = str(group.attrs.get("up", "")) or None
+    mpu = float(group.attrs.get("meters_per_unit", 0.0)) or None
+    if "names" not in group:
+        return Asset(_read_per_group(group), up, mpu)
+    names = [_text(n) for n in group["names"][()]]
+    arrays = {}
+    for name, _, optional in _PACKED:
+        data, at = group[name][()], group[f"{name}_offsets"][()]
+        given = group[f"{name}_given"][()] if optional else np.ones(len(names), dtype=bool)
+        arrays[name] = [data[at[i]:at[i + 1]] if given[i] else None for i in range(len(names))]
+    materials, at = group["materials"][()], group["materials_offsets"][()]
+    parts = [AssetPart(names[i], arrays["points"][i], arrays["face_counts"][i],
+                       arrays["face_indices"][i], arrays["uv"][i], arrays["uv_indices"][i],
+                       arrays["normals"][i], arrays["normal_indices"][i],
+                       [_text(m) for m in materials[at[i]:at[i + 1]]],
+                       arrays["face_material"][i]) for i in range(len(names))]
+    return Asset(parts, up, mpu)
+
+
+def _read_per_group(group) -> list[AssetPart]:
+    """The parts of the layout an earlier version wrote: a group per part."""
     parts = []
     for i in range(len(group)):
         g = group[str(i)]
@@ -280,8 +331,5 @@ def read(src) -> Asset | None:
         parts.append(AssetPart(
             str(g.attrs["name"]), get("points"), get("face_counts"), get("face_indices"),
             get("uv"), get("uv_indices"), get("normals"), get("normal_indices"),
-            [m.decode() if isinstance(m, bytes) else str(m) for m in g["materials"][()]],
-            get("face_material")))
-    up = str(group.attrs.get("up", "")) or None
-    mpu = float(group.attrs.get("meters_per_unit", 0.0)) or None
-    return Asset(parts, up, mpu)
+            [_text(m) for m in g["materials"][()]], get("face_material")))
+    return parts
