@@ -17,6 +17,7 @@ from pipeline.chain.problem import Job, Result
 from pipeline.errors import BloomError
 from pipeline.flower import stagger
 from pipeline.forks import can_fork, pool, workers
+from pipeline.mesh.topology import components
 from pipeline.progress import Progress
 from pipeline.review import report
 from pipeline.sim.build import Prepared
@@ -163,24 +164,23 @@ def _crossings(k: int, positions, parts: list, prep: Prepared, starts, boxes,
 
 
 def _own_where_copies_cross(runs: dict, source: dict, parts: list, prep: Prepared, job: Job,
-                            ckpt: Path, positions, starts) -> None:
+                            ckpt: Path, positions, starts, whole: np.ndarray) -> np.ndarray:
     """A copy blooms as its original does, moved; but the original's neighbours are not
     its own. Each copy whose moved bloom passes through a neighbouring flower, in a frame
     the user sees, blooms on its own as well (rounding can pick another branch of its
     path), and keeps the bloom that crosses in fewer frames: ``runs`` and ``positions``
-    updated in place, the choice logged."""
+    updated in place, the choice logged. ``whole``: the frames in which flowers cross
+    (:func:`_seen_crossing` of them all: a branch has a thousand copies, looked at only
+    where that finds one); returns it, looked at again if a copy changed."""
     copied = sorted(k for k in runs if source[k] is not None)
-    if not copied:
-        return
-    whole = _seen_crossing(list(range(len(parts))), positions, parts, prep, starts)
-    if not whole.any():  # (one look at the whole first: a branch has a thousand copies)
-        return
+    if not copied or not whole.any():
+        return whole
     at = np.flatnonzero(whole)
     boxes = _boxes(positions, parts)
     crossing = {k: n for k in copied
                 if (n := _crossings(k, positions, parts, prep, starts, boxes, frames=at))}
     if not crossing:
-        return
+        return whole
     log.info("%d copied flower(s) pass through a neighbour when moved (%s): each blooms on "
              "its own", len(crossing), ", ".join(f"flower {k} in {n} frame(s)"
                                                   for k, n in crossing.items()))
@@ -202,6 +202,7 @@ def _own_where_copies_cross(runs: dict, source: dict, parts: list, prep: Prepare
             log.info("flower %d blooms as flower %d, moved: on its own it crosses a "
                      "neighbour in %d frame(s), %d as a copy", k, source[k][0], own,
                      crossing[k])
+    return _seen_crossing(list(range(len(parts))), positions, parts, prep, starts)
 
 
 #: flowers that cross blooming apart bloom together only if that ends near the model (an
@@ -216,40 +217,32 @@ TOGETHER_APART = 1.5
 
 
 def _together_where_flowers_cross(runs: dict, parts: list, prep: Prepared, job: Job,
-                                  ckpt: Path, positions, starts):
+                                  ckpt: Path, positions, starts, whole: np.ndarray):
     """Flowers that bloom apart can pass through each other: in the frames the user
     sees (staggered by ``starts``), each flower is at its own stage of growth. The
     flowers that do (found pair by pair) bloom together, each cluster as one problem
     (:meth:`~pipeline.sim.build.Prepared.flowers_part`): the bud search keeps contact
     within each flower (as apart), and the bloom from those buds has contact between
-    them too, starting at one frame: the earliest start among them. Kept where it leaves fewer
-    frames crossing in the whole and ends as near the model (:data:`TOGETHER_OFF`);
-    ``runs`` and ``positions`` updated in place, the choice logged. Returns ``(K,)``
-    each flower's problem (its first flower), or None where each blooms apart."""
-    if starts is None or job.cfg["effects.collisions.enabled"] is False:
+    them too, starting at one frame: the earliest start among them. Kept where it
+    leaves fewer frames crossing in the whole (``whole``: those frames,
+    :func:`_seen_crossing`) and ends as near the model (:data:`TOGETHER_OFF`); ``runs``
+    and ``positions`` updated in place, the choice logged. Returns ``(K,)`` each
+    flower's problem (its first flower), or None where each blooms apart."""
+    if job.cfg["effects.collisions.enabled"] is False or not whole.any():
         return None
     count = len(parts)
     everyone = list(range(count))
-    whole = _seen_crossing(everyone, positions, parts, prep, starts)
-    if not whole.any():
-        return None
     at = np.flatnonzero(whole)
     boxes = _boxes(positions, parts)
     pairs = [(k, int(j)) for k in sorted(runs) for j in _near(k, boxes) if j > k and j in runs
              and _seen_crossing([k, int(j)], positions, parts, prep, starts, frames=at).any()]
-    root = list(range(count))
-
-    def find(k):
-        while root[k] != k:
-            root[k] = root[root[k]]
-            k = root[k]
-        return k
-
-    for a, b in pairs:
-        root[find(b)] = find(a)
+    if not pairs:
+        return None
+    label_of = components(np.asarray(pairs, dtype=np.int64), count)
+    crossing = sorted({q for pair in pairs for q in pair})
     clusters = {}
-    for k in sorted({q for pair in pairs for q in pair}):
-        clusters.setdefault(find(k), []).append(k)
+    for k in crossing:
+        clusters.setdefault(int(label_of[k]), []).append(k)
     cluster = np.arange(count)
     names = job.names if "collisions" in job.names else [*job.names, "collisions"]
     together = dataclasses.replace(job, names=names)
@@ -257,8 +250,8 @@ def _together_where_flowers_cross(runs: dict, parts: list, prep: Prepared, job: 
         label = "flowers " + ", ".join(map(str, members))
         log.info("%s pass through each other in %d of %d frames, blooming apart: they "
                  "bloom together, as one problem with contact between them (their buds "
-                 "searched with contact within each), from frame %d", label, int(whole.sum()), len(whole),
-                 int(np.asarray(starts)[members].min()))
+                 "searched with contact within each), from frame %d", label,
+                 int(whole.sum()), len(whole), int(np.asarray(starts)[members].min()))
         part, idx = prep.flowers_part(members)
         try:
             run = problem.problem(part, together, ckpt.with_name(f"{ckpt.name}-together{c}"),
@@ -293,14 +286,15 @@ def _together_where_flowers_cross(runs: dict, parts: list, prep: Prepared, job: 
     return cluster if np.any(cluster != np.arange(count)) else None
 
 
-def flowers_apart(prep: Prepared, job: Job, ckpt: Path, starts=None) -> Result:
+def flowers_apart(prep: Prepared, job: Job, ckpt: Path, starts) -> Result:
     """Each flower of a file of many as a problem of its own
     (:func:`~pipeline.chain.problem.problem`), put together. A flower whose bloom is
     refused is kept as modelled (its frames the model; its petals opened 0 deg), with a
     warning naming it and why; the run is refused only if every flower is. A copy of
     another flower blooms as it does, moved, unless that passes through a neighbour in a
-    frame the user sees (staggered by ``starts``): then it blooms on its own
-    (:func:`_own_where_copies_cross`)."""
+    frame the user sees (staggered by ``starts``, each flower's start frame): then it
+    blooms on its own (:func:`_own_where_copies_cross`); flowers that pass through each
+    other bloom together (:func:`_together_where_flowers_cross`)."""
     flower = np.asarray(prep.flower)
     count = int(flower.max()) + 1
     petal = np.asarray(prep.petal)
@@ -337,8 +331,12 @@ def flowers_apart(prep: Prepared, job: Job, ckpt: Path, starts=None) -> Result:
     positions = np.repeat(np.asarray(prep.vertices, dtype=np.float64)[None], frames, axis=0)
     for run_, idx in runs.values():
         positions[:, idx] = np.asarray(run_.rec.positions)
-    _own_where_copies_cross(runs, source, parts, prep, job, ckpt, positions, starts)
-    together = _together_where_flowers_cross(runs, parts, prep, job, ckpt, positions, starts)
+    # what the user sees: flowers through each other, staggered
+    whole = _seen_crossing(list(range(count)), positions, parts, prep, starts)
+    whole = _own_where_copies_cross(runs, source, parts, prep, job, ckpt, positions, starts,
+                                    whole)
+    together = _together_where_flowers_cross(runs, parts, prep, job, ckpt, positions, starts,
+                                             whole)
     bud = np.array(prep.vertices, dtype=np.float64)
     per_petal = np.zeros((frames, petals))
     diag: dict = {}

@@ -237,14 +237,15 @@ def _read_gltf(path: Path, where: str) -> Asset:
 #: the per-part arrays of :func:`write`, each stored once for all parts, concatenated
 #: (``<name>``), with where each part's run starts (``<name>_offsets``, ``(P + 1,)``) and,
 #: for those a part may lack, whether it has one (``<name>_given``, ``(P,)``)
-_PACKED = (("points", "(n, 3) each part's vertices, in the file's order", False),
-           ("face_counts", "(m,) corners of each polygon", False),
-           ("face_indices", "(sum face_counts,) into the part's points", False),
-           ("face_material", "(m,) into the part's materials, -1: none", False),
-           ("uv", "(k, 2) texture coordinates", True),
-           ("uv_indices", "per face corner, into the part's uv", True),
-           ("normals", "(j, 3) the file's normals", True),
-           ("normal_indices", "per face corner, into the part's normals", True))
+#: (and each row's width: 3 for points, ``()`` for one index per row)
+_PACKED = (("points", "(n, 3) each part's vertices, in the file's order", False, (3,)),
+           ("face_counts", "(m,) corners of each polygon", False, ()),
+           ("face_indices", "(sum face_counts,) into the part's points", False, ()),
+           ("face_material", "(m,) into the part's materials, -1: none", False, ()),
+           ("uv", "(k, 2) texture coordinates", True, (2,)),
+           ("uv_indices", "per face corner, into the part's uv", True, ()),
+           ("normals", "(j, 3) the file's normals", True, (3,)),
+           ("normal_indices", "per face corner, into the part's normals", True, ()))
 
 
 def write(h5, asset: Asset) -> None:
@@ -261,15 +262,13 @@ def write(h5, asset: Asset) -> None:
     put(h5, f"{GROUP}/names", np.array([p.name for p in parts], dtype=object).astype(
         h5py.string_dtype("utf-8")) if parts else np.zeros(0, dtype=h5py.string_dtype("utf-8")),
         "(P,) each part's name")
-    for name, doc, optional in _PACKED:
+    for name, doc, optional, width in _PACKED:
         runs = [getattr(p, name) for p in parts]
         if name == "face_material":
             runs = [r if r is not None else np.full(len(p.face_counts), -1, dtype=np.int64)
                     for r, p in zip(runs, parts, strict=True)]
         given = np.array([r is not None for r in runs], dtype=bool)
         arrays = [np.asarray(r) for r in runs if r is not None]
-        width = () if name not in ("points", "uv", "normals") else (
-            (3,) if name != "uv" else (2,))
         dtype = np.float64 if width else np.int64
         data = (np.concatenate([a.reshape((-1, *width)).astype(dtype) for a in arrays])
                 if arrays else np.zeros((0, *width), dtype=dtype))
@@ -306,7 +305,7 @@ def read(src) -> Asset | None:
         return Asset(_read_per_group(group), up, mpu)
     names = [_text(n) for n in group["names"][()]]
     arrays = {}
-    for name, _, optional in _PACKED:
+    for name, _, optional, _ in _PACKED:
         data, at = group[name][()], group[f"{name}_offsets"][()]
         given = group[f"{name}_given"][()] if optional else np.ones(len(names), dtype=bool)
         arrays[name] = [data[at[i]:at[i + 1]] if given[i] else None for i in range(len(names))]
