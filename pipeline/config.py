@@ -110,8 +110,17 @@ SCHEMA: dict[str, Any] = {
                            "input's triangles (the mesh is scaled to mean edge 1 either way)",
                            low=0.0),
         "petal_vertices": Key(int, 0, "remesh each petal to about this many vertices (the edge "
-                              "length follows from the petal's area); 0: use target_edge",
+                              "length follows from the petal's area); 0: use target_edge "
+                              "(with neither set, a petal under 100 vertices is remeshed "
+                              "to about 100, and one over remesh.max_petal_vertices to "
+                              "about that many)",
                               low=0),
+        "max_petal_vertices": Key(int, 1500, "with remesh.target_edge and petal_vertices "
+                                  "unset, a petal of more vertices than this is remeshed to "
+                                  "about this many: the shell's bloom converges from about "
+                                  "200 a petal, so a denser one costs time, not shape (the "
+                                  "user's mesh keeps its detail through the binding); 0: "
+                                  "no ceiling", low=0),
         "symmetrize": Key(bool, True, "make each petal mirror-symmetric about its center plane"),
         "workers": Key(int, 0, "processes that remesh petals side by side (8 petals or more); "
                        "0: the CPUs this process may use, at most 4; 1: none. The result is the "

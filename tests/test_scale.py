@@ -173,3 +173,25 @@ def test_many_coarse_petals_are_held_to_a_budget_of_vertices(monkeypatch):
         assert ("a coarse petal is remeshed to about 50 vertices" in "\n".join(result.notes)) \
             == (budget == 200)
     assert np.all(counts[0] > 80) and np.all(counts[1] < 70)  # about 100, then about 50
+
+
+def test_a_dense_petal_is_remeshed_down_to_the_ceiling():
+    """A petal of more than remesh.max_petal_vertices (a studio's dense mesh: the tulip's
+    3,500 a petal; 1,500 by default) is remeshed to about that many, with a note; one
+    under it is kept as it is; remesh.petal_vertices still wins over the ceiling, and
+    remesh.max_petal_vertices = 0 is none."""
+    from pipeline.flower.petals import MAX_PETAL_VERTICES, prepare_parts
+
+    v, f, p = procedural.bud(3, 3 * 400, 0)
+    parts = MeshFile([Part("Bud", v, f)], None, None)
+    kept = np.bincount(prepare_parts(parts, where="bud").petal)
+    result = prepare_parts(parts, where="bud", max_petal_vertices=150)
+    capped = np.bincount(result.petal)
+    assert MAX_PETAL_VERTICES == 1500
+    assert np.all(kept > 300), kept  # under the ceiling: as modelled (about 400)
+    assert np.all((capped > 110) & (capped < 200)), capped  # about 150
+    assert sum("remeshed to about 150" in n for n in result.notes) == 3
+    chosen = np.bincount(prepare_parts(parts, where="bud", petal_vertices=300).petal)
+    assert np.all((chosen > 240) & (chosen < 360)), chosen
+    unbound = np.bincount(prepare_parts(parts, where="bud", max_petal_vertices=0).petal)
+    assert np.array_equal(unbound, kept)  # 0: no ceiling

@@ -57,6 +57,7 @@ def run(mesh: str | Path | None, out: str | Path, cfg: Config, *, overwrite: boo
         result = prepare_parts(mesh_file, where=str(mesh_path),
                                target_edge=cfg["remesh.target_edge"],
                                petal_vertices=cfg["remesh.petal_vertices"],
+                               max_petal_vertices=cfg["remesh.max_petal_vertices"],
                                symmetrize=cfg["remesh.symmetrize"],
                                closed_parts=cfg["remesh.closed_parts"],
                                petals_globs=cfg["scene.petals"], exclude_globs=cfg["scene.exclude"],

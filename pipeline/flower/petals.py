@@ -26,6 +26,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from pipeline import forks
+from pipeline.config import KEYS
 from pipeline.errors import BloomError
 from pipeline.mesh import clean, remesh, repair, symmetry, topology
 from pipeline.mesh.similar import Copies
@@ -45,6 +46,12 @@ MIN_PETAL_VERTICES = 100
 #: thousand blossoms of a few vertices a petal would become half a million vertices):
 #: then each coarse petal is remeshed to this over the petal count, never below its own
 COARSE_BUDGET = 50_000
+#: the default of remesh.max_petal_vertices: a petal with more vertices than this (and no
+#: remesh.target_edge or petal_vertices set) is remeshed to about this many: the shell's
+#: bloom converges from about 200 vertices a petal (docs/shell.md), so a studio's dense
+#: petal (the tulip's 3,500) costs minutes of simulate and changes no shape; the user's
+#: own mesh keeps its detail through the binding
+MAX_PETAL_VERTICES = KEYS["remesh.max_petal_vertices"].default
 DUST = 0.01  #: connected pieces under this fraction of their part's area are dropped
 LAYERED = 0.5  #: a sheet this much of whose area has a second layer behind it is a slab
 #: a mid-surface must cover at least this fraction of half its shell's area (a shell's
@@ -85,6 +92,7 @@ class Petals:
 
 
 def _build(v, f, petal, report, *, target_edge, petal_vertices, symmetrize, dropped=(),
+           most: int = MAX_PETAL_VERTICES,
            labels=None, part_of=None, thick=None, notes=None, where: str = "",
            progress=None, workers: int = 1) -> Petals:
     """Steps 3 to 5 (see the module notes) on clean petal sheets ``v, f`` labelled ``petal``.
@@ -109,7 +117,7 @@ def _build(v, f, petal, report, *, target_edge, petal_vertices, symmetrize, drop
         notes.append(f"{count} petals: a coarse petal is remeshed to about {least} vertices, "
                      f"not {MIN_PETAL_VERTICES} ({COARSE_BUDGET} in all for the file; "
                      "remesh.petal_vertices sets it)")
-    tasks = [(v[idx], lf, target_edge, petal_vertices, symmetrize, labels[p], scale, least)
+    tasks = [(v[idx], lf, target_edge, petal_vertices, symmetrize, labels[p], scale, least, most)
              for p, (idx, lf) in enumerate(groups)]
     # a petal that is a copy of another (moved, turned, and scaled unless the target edge
     # is absolute) is remeshed once: instanced blossoms, a bush of one daisy's copies
@@ -241,7 +249,7 @@ def _one_task(task):
 
 
 def _one_petal(pts, lf, target_edge, petal_vertices, symmetrize, label, scale,
-               least: int = MIN_PETAL_VERTICES) -> dict:
+               least: int = MIN_PETAL_VERTICES, most: int = MAX_PETAL_VERTICES) -> dict:
     """One petal (mean edge 1 units) through steps 4 and 5: its center plane, the remesh
     target, :func:`_petal`, and the checks after. Returns a dict: ``vertices``, ``faces``,
     ``plane``, ``h``, ``before``/``after`` (asymmetry), ``worst`` (smallest angle),
@@ -254,6 +262,10 @@ def _one_petal(pts, lf, target_edge, petal_vertices, symmetrize, label, scale,
         h = remesh.target_for_vertices(pts, lf, least)
         notes.append(f"{label}: {len(pts)} vertices: remeshed to about {least} "
                      "(remesh.petal_vertices sets it)")
+    elif h == 0.0 and 0 < most < len(pts):  # a studio's dense petal
+        h = remesh.target_for_vertices(pts, lf, most)
+        notes.append(f"{label}: {len(pts)} vertices: remeshed to about {most} "
+                     "(remesh.max_petal_vertices sets it)")
     try:
         pts, lf, h, note, mirrored = _petal(pts, lf, plane, h, symmetrize, label, scale)
     except ValueError as exc:  # no sheet the remesher can take, nor the input's
@@ -492,7 +504,8 @@ def _unique_faces(faces: np.ndarray) -> np.ndarray:
 
 
 def prepare_parts(mesh_file, *, where: str, target_edge: float = 0.0, petal_vertices: int = 0,
-                  symmetrize: bool = True, closed_parts: str = "refuse", petals_globs=(),
+                  max_petal_vertices: int = MAX_PETAL_VERTICES, symmetrize: bool = True,
+                  closed_parts: str = "refuse", petals_globs=(),
                   exclude_globs=(), dust: float = DUST, flower: str = "all",
                   progress=None, workers: int = 1) -> Petals:
     """The remesh stage on a file's named parts (:func:`pipeline.io.meshfile.read_parts`).
@@ -612,7 +625,7 @@ def prepare_parts(mesh_file, *, where: str, target_edge: float = 0.0, petal_vert
     petal = np.concatenate([np.full(len(sv), k, dtype=np.int64) for k, (sv, _, _, _) in enumerate(sheets)])
     labels = [f"petal {k} ({names[i]})" for k, (_, _, i, _) in enumerate(sheets)]
     result = _build(v, f, petal, total, target_edge=target_edge, petal_vertices=petal_vertices,
-                    where=where,
+                    most=max_petal_vertices, where=where,
                     symmetrize=symmetrize, dropped=dropped, labels=labels,
                     part_of=[i for _, _, i, _ in sheets], thick=[t for _, _, _, t in sheets],
                     notes=notes, progress=report, workers=workers)
