@@ -222,6 +222,21 @@ def test_when_the_rounds_run_out_the_pairs_still_crossing_are_left_as_modelled()
     assert frame_intersections([out.vertices], f, p, out.patch) == [False]
 
 
+def test_separation_gives_up_on_counts_that_grow_not_on_counts_that_wander_down():
+    """The rule that ends the rounds early, on the crossing counts real models gave: the
+    lotus's grew from the first push on (given up after 3 rounds with no fewer); the
+    tulip's wandered under its input's before reaching none (not given up); souki202's
+    rose once and fell."""
+    from pipeline.mesh.separate import STALL, STALL_UNDER, _stalled
+
+    lotus, tulip, souki = [2199, 6377, 8479, 9501], [19, 5, 3, 11, 13, 12, 13, 0], [48, 50, 5, 0]
+    assert [_stalled(lotus[:k + 1]) for k in range(len(lotus))] == [0, 0, 0, STALL]
+    assert not any(_stalled(tulip[:k + 1]) for k in range(len(tulip)))
+    assert not any(_stalled(souki[:k + 1]) for k in range(len(souki)))
+    under = [19, 3] + [4] * STALL_UNDER  # under the input's, but never fewer again
+    assert _stalled(under) == STALL_UNDER and not _stalled(under[:-1])
+
+
 def test_a_petal_the_moves_would_fold_is_left_as_modelled(monkeypatch):
     """Where the separated petals would leave one folded over itself (a branch's blossoms
     packed into each other), with ``leave`` its pairs are put back as modelled, and

@@ -185,11 +185,10 @@ def separate(vertices: np.ndarray, faces: np.ndarray, petal: np.ndarray, gap: fl
     X = X0.copy()
     crossed0 = close0 = None
     sides: dict = {}
-    fewest, stalled, first = np.inf, 0, None
+    counts = []  # (crossing edges, round by round)
     for it in range(max_iterations + 1):
         crossing = _crossings(X, F, E, patches)
-        fewest, stalled = (len(crossing), 0) if len(crossing) < fewest else (fewest, stalled + 1)
-        first = len(crossing) if first is None else first
+        counts.append(len(crossing))
         near = _near(mesh, X, petal, gap, crossing)
         close = [c for c in near if c[2] < gap]
         if progress is not None:  # (a round on a studio model takes seconds)
@@ -203,8 +202,8 @@ def separate(vertices: np.ndarray, faces: np.ndarray, petal: np.ndarray, gap: fl
                                   length=length, patch=petal.copy())
         if not len(crossing) and not close:
             break
-        if it == max_iterations or (len(crossing) and stalled >= (
-                STALL if len(crossing) > first else STALL_UNDER)):
+        stalled = _stalled(counts)
+        if it == max_iterations or stalled:
             pairs = _involved(crossing, close, E, F, petal)
             why = (f"still {_state(crossing, close, E, F, petal)} after {it} rounds"
                    + (f", the last {stalled} with no fewer crossings" if it < max_iterations
@@ -245,6 +244,16 @@ def separate(vertices: np.ndarray, faces: np.ndarray, petal: np.ndarray, gap: fl
                       float(move.max()), float(np.sqrt(np.mean(move ** 2))), it,
                       _min_distance(mesh, X, gap), length, left, reason,
                       _patches(petal, count, left))
+
+
+def _stalled(counts: list[int]) -> int:
+    """Whether separation gives up, from the crossing edges of each round so far: the
+    rounds since the count last fell below its fewest, when they reach :data:`STALL` with
+    more crossings than the input had, or :data:`STALL_UNDER` with fewer; else 0."""
+    last = counts[-1]
+    since = len(counts) - 1 - int(np.argmin(counts))  # (argmin: the first fewest)
+    need = STALL if last > counts[0] else STALL_UNDER
+    return since if last and since >= need else 0
 
 
 def _culprits(X0, petal, over, pairs) -> list[tuple[int, int]]:
