@@ -179,8 +179,9 @@ SCHEMA: dict[str, Any] = {
                      "mesh), open (the mesh is the open flower: Bloom finds the bud it grew "
                      "from by running growth backward, and the bloom ends on the mesh), or "
                      "auto: decided from the model (a flower whose petals lean over 30 deg "
-                     "from its axis with their tips turned outward, or a lone petal that "
-                     "turns under 45 deg, is open), "
+                     "from its axis with their tips turned outward, or whose petals roll "
+                     "back (over half its curvature away from its inside), or a lone petal "
+                     "that turns under 45 deg, is open), "
                      "logged and recorded as growth_start in sim.h5",
                      choices=("auto", "bud", "open")),
         "close": Key(float, 1.0, "growth.start = open: how far to close, a scale on the "

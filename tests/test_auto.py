@@ -10,7 +10,7 @@ from click.testing import CliRunner
 
 from pipeline.config import load_config
 from pipeline.errors import BloomError
-from pipeline.flower.measure import OPEN_CHORD, OPEN_CUP, bloom_start, petals_within_reach
+from pipeline.flower.measure import OPEN_CHORD, OPEN_CUP, OPEN_RECURVE, bloom_start, petals_within_reach
 from pipeline.mesh import procedural, topology
 from pipeline.sim.build import Prepared
 from pipeline.sim.reverse import petal_lengths
@@ -29,6 +29,30 @@ def test_a_closed_bud_blooms_forward_and_an_open_flower_back_onto_itself():
     lily = _start(*procedural.open_flower(6, 1800, 0))
     assert lily.start == "open" and lily.figure > 1.5 * OPEN_CHORD
     assert "from the flower's axis" in lily.reason and f"{lily.figure:.1f}" in lily.reason
+
+
+def test_a_flower_whose_petals_rise_but_roll_back_is_open():
+    """A flower's petals that stand along its axis (a bud's lean) but curve away from its
+    inside (an open rose's inner whorls) make an open flower: rims' growth would close
+    them. The bud's own petals, each mirrored across the plane through its centre and
+    the flower's axis, lean as before but roll back."""
+    v, f, p = procedural.bud(5, 1000, 1)
+    prep = Prepared.from_mesh(v, f, p)
+    point, up = prep.flower_axis[:3], prep.flower_axis[3:] / np.linalg.norm(prep.flower_axis[3:])
+    rolled = v.copy()
+    for q in range(5):
+        mine = p == q
+        centre = v[mine].mean(axis=0)
+        out = centre - point - ((centre - point) @ up) * up
+        out /= np.linalg.norm(out)
+        rolled[mine] = v[mine] - 2.0 * np.outer((v[mine] - centre) @ out, out)
+    back = Prepared.from_mesh(rolled, f, p)
+    assert prep.recurve() < 0.01 and back.recurve() > 0.99  # measured 0.3%, 99.98%
+    bud, open_ = (bloom_start(q.vertices, q.faces, q.petal, q.base, q.tip, q.s, q.x, q.on_axis,
+                              q.flower_axis, recurve=q.recurve) for q in (prep, back))
+    assert bud.start == "bud" and open_.start == "open"
+    assert open_.figure < OPEN_CHORD / 2  # (not by its lean: 9.1 deg)
+    assert f"over {100 * OPEN_RECURVE:g}%" in open_.reason and "100% of its squared" in open_.reason
 
 
 def test_a_cupped_petal_is_a_bud_and_a_flat_one_is_open():

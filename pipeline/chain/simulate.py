@@ -178,7 +178,7 @@ def decide_start(cfg: Config, prep: Prepared) -> Start:
         start = Start("bud", float("nan"), "connection springs hold a bud")
     else:
         start = bloom_start(prep.vertices, prep.faces, prep.petal, prep.base, prep.tip, prep.s,
-                            prep.x, prep.on_axis, prep.flower_axis)
+                            prep.x, prep.on_axis, prep.flower_axis, recurve=prep.recurve)
     what = ("Bloom finds the bud it grew from and blooms back to the model"
             if start.start == "open" else "it blooms forward from the model")
     log.info("growth.start = auto: %s (%s): %s", start.start, start.reason, what)

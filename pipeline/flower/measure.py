@@ -201,6 +201,13 @@ OPEN_TIP = 5.0
 #: (the water lily: median 26.5 deg, its outer whorl 79.6 deg, tips 97 deg out; no bud
 #: of the project leans its outer petals past 35 deg, the closed lotus 58.2)
 OPEN_OUTER = 60.0
+#: ... or whose petals are rolled back: more than this share of the flower's squared
+#: curvature curves away from its inside (the shell's forms, ``Prepared.recurve``). A
+#: bud's petals cup over its centre (the default buds 0.3-0.4%, the lotus 3.4%, the
+#: tulip 36%); rims' growth would close rolled-back petals (an open rose of 50 petals,
+#: 83%, whose inner whorls stand: chords 17.7 deg, the outer 57.9; bloomed forward every
+#: petal closed 25-59 deg). The open models: 18-83%
+OPEN_RECURVE = 0.5
 #: ... and a lone petal whose surface turns (median over its rims and midrib) less than
 #: this from base to tip and across is already open (a cupped bud petal: 89 deg; the
 #: external single petals: 0-53 deg)
@@ -216,13 +223,17 @@ class Start:
     reason: str  #: one line: the measure, its value and the threshold
 
 
-def bloom_start(vertices, faces, petal, base, tip, s, x, on_axis, flower_axis) -> Start:
+def bloom_start(vertices, faces, petal, base, tip, s, x, on_axis, flower_axis,
+                recurve=None) -> Start:
     """Whether the model is a closed bud or an open flower.
 
     A flower (two petals or more, its axis known): the median angle between each
     petal's base-to-tip chord and the flower's axis (toward the tips); a bud's petals
     rise along the axis (under :data:`OPEN_CHORD`), an open flower's spread, and so do
-    the outer petals of an open flower of whorls (:data:`OPEN_OUTER`). A lone
+    the outer petals of an open flower of whorls (:data:`OPEN_OUTER`); a flower whose
+    petals rise but are rolled back is open too (``recurve``, a callable giving the
+    share of the flower's squared curvature that curves away from its inside, asked
+    only then: over :data:`OPEN_RECURVE`). A lone
     petal: how far its surface turns, the median over the petal of the angle between
     the normals at its base and tip along the midrib and between its two rims across;
     a bud petal is a deep cup (over :data:`OPEN_CUP`), an open one nearly flat."""
@@ -244,13 +255,18 @@ def bloom_start(vertices, faces, petal, base, tip, s, x, on_axis, flower_axis) -
         outer, outer_turn = float(np.percentile(angles, 90)), float(np.percentile(turns, 90))
         spread = lean > OPEN_CHORD and turn > OPEN_TIP
         whorl = outer > OPEN_OUTER and outer_turn > OPEN_TIP
-        start = "open" if spread or whorl else "bud"
+        rolled = (None if spread or whorl or recurve is None else float(recurve()))
+        back = rolled is not None and rolled > OPEN_RECURVE
+        start = "open" if spread or whorl or back else "bud"
         return Start(start, lean, f"the petals' base-to-tip chords lean {lean:.1f} deg (median) "
                      f"from the flower's axis, their tips turn {turn:.1f} deg outward; a bud's "
                      f"lean is under {OPEN_CHORD:g}, or its tips under {OPEN_TIP:g}"
                      + (f"; but its outer petals lean {outer:.1f} deg, tips {outer_turn:.1f} deg "
                         f"out (90th percentile; over {OPEN_OUTER:g}: an open flower of whorls)"
-                        if whorl and not spread else ""))
+                        if whorl and not spread else "")
+                     + (f"; {100 * rolled:.0f}% of its squared curvature rolls back, away "
+                        f"from its inside (over {100 * OPEN_RECURVE:g}%: an open flower)"
+                        if rolled is not None else ""))
     normals = topology.vertex_normals(v, faces)
     turns = []
     for p in range(count):

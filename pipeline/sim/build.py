@@ -243,6 +243,18 @@ class Prepared:
         return float(np.mean(leans(model, self.petal, self.base, self.tip, axes)
                              - leans(bud, self.petal, self.base, self.tip, axes)))
 
+    def recurve(self) -> float:
+        """How much of the model's curvature curves away from its flower's inside: the
+        share of its squared curvature (:func:`pipeline.sim.budshape.recurve_share`, the
+        shell's second fundamental forms; the sides by
+        :func:`~pipeline.sim.budshape.inner_sides`). A bud's petals cup over its centre
+        (the default buds: 1-3%); an open rose's are rolled back (83%)."""
+        from pipeline.sim.budshape import inner_sides, recurve_share
+
+        sh = self.shell_model(1.0, 0.025, 1.0 / 3.0).shell  # (the form: geometry only)
+        inside = inner_sides(self.vertices, self.faces, self.petal, self.s, self.petal_axes())
+        return recurve_share(self.vertices, sh.face_indices, sh.form_at(self.vertices), inside)
+
     def frames(self, positions=None):
         """The petal frames the opening angle is measured in, at ``positions`` (default
         the rest state)."""
