@@ -9,7 +9,6 @@ from __future__ import annotations
 from itertools import combinations
 
 import numpy as np
-import scipy.sparse as sp
 
 from pipeline.mesh import topology
 from pipeline.mesh.hinge import dihedral_angles
@@ -103,14 +102,18 @@ def face_stencil(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     lone = np.flatnonzero((opp < 0).any(axis=1))
     if len(lone) == 0:
         return out
-    n = len(X)
-    incidence = sp.csr_matrix((np.ones(f.size), (f.ravel(), np.repeat(np.arange(len(f)), 3))),
-                              shape=(n, len(f)))
+    # each vertex's faces (the incidence's rows, as index arrays: a slice per corner)
+    order = np.argsort(f.ravel(), kind="stable")
+    start = np.searchsorted(f.ravel()[order], np.arange(len(X) + 1))
+    of_face = order // 3
+    taken = np.zeros(len(X), dtype=bool)
     for k in lone:
         face, row = f[k], opp[k]
-        ring = np.unique(f[incidence[face].indices].ravel())
+        ring = np.unique(f[np.concatenate([of_face[start[c]:start[c + 1]] for c in face])])
         drop = np.r_[face, row[row >= 0]]
-        cand = ring[~np.isin(ring, drop)]
+        taken[drop] = True
+        cand = ring[~taken[ring]]
+        taken[drop] = False
         cand = cand[_below_crease(X, face, cand)]
         missing = np.flatnonzero(row < 0)
         have = row[row >= 0]
