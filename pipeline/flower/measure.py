@@ -232,8 +232,8 @@ def bloom_start(vertices, faces, petal, base, tip, s, x, on_axis, flower_axis,
     rise along the axis (under :data:`OPEN_CHORD`), an open flower's spread, and so do
     the outer petals of an open flower of whorls (:data:`OPEN_OUTER`); a flower whose
     petals rise but are rolled back is open too (``recurve``, a callable giving the
-    share of the flower's squared curvature that curves away from its inside, asked
-    only then: over :data:`OPEN_RECURVE`). A lone
+    share of the flower's squared curvature that curves away from its inside, or None
+    where it cannot tell; asked only then: over :data:`OPEN_RECURVE`). A lone
     petal: how far its surface turns, the median over the petal of the angle between
     the normals at its base and tip along the midrib and between its two rims across;
     a bud petal is a deep cup (over :data:`OPEN_CUP`), an open one nearly flat."""
@@ -255,7 +255,7 @@ def bloom_start(vertices, faces, petal, base, tip, s, x, on_axis, flower_axis,
         outer, outer_turn = float(np.percentile(angles, 90)), float(np.percentile(turns, 90))
         spread = lean > OPEN_CHORD and turn > OPEN_TIP
         whorl = outer > OPEN_OUTER and outer_turn > OPEN_TIP
-        rolled = (None if spread or whorl or recurve is None else float(recurve()))
+        rolled = None if spread or whorl or recurve is None else recurve()
         back = rolled is not None and rolled > OPEN_RECURVE
         start = "open" if spread or whorl or back else "bud"
         return Start(start, lean, f"the petals' base-to-tip chords lean {lean:.1f} deg (median) "

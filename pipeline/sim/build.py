@@ -22,7 +22,7 @@ from pipeline.mesh.hinge import edge_lengths
 from pipeline.sim import effects as fx
 from pipeline.sim.model import Model
 from pipeline.sim.terms.elastic import internal_forces
-from pipeline.sim.terms.shell import ShellData, petal_size
+from pipeline.sim.terms.shell import POISSON, ShellData, petal_size
 
 
 @dataclass
@@ -243,15 +243,19 @@ class Prepared:
         return float(np.mean(leans(model, self.petal, self.base, self.tip, axes)
                              - leans(bud, self.petal, self.base, self.tip, axes)))
 
-    def recurve(self) -> float:
+    def recurve(self) -> float | None:
         """How much of the model's curvature curves away from its flower's inside: the
         share of its squared curvature (:func:`pipeline.sim.budshape.recurve_share`, the
         shell's second fundamental forms; the sides by
         :func:`~pipeline.sim.budshape.inner_sides`). A bud's petals cup over its centre
-        (the default buds: 1-3%); an open rose's are rolled back (83%)."""
+        (the default buds: 0.3-0.4%); an open rose's are rolled back (83%). None where
+        the sheet has a face of no area (no form to measure)."""
         from pipeline.sim.budshape import inner_sides, recurve_share
 
-        sh = self.shell_model(1.0, 0.025, 1.0 / 3.0).shell  # (the form: geometry only)
+        try:  # (the moduli do not matter: the form is the geometry's)
+            sh = self.shell_model(1.0, 0.025, POISSON).shell
+        except ValueError:
+            return None
         inside = inner_sides(self.vertices, self.faces, self.petal, self.s, self.petal_axes())
         return recurve_share(self.vertices, sh.face_indices, sh.form_at(self.vertices), inside)
 
