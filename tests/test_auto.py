@@ -1,7 +1,10 @@
-"""Defaults decided from the model: which way to bloom (growth.start = auto) and whether
-petals can meet (effects.collisions.enabled = auto)."""
+"""Defaults decided from the model: which way to bloom (growth.start = auto), whether
+petals can meet (effects.collisions.enabled = auto), and a bud whose petals do not open
+held further (simulate's second try)."""
 
 from __future__ import annotations
+
+import types
 
 import h5py
 import numpy as np
@@ -141,3 +144,53 @@ def test_an_open_flower_whose_inner_whorls_stand_is_open():
     assert whorls.figure < OPEN_CHORD and whorls.start == "open", whorls.reason
     assert "outer petals lean" in whorls.reason and f"over {OPEN_OUTER:g}" in whorls.reason
     assert _start(vi, fi, pi).start == "bud"
+
+
+def test_a_bud_whose_petals_do_not_open_blooms_again_held_further(monkeypatch, tmp_path):
+    """A bud's bloom with a petal under 5 deg is run again with each petal held up to
+    s = HOLD_BOWL, and that bloom is kept where more petals open; not when every petal
+    opened, not when the scene sets how petals are held, and the first bloom is kept
+    where holding opens no more. (The runs are stand-ins: which petals open is read
+    from the base each was given.)"""
+    from pipeline.chain import problem
+    from pipeline.chain import simulate as chain
+    from pipeline.flower.measure import Start
+
+    prep = Prepared.from_mesh(*procedural.bud(3, 300, 0))
+    held_base = prep.base | (np.asarray(prep.s) <= chain.HOLD_BOWL)
+    runs = []
+
+    def bloom(opening_held):
+        def run(p, job, ckpt, label=""):
+            runs.append((p, job, ckpt))
+            last = opening_held if np.array_equal(p.base, held_base) else [20.0, 1.0, 2.0]
+            return types.SimpleNamespace(diag={"opening_angle_per_petal": np.array(
+                [[0.0, 0.0, 0.0], last])})
+        return run
+
+    monkeypatch.setattr(problem.Result, "of", staticmethod(lambda run: run))
+    first = bloom(None)(prep, None, None)
+    runs.clear()
+    cfg = load_config()
+    job = problem.Job(cfg, Start("bud", 0.0, ""), [], {"growth.h5": "x"}, False, False, "t")
+    ckpt = tmp_path / "sim.h5.ckpt"
+
+    monkeypatch.setattr(problem, "problem", bloom([20.0, 14.0, 15.0]))
+    kept, result, held = chain.hold_bowls(cfg, prep, job, ckpt, first)
+    assert held == chain.HOLD_BOWL and np.array_equal(kept.base, held_base)
+    assert result.diag["opening_angle_per_petal"][-1].min() == 14.0
+    (p, again_job, again_ckpt), = runs
+    assert again_job.inputs["base held to"] == chain.HOLD_BOWL  # (its own checkpoint key)
+    assert again_ckpt.name == "sim.h5.ckpt-held"
+
+    runs.clear()  # holding opens no more petals: the first bloom is kept
+    monkeypatch.setattr(problem, "problem", bloom([20.0, 1.0, 3.0]))
+    kept, result, held = chain.hold_bowls(cfg, prep, job, ckpt, first)
+    assert held is None and kept is prep and result is first and len(runs) == 1
+
+    runs.clear()  # the scene says how petals are held: no second try
+    said = load_config(None, ["axis.base_band=0.1"])
+    assert chain.hold_bowls(said, prep, job, ckpt, first)[2] is None and not runs
+    opened = types.SimpleNamespace(diag={"opening_angle_per_petal": np.array([[0.0] * 3,
+                                                                              [20.0] * 3])})
+    assert chain.hold_bowls(cfg, prep, job, ckpt, opened)[1] is opened and not runs
