@@ -164,8 +164,9 @@ def test_a_bud_whose_petals_do_not_open_blooms_again_held_further(monkeypatch, t
         def run(p, job, ckpt, label=""):
             runs.append((p, job, ckpt))
             last = opening_held if np.array_equal(p.base, held_base) else [20.0, 1.0, 2.0]
-            return types.SimpleNamespace(diag={"opening_angle_per_petal": np.array(
-                [[0.0, 0.0, 0.0], last])})
+            return problem.Result(None, {}, [], None, None, None, {
+                "opening_angle_per_petal": np.array([[0.0, 0.0, 0.0], last])}, 2.0, None, 0,
+                None)
         return run
 
     monkeypatch.setattr(problem.Result, "of", staticmethod(lambda run: run))
@@ -179,6 +180,7 @@ def test_a_bud_whose_petals_do_not_open_blooms_again_held_further(monkeypatch, t
     kept, result, held = chain.hold_bowls(cfg, prep, job, ckpt, first)
     assert held == chain.HOLD_BOWL and np.array_equal(kept.base, held_base)
     assert result.diag["opening_angle_per_petal"][-1].min() == 14.0
+    assert result.wall == 4.0  # (the stage's seconds: both blooms)
     (p, again_job, again_ckpt), = runs
     assert again_job.inputs["base held to"] == chain.HOLD_BOWL  # (its own checkpoint key)
     assert again_ckpt.name == "sim.h5.ckpt-held"
@@ -186,7 +188,8 @@ def test_a_bud_whose_petals_do_not_open_blooms_again_held_further(monkeypatch, t
     runs.clear()  # holding opens no more petals: the first bloom is kept
     monkeypatch.setattr(problem, "problem", bloom([20.0, 1.0, 3.0]))
     kept, result, held = chain.hold_bowls(cfg, prep, job, ckpt, first)
-    assert held is None and kept is prep and result is first and len(runs) == 1
+    assert held is None and kept is prep and len(runs) == 1
+    assert result.diag is first.diag and result.wall == 4.0
 
     runs.clear()  # the scene says how petals are held: no second try
     said = load_config(None, ["axis.base_band=0.1"])

@@ -175,7 +175,8 @@ def hold_bowls(cfg: Config, prep: Prepared, job, ckpt: Path, result):
     """A bud's bloom of which some petals did not open, tried again with each petal held
     up to :data:`HOLD_BOWL` of its length (unless the scene sets how petals are held,
     :data:`HOLD_KEYS`): ``(prep, result, held)``, the second bloom's (``held`` the s it
-    holds to) where more of its petals open, else the first's (``held`` None). Logged."""
+    holds to) where more of its petals open, else the first's (``held`` None), its wall
+    seconds those of both. Logged."""
     opening = result.diag.get("opening_angle_per_petal")
     if opening is None or any(key in cfg.given for key in HOLD_KEYS):
         return prep, result, None
@@ -196,13 +197,14 @@ def hold_bowls(cfg: Config, prep: Prepared, job, ckpt: Path, result):
     opened = again.diag.get("opening_angle_per_petal")
     still = (int(np.sum(np.asarray(opened)[-1] < report.NOT_OPEN)) if opened is not None
              else shut)
+    both = result.wall + again.wall  # (the seconds the stage spent: both blooms)
     if still < shut:
         log.info("held up to s = %g: %d of them do not open (%d before): that bloom kept",
                  HOLD_BOWL, still, shut)
-        return held, again, HOLD_BOWL
+        return held, dataclasses.replace(again, wall=both), HOLD_BOWL
     log.info("held up to s = %g: %d do not open (%d before): the first bloom kept",
              HOLD_BOWL, still, shut)
-    return prep, result, None
+    return prep, dataclasses.replace(result, wall=both), None
 
 
 def decide_flowers(cfg: Config, prep: Prepared, flowers: int, frames: int):
