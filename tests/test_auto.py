@@ -197,3 +197,27 @@ def test_a_bud_whose_petals_do_not_open_blooms_again_held_further(monkeypatch, t
     opened = types.SimpleNamespace(diag={"opening_angle_per_petal": np.array([[0.0] * 3,
                                                                               [20.0] * 3])})
     assert chain.hold_bowls(cfg, prep, job, ckpt, opened)[1] is opened and not runs
+
+
+def test_a_bud_that_closes_is_tried_again_held_and_kept_as_it_was(tmp_path):
+    """A real run: a bud whose rims shrink (growth -0.2 x^2) closes every petal; simulate
+    blooms it again held up to HOLD_BOWL, which closes them too, so the first bloom is
+    kept: no base_held_to, the growth stage's base, no checkpoint left behind."""
+    runner = CliRunner()
+    mesh = tmp_path / "m.obj"
+    assert runner.invoke(cli, ["asset", "bud", "--petals", "3", "--vertices", "600",
+                               "--out", str(mesh)]).exit_code == 0
+    paths = [mesh] + [tmp_path / f"{k}.h5" for k in ("r", "a", "g", "s")]
+    extra = {"growth": ["--set", "growth.curve=-0.2*x**2"],
+             "simulate": ["--set", "simulate.frames=5"]}
+    for stage, src, out in zip(("remesh", "axis", "growth", "simulate"), paths[:-1], paths[1:],
+                               strict=True):
+        r = runner.invoke(cli, [stage, str(src), "--out", str(out), *extra.get(stage, [])])
+        assert r.exit_code == 0, r.output
+    assert "3 of 3 petals did not open" in r.output and "blooming again" in r.output
+    assert "the first bloom kept" in r.output
+    with h5py.File(paths[-2]) as g, h5py.File(paths[-1]) as s:
+        assert "base_held_to" not in s.attrs
+        assert np.array_equal(s["axis/base"][:], g["axis/base"][:])
+        assert np.all(s["diagnostics/opening_angle_per_petal"][-1] < 0.0)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a.h5", "g.h5", "m.obj", "r.h5", "s.h5"]
