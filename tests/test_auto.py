@@ -191,6 +191,13 @@ def test_a_bud_whose_petals_do_not_open_blooms_again_held_further(monkeypatch, t
     assert held is None and kept is prep and len(runs) == 1
     assert result.diag is first.diag and result.wall == 4.0
 
+    def fails(p, job, ckpt, label=""):
+        raise BloomError("no equilibrium", where="t")
+
+    monkeypatch.setattr(problem, "problem", fails)  # a second try that fails: the first
+    kept, result, held = chain.hold_bowls(cfg, prep, job, ckpt, first)
+    assert held is None and kept is prep and result is first
+
     runs.clear()  # the scene says how petals are held: no second try
     said = load_config(None, ["axis.base_band=0.1"])
     assert chain.hold_bowls(said, prep, job, ckpt, first)[2] is None and not runs

@@ -192,8 +192,12 @@ def hold_bowls(cfg: Config, prep: Prepared, job, ckpt: Path, result):
              report.NOT_OPEN, HOLD_BOWL)
     held = dataclasses.replace(prep, base=wider)
     again_job = dataclasses.replace(job, inputs={**job.inputs, "base held to": HOLD_BOWL})
-    again = problem.Result.of(problem.problem(held, again_job,
-                                              ckpt.with_name(ckpt.name + "-held")))
+    try:
+        again = problem.Result.of(problem.problem(held, again_job,
+                                                  ckpt.with_name(ckpt.name + "-held")))
+    except BloomError as exc:  # (the first bloom stands)
+        log.info("held up to s = %g: no bloom (%s): the first bloom kept", HOLD_BOWL, exc)
+        return prep, result, None
     opened = again.diag.get("opening_angle_per_petal")
     still = (int(np.sum(np.asarray(opened)[-1] < report.NOT_OPEN)) if opened is not None
              else shut)
