@@ -230,3 +230,15 @@ def test_compiled_edges_and_components_are_numpys_and_scipys():
         np.testing.assert_array_equal(topology.components(f, n + 3), by_scipy(f, n + 3))
         e = f[:, :2]
         np.testing.assert_array_equal(topology.components(e, n), by_scipy(e, n))
+
+
+def test_by_label_gives_each_values_indices_as_a_mask_would():
+    """topology.by_label: one sort, the same indices (ascending) as ``flatnonzero(label ==
+    k)`` for every value, empty for a value absent."""
+    label = np.random.default_rng(3).integers(0, 6, 200)
+    label[label == 4] = 5  # (4 absent)
+    groups = topology.by_label(label, 7)
+    assert len(groups) == 7
+    for k, idx in enumerate(groups):
+        assert np.array_equal(idx, np.flatnonzero(label == k))
+    assert len(groups[4]) == 0 and len(groups[6]) == 0

@@ -18,6 +18,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from pipeline.mesh.topology import by_label
+
 
 def start_frames(flowers: int, spread: int, seed: int) -> np.ndarray:
     """``(flowers,)`` each flower's start frame, in ``[0, spread]``, the earliest 0 (no
@@ -36,11 +38,7 @@ def staggered(positions, vertex_flower, starts) -> np.ndarray:
     flower = np.asarray(vertex_flower, dtype=np.int64)
     frames = len(P) + int(starts.max(initial=0))
     out = np.empty((frames, *P.shape[1:]), dtype=P.dtype)
-    order = np.argsort(flower, kind="stable")  # (each flower's vertices, without a pass
-    # over all of them per flower: a branch of a thousand blossoms took a minute)
-    bounds = np.searchsorted(flower[order], np.arange(len(starts) + 1))
-    for f, start in enumerate(starts):
-        mine = order[bounds[f]:bounds[f + 1]]
+    for start, mine in zip(starts, by_label(flower, len(starts)), strict=True):
         source = np.clip(np.arange(frames) - start, 0, len(P) - 1)
         out[:, mine] = P[source[:, None], mine[None, :]]
     return out

@@ -20,7 +20,7 @@ from scipy.spatial import cKDTree
 
 from pipeline.mesh.ipc import ipctk as one_thread
 from pipeline.mesh.nearest import Triangles
-from pipeline.mesh.topology import face_normals, unique_edges, vertex_normals
+from pipeline.mesh.topology import by_label, face_normals, unique_edges, vertex_normals
 
 #: no vertex moves further than this fraction of its petal's length
 MAX_MOVE = 0.15
@@ -349,7 +349,7 @@ def _folded(X, F, petal) -> list[int]:
         return []
     out = []
     n = int(petal.max()) + 1
-    for p, (verts, faces) in enumerate(zip(_by(petal, n), _by(petal[F[:, 0]], n), strict=True)):
+    for p, (verts, faces) in enumerate(zip(by_label(petal, n), by_label(petal[F[:, 0]], n), strict=True)):
         if not len(faces):
             continue
         sub = np.asfortranarray(np.searchsorted(verts, F[faces]), dtype=np.int32)
@@ -515,15 +515,8 @@ def _rim(F, E, petal) -> dict:
     vertex[rim.ravel()] = True
     n = int(petal.max()) + 1
     return {"vertex": vertex, "edges": np.sort(rim[:, 0] * count + rim[:, 1]), "count": count,
-            "verts": _by(petal, n), "faces": _by(petal[F[:, 0]], n),
-            "edge_rows": _by(petal[E[:, 0]], n), "near": {}}
-
-
-def _by(label, count: int) -> list[np.ndarray]:
-    """The indices of ``label`` of each value under ``count``, ascending."""
-    order = np.argsort(label, kind="stable")
-    bounds = np.searchsorted(label[order], np.arange(count + 1))
-    return [order[bounds[k]:bounds[k + 1]] for k in range(count)]
+            "verts": by_label(petal, n), "faces": by_label(petal[F[:, 0]], n),
+            "edge_rows": by_label(petal[E[:, 0]], n), "near": {}}
 
 
 def _joined(E, F, rim, found) -> None:

@@ -102,14 +102,11 @@ def face_stencil(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     lone = np.flatnonzero((opp < 0).any(axis=1))
     if len(lone) == 0:
         return out
-    # each vertex's faces (the incidence's rows, as index arrays: a slice per corner)
-    order = np.argsort(f.ravel(), kind="stable")
-    start = np.searchsorted(f.ravel()[order], np.arange(len(X) + 1))
-    of_face = order // 3
+    corners = topology.by_label(f.ravel(), len(X))  # (each vertex's corners: face = // 3)
     taken = np.zeros(len(X), dtype=bool)
     for k in lone:
         face, row = f[k], opp[k]
-        ring = np.unique(f[np.concatenate([of_face[start[c]:start[c + 1]] for c in face])])
+        ring = np.unique(f[np.concatenate([corners[c] for c in face]) // 3])
         drop = np.r_[face, row[row >= 0]]
         taken[drop] = True
         cand = ring[~taken[ring]]
