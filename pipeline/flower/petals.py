@@ -90,6 +90,18 @@ class Petals:
     found: dict = field(default_factory=dict)
     kept_sheets: list = field(default_factory=list)  #: the input sheet of each petal (others left out)
 
+    def keep_faces(self, keep: np.ndarray) -> None:
+        """Keep the faces ``keep`` (F,) bool and the vertices they use, in place (every
+        per-vertex array follows; the petals keep their numbers)."""
+        used = np.zeros(len(self.vertices), dtype=bool)
+        used[self.faces[keep].ravel()] = True
+        new = np.cumsum(used) - 1
+        self.faces = new[self.faces[keep]].astype(self.faces.dtype)
+        for name in ("vertices", "petal", "part", "thickness", "flower"):
+            value = getattr(self, name)
+            if value is not None:
+                setattr(self, name, value[used])
+
 
 def _build(v, f, petal, report, *, target_edge, petal_vertices, symmetrize, dropped=(),
            most: int = MAX_PETAL_VERTICES,

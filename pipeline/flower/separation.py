@@ -28,7 +28,11 @@ def separate_sheets(sheets, *, gap: float, names: list[str], where: str, progres
     each other and too close before, named, the vertices moved, the largest and RMS move in
     petal lengths, the rounds, the gap and the distance of the nearest petals after.
 
-    Petals too far into each other to move apart within the bounds are left as modelled,
+    Petals too far into each other to move apart within the bounds have the parts beyond
+    their crossings toward the flower's centre cut away, where that is a small share of the
+    petal (:func:`pipeline.mesh.trim.buried`: the parts hidden inside the other petal and
+    the centre; ``cut``, each petal's share of area, the mesh's faces and vertices go with
+    them), and are moved apart again. What is still through another is left as modelled,
     named in a warning: ``left``, and ``patch`` (V,) each vertex's contact patch (its
     petal's, or one shared by petals left through each other: contact between them is
     off). Raises :class:`BloomError` naming ``where`` (the input file), the parts and the
@@ -51,26 +55,79 @@ def separate_sheets(sheets, *, gap: float, names: list[str], where: str, progres
         return (", ".join(f"{a}-{b}" for a, b in found)
                 + (f" and {more} more pair(s)" if more > 0 else "") + f" ({which})")
 
-    try:
-        done = separate(sheets.vertices, sheets.faces, petal, gap, progress=progress, leave=True)
-    except SeparationError as exc:
-        raise BloomError(
-            f"petals {pairs(exc.pairs)} pass through or touch each other and cannot "
-            f"be separated: {exc.reason}; fix them in the input mesh, or set {KEY} = false and "
-            "effects.collisions.enabled = false (the run then lets them pass through each "
-            "other)", where=where) from None
+    def moved_apart():
+        try:
+            return separate(sheets.vertices, sheets.faces, sheets.petal, gap, progress=progress,
+                            leave=True)
+        except SeparationError as exc:
+            raise BloomError(
+                f"petals {pairs(exc.pairs)} pass through or touch each other and cannot "
+                f"be separated: {exc.reason}; fix them in the input mesh, or set {KEY} = false "
+                "and effects.collisions.enabled = false (the run then lets them pass through "
+                "each other)", where=where) from None
+
+    done = first = moved_apart()
+    cut = _cut_buried(sheets, done.left) if done.left else None
+    if cut is not None:
+        log.info("%s: cut away the parts of petals buried in other petals toward the centre "
+                 "(too deep to move apart): %s (%s)", where, ", ".join(
+                     f"petal {p} {share:.0%}" for p, share in enumerate(cut.lost.tolist())
+                     if share > 0), KEY)
+        done = moved_apart()  # (the cut petals, from where they were modelled)
+    petal = sheets.petal
     if done.left:
         log.warning("%s: petals %s pass through each other too far to move apart (%s): they "
                     "are left as modelled, and contact between them is off (the others keep "
                     "it; %s)", where, pairs(done.left), done.reason, KEY)
     moved = np.unique(petal[np.any(done.vertices != sheets.vertices, axis=1)])
     sheets.vertices = done.vertices
-    for p in moved:
+    changed = np.union1d(moved, [] if cut is None else np.flatnonzero(cut.lost)).astype(np.int64)
+    for p in changed:
         sheets.asymmetry_after[p] = symmetry.asymmetry(done.vertices[petal == p], sheets.plane[p])
-    return {"gap": float(gap), "crossed": [list(p) for p in done.crossed],
-            "crossed_parts": pairs(done.crossed), "close": [list(p) for p in done.close],
-            "close_parts": pairs(done.close), "moved": done.moved,
+    return {"gap": float(gap), "crossed": [list(p) for p in first.crossed],
+            "cut": [] if cut is None else cut.lost.tolist(),
+            "crossed_parts": pairs(first.crossed), "close": [list(p) for p in first.close],
+            "close_parts": pairs(first.close), "moved": done.moved,
             "moved_petals": [int(p) for p in moved], "largest": done.largest, "rms": done.rms,
             "rounds": done.iterations, "left": [list(p) for p in done.left],
             "left_parts": pairs(done.left), "patch": done.patch,
             "distance": done.distance if np.isfinite(done.distance) else None}
+
+
+def _cut_buried(sheets, left):
+    """Cut away, in place, the parts of the petals of ``left`` (pairs through each other
+    too deep to move apart) beyond their crossings toward their flower's centre
+    (:func:`pipeline.mesh.trim.buried`), in each flower where that parts them all; the
+    result, or None when nothing was cut."""
+    from pipeline.mesh.ipc import ipctk
+    from pipeline.mesh.separate import crossings
+    from pipeline.mesh.trim import MOST, buried
+
+    pairs = {tuple(p) for p in left}
+    X, petal = sheets.vertices, sheets.petal
+
+    def found(faces):
+        E = np.asarray(ipctk().edges(np.asfortranarray(faces, dtype=np.int32)), dtype=np.int64)
+        c = crossings(X, faces, E, petal)
+        a, b = petal[E[c[:, 0], 0]], petal[faces[c[:, 1], 0]]
+        mine = np.array([(min(x, y), max(x, y)) in pairs for x, y in zip(a.tolist(), b.tolist(),
+                                                                        strict=True)], dtype=bool)
+        c = c[mine] if len(c) else c
+        return np.column_stack([E[c[:, 0]], c[:, 1]])
+
+    F = sheets.faces
+    trim = buried(X, F, petal, sheets.flower_centre[sheets.petal_flower], found)
+    # a flower is cut only where the cut parts all its petals, within MOST of each: else
+    # (a rose whose petals cross mid-petal) the cut would take what the user sees and
+    # still leave them through each other, and the flower stays as modelled
+    flower = sheets.petal_flower
+    still = found(F[trim.keep])
+    ids = np.flatnonzero(trim.keep)
+    bad = np.union1d(flower[petal[F[ids[still[:, 2]], 0]]], flower[trim.lost > MOST + 1e-9])
+    back = np.isin(flower[petal[F[:, 0]]], bad)
+    trim.keep[back] = True
+    trim.lost[np.isin(flower, bad)] = 0.0
+    if not trim.lost.any():
+        return None
+    sheets.keep_faces(trim.keep)
+    return trim

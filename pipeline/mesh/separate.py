@@ -174,7 +174,7 @@ def separate(vertices: np.ndarray, faces: np.ndarray, petal: np.ndarray, gap: fl
         while pairs:
             left = left + pairs
             patches = put_back(left)
-            pairs = _pair_list(_crossings(X, F, E, patches), E, F, petal)
+            pairs = _pair_list(crossings(X, F, E, patches), E, F, petal)
 
     graph = _graph(E, len(X0))
     area = _vertex_areas(X0, F)
@@ -187,7 +187,7 @@ def separate(vertices: np.ndarray, faces: np.ndarray, petal: np.ndarray, gap: fl
     sides: dict = {}
     counts = []  # (crossing edges, round by round)
     for it in range(max_iterations + 1):
-        crossing = _crossings(X, F, E, patches)
+        crossing = crossings(X, F, E, patches)
         counts.append(len(crossing))
         near = _near(mesh, X, petal, gap, crossing)
         close = [c for c in near if c[2] < gap]
@@ -299,7 +299,7 @@ def _patches(petal, count: int, pairs) -> np.ndarray:
 
 # --- finding what to move -------------------------------------------------------------------
 
-def _crossings(X, F, E, petal) -> np.ndarray:
+def crossings(X, F, E, petal) -> np.ndarray:
     """(k, 2) the (edge, face) pairs of different petals where the edge passes through the
     face (ipctk's exact test, the one ``has_intersections`` makes), sorted."""
     ipctk = one_thread()
@@ -334,7 +334,7 @@ def crossed_pairs(X, F, patch) -> list[tuple[int, int]]:
     F = np.ascontiguousarray(F, dtype=np.int64)
     E = np.asarray(ipctk.edges(np.asfortranarray(F, dtype=np.int32)), dtype=np.int64)
     patch = np.ascontiguousarray(patch, dtype=np.int64)
-    return _pair_list(_crossings(np.asarray(X, dtype=np.float64), F, E, patch), E, F, patch)
+    return _pair_list(crossings(np.asarray(X, dtype=np.float64), F, E, patch), E, F, patch)
 
 
 def _folded(X, F, petal) -> list[int]:
