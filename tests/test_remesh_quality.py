@@ -269,3 +269,21 @@ def test_ends_of_a_mirror_cut_closer_than_a_quarter_edge_are_one_end():
     assert remesh.edge_ratio(out_v, out_f) >= remesh.MIN_EDGE
     assert np.any(np.all(out_v == [0.0, 3.0, 0.0], axis=1))  # the first end is held
     assert np.all(out_v[:, 0] >= 0.0)
+
+
+def test_a_fold_on_the_rim_is_dropped_with_the_faces_around_it():
+    """A rim vertex pushed along the rim past its neighbour folds a face over the others (a
+    mirrored tip that crumpled): those faces and the ones sharing a vertex with them go,
+    and no vertex is left without a face; a sheet with no fold comes back as it was."""
+    from tests.test_separate import sheet
+
+    pts, tri = sheet(0, 6, 0, 6)
+    v = np.c_[pts, np.zeros(len(pts))]
+    assert remesh.drop_rim_folds(v, tri)[2] == 0
+    rim = int(np.argmin(np.abs(v[:, 0] - 3.0) + v[:, 1]))  # (3, 0): the bottom rim's middle
+    v[rim, :2] = [1.5, 0.2]  # past its rim neighbour at (2, 0): its face there turns over
+    assert remesh.inverted_faces(v, tri).any()
+    out, faces, dropped = remesh.drop_rim_folds(v, tri)
+    assert 0 < dropped <= 15 and len(faces) == len(tri) - dropped
+    assert not remesh.inverted_faces(out, faces).any()
+    assert np.array_equal(np.unique(faces), np.arange(len(out)))

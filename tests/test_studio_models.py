@@ -120,3 +120,24 @@ def test_a_daisy_of_the_bush_blooms_forward_from_a_closed_bud(tmp_path):
         assert h.attrs["bud_closed"] > 20.0
         opening = h["diagnostics/opening_angle_per_petal"][-1]
         assert np.sum(opening > 5.0) >= 14 and np.median(opening) > 30.0, opening
+
+
+@pytest.mark.slow
+@pytest.mark.studio
+@needs_shared
+def test_the_lotus_petals_buried_in_its_centre_are_cut_and_then_apart(tmp_path):
+    """The lotus's sixteen petals are stuck into its centre, every pair through each
+    other: the buried parts are cut (each petal within 40% of its area), no pair is left
+    as modelled, and no petal passes through another (ipctk's exact test)."""
+    from pipeline.mesh.separate import crossed_pairs
+
+    code, out = run("remesh", EXTERNAL / "resonate_lotus.glb", "--out", tmp_path / "r.h5")
+    assert code == 0 and "cut away the parts of petals buried" in out, out
+    with h5py.File(tmp_path / "r.h5") as h:
+        record = json.loads(h.attrs["separation"])
+        X, F, P = h["mesh/vertices"][()], h["mesh/faces"][()], h["mesh/petal"][()]
+        patch = h["mesh/patch"][()]
+    cut = np.asarray(record["cut"])
+    assert record["left"] == [] and np.array_equal(patch, P)
+    assert np.count_nonzero(cut) >= 10 and 0.0 < cut.max() <= 0.4
+    assert crossed_pairs(X, F, P) == []

@@ -287,6 +287,11 @@ def _one_petal(pts, lf, target_edge, petal_vertices, symmetrize, label, scale,
     if ears:
         notes.append(f"{label}: dropped {ears} ear(s) on its rim (a face on one vertex of its "
                      f"own, under {remesh.EAR_ANGLE:g} deg: growth would crush it)")
+    pts, lf, folds = remesh.drop_rim_folds(pts, lf)
+    if folds:
+        notes.append(f"{label}: dropped {folds} face(s) on its rim folded over their "
+                     "neighbours, or around such a fold (a crumpled tip would pass "
+                     "through itself)")
     try:  # what growth needs of a sheet: each edge of one or two faces, one orientation
         topology.hinges(lf)
     except ValueError as exc:

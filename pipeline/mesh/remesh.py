@@ -178,6 +178,31 @@ def drop_ears(vertices: np.ndarray, faces: np.ndarray, angle: float = EAR_ANGLE)
     return v[used], remap[f], dropped
 
 
+def drop_rim_folds(vertices: np.ndarray, faces: np.ndarray):
+    """The sheet without the faces folded over their neighbours on its rim
+    (:func:`inverted_faces` with an edge on the rim: a mirrored tip that crumpled) and the
+    faces that share a vertex with them (the fold's own neighbours cross it), then without
+    the ears that leaves (:func:`drop_ears`) and the vertices no face holds:
+    ``(vertices, faces, dropped)``. A fold inside the sheet is left (a warning's)."""
+    v = np.asarray(vertices, dtype=np.float64)
+    f = np.asarray(faces, dtype=np.int64)
+    _, he_edge, count = topology.unique_edges(f)
+    on_rim = (count[he_edge] == 1).reshape(3, -1).any(axis=0)
+    folded = inverted_faces(v, f) & on_rim
+    if not folded.any() or folded.all():
+        return vertices, faces, 0
+    around = np.zeros(len(v), dtype=bool)
+    around[f[folded].ravel()] = True
+    gone = around[f].any(axis=1)
+    if gone.all():
+        return vertices, faces, 0
+    used = np.zeros(len(v), dtype=bool)
+    used[f[~gone].ravel()] = True
+    remap = np.cumsum(used) - 1
+    v, f, ears = drop_ears(v[used], remap[f[~gone]])
+    return v, f, int(gone.sum()) + ears
+
+
 def boundary_loops(faces: np.ndarray) -> list[np.ndarray]:
     """Each boundary loop as an ordered vertex array, following the faces' winding."""
     he, _ = topology.half_edges(faces)
