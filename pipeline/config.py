@@ -132,9 +132,12 @@ SCHEMA: dict[str, Any] = {
                         "apart before anything else (each pair to the side most of its overlap "
                         "is on, at least effects.collisions.thickness apart, every vertex by at "
                         "most 15% of its petal's length; the log and remesh.h5's separation "
-                        "attribute say how far; a pair too far into each other is left as "
-                        "modelled, named, with no contact between the two); false keeps them "
-                        "as the input has them"),
+                        "attribute say how far; petals buried in each other toward the "
+                        "centre have the buried parts cut from the sheet, where that parts "
+                        "every petal of the flower within 40% of each petal's area, the shares "
+                        "in the log and in the attribute's cut; a pair still too far into each "
+                        "other is left as modelled, named, with no contact between the two); "
+                        "false keeps them as the input has them"),
     },
     "axis": {
         "base": Key(str, "auto", "which end of a petal is its base: auto (nearest the flower's "
