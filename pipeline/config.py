@@ -121,14 +121,6 @@ SCHEMA: dict[str, Any] = {
                                   "200 a petal, so a denser one costs time, not shape (the "
                                   "user's mesh keeps its detail through the binding); 0: "
                                   "no ceiling", low=0),
-        "max_flower_vertices": Key(int, 10000, "with remesh.target_edge and petal_vertices "
-                                   "unset, a flower whose petals would have more vertices in "
-                                   "all than this has each petal's ceiling (remesh."
-                                   "max_petal_vertices) lowered to its share, never under 200 "
-                                   "a petal: contact's cost grows with all the flower's "
-                                   "vertices (the lotus's 16 petals of 1,000-1,200: minutes of "
-                                   "simulate), and the shell's bloom converges from about 200 "
-                                   "a petal; 0: no such ceiling", low=0),
         "symmetrize": Key(bool, True, "make each petal mirror-symmetric about its center plane"),
         "workers": Key(int, 0, "processes that remesh petals side by side (8 petals or more); "
                        "0: the CPUs this process may use, at most 4; 1: none. The result is the "

@@ -195,24 +195,3 @@ def test_a_dense_petal_is_remeshed_down_to_the_ceiling():
     assert np.all((chosen > 240) & (chosen < 360)), chosen
     unbound = np.bincount(prepare_parts(parts, where="bud", max_petal_vertices=0).petal)
     assert np.array_equal(unbound, kept)  # 0: no ceiling
-
-
-def test_a_flower_of_many_dense_petals_shares_a_ceiling():
-    """remesh.max_flower_vertices lowers each petal's ceiling to the flower's share (the
-    lotus's sixteen petals of 1,000-1,200 vertices), never under 200 a petal; a flower
-    under it, or the key at 0, keeps its petals as they are."""
-    from pipeline.flower.petals import CONVERGED_PETAL, ceilings, prepare_parts
-
-    assert ceilings([0] * 16, 1500, 10000).tolist() == [625] * 16
-    assert ceilings([0] * 6, 1500, 10000).tolist() == [1500] * 6  # (the tulip's six)
-    assert ceilings([0] * 50 + [1] * 2, 1500, 10000).tolist() == [200] * 50 + [1500] * 2
-    assert ceilings([0] * 50, 0, 10000).tolist() == [CONVERGED_PETAL] * 50
-    assert ceilings([0] * 16, 0, 0).tolist() == [0] * 16
-    v, f, p = procedural.bud(3, 3 * 400, 0)
-    parts = MeshFile([Part("Bud", v, f)], None, None)
-    kept = np.bincount(prepare_parts(parts, where="bud").petal)  # 1,200 in all: under it
-    shared = np.bincount(prepare_parts(parts, where="bud", max_flower_vertices=750).petal)
-    assert np.all(kept > 300), kept
-    assert np.all((shared > 200) & (shared < 320)), shared  # about 250 a petal
-    unbound = np.bincount(prepare_parts(parts, where="bud", max_flower_vertices=0).petal)
-    assert np.array_equal(unbound, kept)

@@ -58,7 +58,6 @@ def run(mesh: str | Path | None, out: str | Path, cfg: Config, *, overwrite: boo
                                target_edge=cfg["remesh.target_edge"],
                                petal_vertices=cfg["remesh.petal_vertices"],
                                max_petal_vertices=cfg["remesh.max_petal_vertices"],
-                               max_flower_vertices=cfg["remesh.max_flower_vertices"],
                                symmetrize=cfg["remesh.symmetrize"],
                                closed_parts=cfg["remesh.closed_parts"],
                                petals_globs=cfg["scene.petals"], exclude_globs=cfg["scene.exclude"],

@@ -52,11 +52,6 @@ COARSE_BUDGET = 50_000
 #: petal (the tulip's 3,500) costs minutes of simulate and changes no shape; the user's
 #: own mesh keeps its detail through the binding
 MAX_PETAL_VERTICES = KEYS["remesh.max_petal_vertices"].default
-#: the default of remesh.max_flower_vertices: a flower of many dense petals has each
-#: petal's ceiling lowered to its share of this, never under CONVERGED_PETAL
-MAX_FLOWER_VERTICES = KEYS["remesh.max_flower_vertices"].default
-#: vertices a petal from which the shell's bloom converges (docs/shell.md)
-CONVERGED_PETAL = 200
 DUST = 0.01  #: connected pieces under this fraction of their part's area are dropped
 LAYERED = 0.5  #: a sheet this much of whose area has a second layer behind it is a slab
 #: a mid-surface must cover at least this fraction of half its shell's area (a shell's
@@ -108,22 +103,8 @@ class Petals:
                 setattr(self, name, value[used])
 
 
-def ceilings(flower_of, most: int = MAX_PETAL_VERTICES,
-             flower_most: int = MAX_FLOWER_VERTICES) -> np.ndarray:
-    """``(P,)`` each petal's vertex ceiling (0: none), from ``flower_of`` (P,) its flower:
-    ``most`` (remesh.max_petal_vertices), or lower in a flower of many petals, the flower's
-    share of ``flower_most`` (remesh.max_flower_vertices), never under
-    :data:`CONVERGED_PETAL`."""
-    flower_of = np.asarray(flower_of, dtype=np.int64)
-    out = np.full(len(flower_of), int(most), dtype=np.int64)
-    if flower_most > 0 and len(flower_of):
-        share = np.maximum(int(flower_most) // np.bincount(flower_of)[flower_of], CONVERGED_PETAL)
-        out = share if most <= 0 else np.minimum(out, share)
-    return out
-
-
 def _build(v, f, petal, report, *, target_edge, petal_vertices, symmetrize, dropped=(),
-           most=MAX_PETAL_VERTICES,
+           most: int = MAX_PETAL_VERTICES,
            labels=None, part_of=None, thick=None, notes=None, where: str = "",
            progress=None, workers: int = 1) -> Petals:
     """Steps 3 to 5 (see the module notes) on clean petal sheets ``v, f`` labelled ``petal``.
@@ -148,9 +129,8 @@ def _build(v, f, petal, report, *, target_edge, petal_vertices, symmetrize, drop
         notes.append(f"{count} petals: a coarse petal is remeshed to about {least} vertices, "
                      f"not {MIN_PETAL_VERTICES} ({COARSE_BUDGET} in all for the file; "
                      "remesh.petal_vertices sets it)")
-    most = np.broadcast_to(np.asarray(most, dtype=np.int64), (count,))  # (each petal's)
-    tasks = [(v[idx], lf, target_edge, petal_vertices, symmetrize, labels[p], scale, least,
-              int(most[p])) for p, (idx, lf) in enumerate(groups)]
+    tasks = [(v[idx], lf, target_edge, petal_vertices, symmetrize, labels[p], scale, least, most)
+             for p, (idx, lf) in enumerate(groups)]
     # a petal that is a copy of another (moved, turned, and scaled unless the target edge
     # is absolute) is remeshed once: instanced blossoms, a bush of one daisy's copies
     source = _copies([t[0] for t in tasks], [t[1] for t in tasks], scaled=target_edge <= 0)
@@ -297,8 +277,7 @@ def _one_petal(pts, lf, target_edge, petal_vertices, symmetrize, label, scale,
     elif h == 0.0 and 0 < most < len(pts):  # a studio's dense petal
         h = remesh.target_for_vertices(pts, lf, most)
         notes.append(f"{label}: {len(pts)} vertices: remeshed to about {most} "
-                     "(remesh.max_petal_vertices sets it, and remesh.max_flower_vertices "
-                     "over a flower's petals)")
+                     "(remesh.max_petal_vertices sets it)")
     try:
         pts, lf, h, note, mirrored = _petal(pts, lf, plane, h, symmetrize, label, scale)
     except ValueError as exc:  # no sheet the remesher can take, nor the input's
@@ -542,8 +521,7 @@ def _unique_faces(faces: np.ndarray) -> np.ndarray:
 
 
 def prepare_parts(mesh_file, *, where: str, target_edge: float = 0.0, petal_vertices: int = 0,
-                  max_petal_vertices: int = MAX_PETAL_VERTICES,
-                  max_flower_vertices: int = MAX_FLOWER_VERTICES, symmetrize: bool = True,
+                  max_petal_vertices: int = MAX_PETAL_VERTICES, symmetrize: bool = True,
                   closed_parts: str = "refuse", petals_globs=(),
                   exclude_globs=(), dust: float = DUST, flower: str = "all",
                   progress=None, workers: int = 1) -> Petals:
@@ -664,8 +642,7 @@ def prepare_parts(mesh_file, *, where: str, target_edge: float = 0.0, petal_vert
     petal = np.concatenate([np.full(len(sv), k, dtype=np.int64) for k, (sv, _, _, _) in enumerate(sheets)])
     labels = [f"petal {k} ({names[i]})" for k, (_, _, i, _) in enumerate(sheets)]
     result = _build(v, f, petal, total, target_edge=target_edge, petal_vertices=petal_vertices,
-                    most=ceilings(sheet_flower, max_petal_vertices, max_flower_vertices),
-                    where=where,
+                    most=max_petal_vertices, where=where,
                     symmetrize=symmetrize, dropped=dropped, labels=labels,
                     part_of=[i for _, _, i, _ in sheets], thick=[t for _, _, _, t in sheets],
                     notes=notes, progress=report, workers=workers)

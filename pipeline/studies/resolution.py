@@ -269,8 +269,7 @@ def resolution(out_dir, config, *, counts=COUNTS, overrides=(), kinds=("regular"
                     sets = [f"remesh.petal_vertices={n}"]
                 else:
                     sets = [f"scene.mesh={out / f'irregular{n}.obj'}", "remesh.symmetrize=false",
-                            "remesh.max_petal_vertices=0", "remesh.max_flower_vertices=0"]
-                    # (its own triangles, at any count)
+                            "remesh.max_petal_vertices=0"]  # (its own triangles, at any count)
                 run_scene(config, folder, overrides=(*overrides, *chosen, *sets))
                 runs[f"{kind} {n}"] = load(folder)
                 echo(f"{name}, {kind} {n}: {runs[f'{kind} {n}']['P'].shape[1]} vertices, "
