@@ -137,7 +137,11 @@ def test_the_lotus_petals_buried_in_its_centre_are_cut_and_then_apart(tmp_path):
         record = json.loads(h.attrs["separation"])
         X, F, P = h["mesh/vertices"][()], h["mesh/faces"][()], h["mesh/petal"][()]
         patch = h["mesh/patch"][()]
+        rim = h["mesh/cut_rim"][()]
     cut = np.asarray(record["cut"])
+    # the rims the cut made, where `bloom axis` holds each cut petal: on every cut petal
+    assert np.array_equal(np.flatnonzero(np.bincount(P[rim], minlength=len(cut))),
+                          np.flatnonzero(cut))
     assert record["left"] == [] and np.array_equal(patch, P)
     assert np.count_nonzero(cut) >= 10 and 0.0 < cut.max() <= 0.4
     assert crossed_pairs(X, F, P) == []

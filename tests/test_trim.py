@@ -61,3 +61,31 @@ def test_a_part_on_the_far_side_of_the_crossing_or_too_large_is_kept():
     v, f, p = stuck(base=-14.0)
     deep = buried(v, f, p, np.zeros((2, 3)), _crossings_of(v, p))
     assert not deep.lost.any()
+
+
+def test_a_cut_petal_is_held_where_it_leaves_the_centre():
+    """The rim the cut makes is the base `bloom axis` holds (remesh.h5's mesh/cut_rim):
+    the band along it, whatever else says where the base lies (here axis.base = +y, the
+    far end, which it is without the cut rim)."""
+    from pipeline.flower.axis import find_axes
+    from pipeline.mesh.topology import boundary_vertices
+
+    v, f, p = stuck()
+    out = buried(v, f, p, np.zeros((2, 3)), _crossings_of(v, p))
+    mine = out.keep & (p[f[:, 0]] == 0)  # petal 0, cut at y = 1
+    used = np.unique(f[mine])
+    new = np.full(len(v), -1)
+    new[used] = np.arange(len(used))
+    faces = new[f[mine]]
+    rim = boundary_vertices(f[p[f[:, 0]] == 0], len(v))[used]
+    cut = boundary_vertices(faces, len(used)) & ~rim
+    assert cut.sum() >= 3
+    petal = np.zeros(len(used), dtype=np.int64)
+    options = dict(base_region="band", base_fraction=0.08, surface=True, base_mode="+y")
+    held = find_axes(v[used], faces, petal, held_rim=cut, **options)
+    y = v[used][:, 1]
+    assert held.base[cut].all() and y[held.base].max() < y.min() + 0.15 * np.ptp(y)
+    assert y[held.tip[0]] > y.max() - 0.5  # the tip at the far end
+    # (told that the base lies toward +y, with no cut rim the base is the far end)
+    told = find_axes(v[used], faces, petal, **options)
+    assert y[told.base].min() > y.max() - 0.15 * np.ptp(y)

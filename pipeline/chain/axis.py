@@ -60,7 +60,8 @@ def run(remesh_h5: str | Path, out: str | Path, cfg: Config, *, overwrite: bool 
                                  planes=src["mesh/plane"] if "mesh/plane" in src else None,
                                  flower_axis=cfg["axis.flower_axis"], up=np.array(DIRECTIONS[up]),
                                  flower=flower, progress=progress,
-                                 hold_bad=flower_count(src) > 1)
+                                 hold_bad=flower_count(src) > 1,
+                                 held_rim=src["mesh/cut_rim"] if "mesh/cut_rim" in src else None)
             check_axes(axes, petal)  # no NaN, x in [-1, 1], s in [0, 1], a base and a tip
         except BadPetal as exc:
             part = _part_name(src, petal, exc.petal)

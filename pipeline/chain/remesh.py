@@ -108,6 +108,11 @@ def run(mesh: str | Path | None, out: str | Path, cfg: Config, *, overwrite: boo
                      "(V,) contact patch: the petal, or one shared by petals left through "
                      "each other as modelled (remesh.separate could not move them apart; "
                      "contact between them is off)")
+        if result.cut_rim is not None:
+            artifact.put(h5, "mesh/cut_rim", result.cut_rim.astype(bool),
+                         "(V,) the rims a cut made (remesh.separate cut away the parts of "
+                         "petals buried in others): where such a petal leaves the centre, the "
+                         "base bloom axis holds")
         artifact.put(h5, "mesh/plane", result.plane,
                      "(P, 4) center plane of each petal: unit normal, offset")
         names = np.array([p.name for p in mesh_file.parts], dtype=object)

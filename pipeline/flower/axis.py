@@ -369,7 +369,8 @@ def find_axes(vertices: np.ndarray, faces: np.ndarray, petal: np.ndarray, *,
               base_mode: str = "auto", base_fraction: float = 0.04, base_region: str = "rim",
               surface: bool = False, planes: np.ndarray | None = None, flower_axis=None,
               up: np.ndarray | None = None, flower: np.ndarray | None = None,
-              progress=None, hold_bad: bool = False) -> PetalAxes:
+              progress=None, hold_bad: bool = False,
+              held_rim: np.ndarray | None = None) -> PetalAxes:
     """Axes of every petal of a cleaned mesh (see the module docstring).
 
     ``base_mode``: auto, narrow, wide, or a direction (+x ... -z) the base end lies
@@ -387,12 +388,16 @@ def find_axes(vertices: np.ndarray, faces: np.ndarray, petal: np.ndarray, *,
     is called per petal. ``hold_bad``: a petal with no sound axis is held as modelled
     (every vertex fixed, s and x 0; :attr:`PetalAxes.held` names it and why) instead of
     refused: a file of many flowers, where one blossom must not stop the others.
+    ``held_rim``: (V,) the rims remesh cut (``mesh/cut_rim``: a petal's part buried in the
+    centre cut away): such a petal's base is there, where it leaves the centre, not at
+    the end of whatever the cut left of its old base end.
 
     Raises :class:`BadPetal` (a petal with no sound axis) or :class:`WeakBase`.
     """
     v = np.asarray(vertices, dtype=np.float64)
     faces = np.asarray(faces, dtype=np.int64)
     petal = np.asarray(petal)
+    held_rim = None if held_rim is None else np.asarray(held_rim, dtype=bool)
     nv = len(v)
     count = int(petal.max()) + 1
     if isinstance(flower_axis, str):
@@ -477,7 +482,12 @@ def find_axes(vertices: np.ndarray, faces: np.ndarray, petal: np.ndarray, *,
             direction, proj = _petal_ends(pts, planes[p])
             if not np.all(np.isfinite(direction)) or np.ptp(proj) <= 0.0:
                 raise BadPetal(p, "no length in its center plane: its vertices do not span a sheet")
-            if base_mode == "auto" and lowest_end:
+            cut = None if held_rim is None else held_rim[idx]
+            if cut is not None and cut.sum() < 3:
+                cut = None
+            if cut is not None:  # (held where it leaves the centre)
+                base_low = proj[cut].mean() <= proj.mean()
+            elif base_mode == "auto" and lowest_end:
                 span = proj.max() - proj.min()
                 low_end = pts[proj <= proj.min() + 0.15 * span].mean(axis=0) @ given
                 high_end = pts[proj >= proj.max() - 0.15 * span].mean(axis=0) @ given
@@ -498,8 +508,9 @@ def find_axes(vertices: np.ndarray, faces: np.ndarray, petal: np.ndarray, *,
                 proj = -proj
                 direction = -direction
             local_faces = np.searchsorted(idx, faces[f_order[f_start[p]:f_start[p + 1]]])
-            source = done.find(pts, local_faces,  # (its base at the same end)
-                               accept=lambda q, rot, d=direction: ways[q] @ rot.T @ d > 0.0)
+            source = None if cut is not None else done.find(
+                pts, local_faces,  # (its base at the same end)
+                accept=lambda q, rot, d=direction: ways[q] @ rot.T @ d > 0.0)
             if source is not None:  # a copy of petal q (moved, turned, scaled, its base the
                 # same end): q's axis, moved (a near-tie at rounding is decided alike)
                 q, scale, rot, t = source
@@ -516,8 +527,12 @@ def find_axes(vertices: np.ndarray, faces: np.ndarray, petal: np.ndarray, *,
             bnd = boundary[idx]
             end = base_edge(pts, local_faces, bnd, proj, base_fraction * span) \
                 if surface or base_region == "edge" else None
-            mine_base = end.copy() if base_region == "edge" else (  # (rim: the paper's)
-                (bnd | (base_region == "band")) & (proj <= proj.min() + base_fraction * span))
+            if cut is not None:
+                end = cut & bnd
+                mine_base = end.copy()
+            else:
+                mine_base = end.copy() if base_region == "edge" else (  # (rim: the paper's)
+                    (bnd | (base_region == "band")) & (proj <= proj.min() + base_fraction * span))
             if mine_base.sum() < 3:  # a petal held by fewer than 3 vertices can spin
                 order = np.argsort(np.where(bnd, proj, np.inf), kind="stable")
                 mine_base[order[:3]] = True

@@ -89,18 +89,25 @@ class Petals:
     #: part name -> {pieces, petals, area_kept, area_in (input units, one side), lost}
     found: dict = field(default_factory=dict)
     kept_sheets: list = field(default_factory=list)  #: the input sheet of each petal (others left out)
+    #: (V,) the vertices of the rims a cut made (the parts of petals buried in others cut
+    #: away, :meth:`keep_faces`): where such a petal leaves the centre, its base; None: no cut
+    cut_rim: np.ndarray = None
 
     def keep_faces(self, keep: np.ndarray) -> None:
         """Keep the faces ``keep`` (F,) bool and the vertices they use, in place (every
-        per-vertex array follows; the petals keep their numbers)."""
+        per-vertex array follows; the petals keep their numbers); the rims the cut makes
+        are :attr:`cut_rim`."""
+        rim = topology.boundary_vertices(self.faces, len(self.vertices))
         used = np.zeros(len(self.vertices), dtype=bool)
         used[self.faces[keep].ravel()] = True
         new = np.cumsum(used) - 1
         self.faces = new[self.faces[keep]].astype(self.faces.dtype)
-        for name in ("vertices", "petal", "part", "thickness", "flower"):
+        for name in ("vertices", "petal", "part", "thickness", "flower", "cut_rim"):
             value = getattr(self, name)
             if value is not None:
                 setattr(self, name, value[used])
+        made = topology.boundary_vertices(self.faces, len(self.vertices)) & ~rim[used]
+        self.cut_rim = made if self.cut_rim is None else self.cut_rim | made
 
 
 def _build(v, f, petal, report, *, target_edge, petal_vertices, symmetrize, dropped=(),
