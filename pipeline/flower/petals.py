@@ -98,9 +98,7 @@ class Petals:
         per-vertex array follows; the petals keep their numbers); the rims the cut makes
         are :attr:`cut_rim`."""
         rim = topology.boundary_vertices(self.faces, len(self.vertices))
-        used = np.zeros(len(self.vertices), dtype=bool)
-        used[self.faces[keep].ravel()] = True
-        new = np.cumsum(used) - 1
+        used, new = topology.used_vertices(self.faces[keep], len(self.vertices))
         self.faces = new[self.faces[keep]].astype(self.faces.dtype)
         for name in ("vertices", "petal", "part", "thickness", "flower", "cut_rim"):
             value = getattr(self, name)

@@ -103,16 +103,15 @@ def _cut_buried(sheets, left):
     from pipeline.mesh.separate import crossings
     from pipeline.mesh.trim import MOST, buried
 
-    pairs = {tuple(p) for p in left}
     X, petal = sheets.vertices, sheets.petal
+    n = int(petal.max()) + 1
+    pairs = np.unique([min(a, b) * n + max(a, b) for a, b in left])  # (each pair as one key)
 
     def found(faces):
         E = np.asarray(ipctk().edges(np.asfortranarray(faces, dtype=np.int32)), dtype=np.int64)
         c = crossings(X, faces, E, petal)
         a, b = petal[E[c[:, 0], 0]], petal[faces[c[:, 1], 0]]
-        mine = np.array([(min(x, y), max(x, y)) in pairs for x, y in zip(a.tolist(), b.tolist(),
-                                                                        strict=True)], dtype=bool)
-        c = c[mine] if len(c) else c
+        c = c[np.isin(np.minimum(a, b) * n + np.maximum(a, b), pairs)]
         return np.column_stack([E[c[:, 0]], c[:, 1]])
 
     F = sheets.faces

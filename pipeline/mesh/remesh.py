@@ -172,9 +172,7 @@ def drop_ears(vertices: np.ndarray, faces: np.ndarray, angle: float = EAR_ANGLE)
         dropped += int(ear.sum())
     if not dropped:
         return vertices, faces, 0
-    used = np.zeros(len(v), dtype=bool)
-    used[f.ravel()] = True
-    remap = np.cumsum(used) - 1
+    used, remap = topology.used_vertices(f, len(v))
     return v[used], remap[f], dropped
 
 
@@ -196,9 +194,7 @@ def drop_rim_folds(vertices: np.ndarray, faces: np.ndarray):
     gone = around[f].any(axis=1)
     if gone.all():
         return vertices, faces, 0
-    used = np.zeros(len(v), dtype=bool)
-    used[f[~gone].ravel()] = True
-    remap = np.cumsum(used) - 1
+    used, remap = topology.used_vertices(f[~gone], len(v))
     v, f, ears = drop_ears(v[used], remap[f[~gone]])
     return v, f, int(gone.sum()) + ears
 

@@ -207,6 +207,14 @@ def stack(meshes) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
             np.repeat(np.arange(len(meshes), dtype=np.int64), counts))
 
 
+def used_vertices(faces: np.ndarray, vertex_count: int) -> tuple[np.ndarray, np.ndarray]:
+    """``(used (V,) bool, remap (V,) int)``: the vertices some face holds, and each one's
+    index once the others are dropped (``remap[faces]`` are the faces on ``v[used]``)."""
+    used = np.zeros(vertex_count, dtype=bool)
+    used[np.asarray(faces, dtype=np.int64).ravel()] = True
+    return used, np.cumsum(used) - 1
+
+
 def by_label(label: np.ndarray, count: int) -> list[np.ndarray]:
     """The indices holding each value of ``label`` under ``count``, ascending, in one sort
     (a mask per value would cost values times the array: a branch of a thousand

@@ -5,9 +5,9 @@ petals through each other near the base, too deep to move apart (:mod:`pipeline.
 separate` would have to move a base by most of its width). What lies beyond such a
 crossing, on the side of the flower's centre, is hidden inside the other petal and the
 centre in the model: this cuts it away. Each petal keeps its largest piece and any piece
-further from the centre than that (on average); the faces a crossing runs through go with the piece cut
-away, and a crossing that cuts no piece off (a hole through the middle of a petal) is
-left to the separation's moves.
+further from the centre than that (on average); the faces a crossing runs through go
+with the piece cut away, and a crossing that cuts no piece off (a hole through the
+middle of a petal) is left to the separation's moves.
 """
 
 from __future__ import annotations
@@ -16,7 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from pipeline.mesh.topology import components
+from pipeline.mesh.topology import components, face_normals, half_edges
 
 #: a petal loses at most this share of its area (summed over the rounds); a piece that
 #: would take it further stays (the lotus's deepest base is 35% of its petal with the row
@@ -59,18 +59,24 @@ def buried(vertices, faces, petal, centre, crossings, *, most: float = MOST,
         A face is cut away when it lies in a piece of its petal that a crossing cuts off,
         that is not its petal's largest, whose area-weighted distance to the centre is
         less than the largest piece's, within ``most`` of the petal's area; the
-        crossing's faces next to a piece cut away go with it. Deterministic: no random
+        crossing's faces next to a piece cut away go with it, with the row of faces
+        beyond them (the cut rim stays clear of the other petal), and so does anything
+        then no longer joined to the petal's largest piece. Deterministic: no random
         choice, no order from a hash.
     """
     X = np.asarray(vertices, dtype=np.float64)
     F = np.asarray(faces, dtype=np.int64)
     petal = np.asarray(petal, dtype=np.int64)
     count = int(petal.max()) + 1 if len(petal) else 0
-    area = 0.5 * np.linalg.norm(np.cross(X[F[:, 1]] - X[F[:, 0]], X[F[:, 2]] - X[F[:, 0]]),
-                                axis=1)
+    area = 0.5 * np.linalg.norm(face_normals(X, F), axis=1)
     owner = petal[F[:, 0]]
     whole = np.bincount(owner, area, minlength=count)
     distance = np.linalg.norm(X[F].mean(axis=1) - centre[owner], axis=1)
+
+    def lost(keep):  # (P,) each petal's share of area not kept
+        kept = np.bincount(owner[keep], area[keep], minlength=count)
+        return np.where(whole > 0, 1.0 - kept / np.maximum(whole, np.finfo(float).tiny), 0.0)
+
     keep = np.ones(len(F), dtype=bool)
     done = 0
     for _ in range(rounds):
@@ -81,18 +87,14 @@ def buried(vertices, faces, petal, centre, crossings, *, most: float = MOST,
         cut = np.zeros(len(F), dtype=bool)
         cut[ids[found[:, 2]]] = True
         cut[ids[_faces_with_edges(F[ids], found[:, :2])]] = True
-        lost_so_far = 1.0 - np.bincount(owner[keep], area[keep], minlength=count) / np.maximum(
-            whole, np.finfo(float).tiny)
-        away = _pieces_away(F, keep, cut, owner, area, distance, whole, lost_so_far, most,
+        away = _pieces_away(F, keep, cut, owner, area, distance, whole, lost(keep), most,
                             len(X))
         if not away.any():
             break
         keep &= ~away
         keep &= ~_cut_off(F, keep, owner, area, np.unique(owner[away]), len(X))
         done += 1
-    kept = np.bincount(owner[keep], area[keep], minlength=count)
-    lost = np.where(whole > 0, 1.0 - kept / np.maximum(whole, np.finfo(float).tiny), 0.0)
-    return Trim(keep, lost, done)
+    return Trim(keep, lost(keep), done)
 
 
 def _faces_with_edges(F, ends) -> np.ndarray:
@@ -102,9 +104,8 @@ def _faces_with_edges(F, ends) -> np.ndarray:
         return np.zeros(0, dtype=np.int64)
     n = int(max(F.max(), ends.max())) + 1
     wanted = np.unique(np.sort(ends, axis=1) @ np.array([n, 1]))
-    edges = np.sort(np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]]), axis=1)
-    keys = edges @ np.array([n, 1])
-    hit = np.isin(keys, wanted)
+    he, _ = half_edges(F)  # (the faces' edges, a block of F per corner)
+    hit = np.isin(np.sort(he, axis=1) @ np.array([n, 1]), wanted)
     return np.unique(np.tile(np.arange(len(F)), 3)[hit])
 
 
