@@ -180,7 +180,10 @@ def hold_bowls(cfg: Config, prep: Prepared, job, ckpt: Path, result):
     opening = result.diag.get("opening_angle_per_petal")
     if opening is None or any(key in cfg.given for key in HOLD_KEYS):
         return prep, result, None
-    shut = int(np.sum(np.asarray(opening)[-1] < report.NOT_OPEN))
+    def closed(opening) -> int:  # petals under report.NOT_OPEN at the last frame
+        return int(np.sum(np.asarray(opening)[-1] < report.NOT_OPEN))
+
+    shut = closed(opening)
     if shut == 0:
         return prep, result, None
     wider = prep.base | (np.asarray(prep.s) <= HOLD_BOWL)
@@ -199,8 +202,7 @@ def hold_bowls(cfg: Config, prep: Prepared, job, ckpt: Path, result):
         log.info("held up to s = %g: no bloom (%s): the first bloom kept", HOLD_BOWL, exc)
         return prep, result, None
     opened = again.diag.get("opening_angle_per_petal")
-    still = (int(np.sum(np.asarray(opened)[-1] < report.NOT_OPEN)) if opened is not None
-             else shut)
+    still = closed(opened) if opened is not None else shut
     both = result.wall + again.wall  # (the seconds the stage spent: both blooms)
     if still < shut:
         log.info("held up to s = %g: %d of them do not open (%d before): that bloom kept",
