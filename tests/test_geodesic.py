@@ -8,7 +8,7 @@ from scipy.sparse.csgraph import dijkstra
 
 from pipeline.flower.axis import find_axes
 from pipeline.mesh import topology
-from pipeline.mesh.geodesic import heat_distance
+from pipeline.mesh.geodesic import curve_load, heat_distance, heat_distances, signed_heat_distance
 from tests import shell_study as study
 
 SPACINGS = (0.1, 0.05, 0.025)
@@ -55,3 +55,23 @@ def test_cross_section_coordinate_converges(kind):
         inner = (X[:, 1] > 0.25) & (X[:, 1] < 1.25)
         err.append(np.abs(axes.x - exact)[inner].max())
     assert err[-1] <= 0.03 and err[-1] * 2.0 <= err[0]
+
+
+@pytest.mark.parametrize("kind", ["regular", "irregular"])
+def test_signed_distance_from_a_curve_converges(kind):
+    """The signed distance on a unit disc from a line that crosses triangles (the
+    midrib of an unsymmetrized petal) is exactly the offset from the line. Its largest
+    error falls at least 2.5 times from h = 0.1 to 0.025 and is at most half the
+    unsigned distance's, whose kink along the line the mesh cannot hold (measured: signed
+    3.3, 1.7, 1.1% regular and 4.1, 1.9, 1.3% irregular; unsigned, with the Neumann
+    heat alone, 7.7, 4.5, 2.8% and 9.4, 5.1, 3.1%, short on average by 0.6-2.5%)."""
+    signed, unsigned = [], []
+    for h in SPACINGS:
+        p, f = study.disc(1.0, h, kind)
+        X = study.flat(p)
+        u = X[:, 0] - 0.013
+        signed.append(np.abs(signed_heat_distance(X, f, u) - u).max())
+        g = heat_distances(X, f, [curve_load(X, f, u)])[0]
+        unsigned.append(np.abs(g - np.abs(u)).max())
+    assert signed[-1] * 2.5 <= signed[0]
+    assert all(a <= 0.5 * b for a, b in zip(signed, unsigned, strict=True))
