@@ -139,22 +139,6 @@ def _band_by_rows(s: np.ndarray, edges: np.ndarray, band: float) -> np.ndarray:
     return s <= band + 0.5 * step
 
 
-def _side_rims(boundary: np.ndarray, end: np.ndarray, on_axis: np.ndarray,
-               side: np.ndarray) -> np.ndarray:
-    """The rims the cross-section coordinate is measured against (x = +-1): the boundary
-    but the base edge ``end`` and the axis, with the base edge's two corners (its
-    vertices farthest on either side of the center plane, ``side``). Held vertices
-    count: the rim's width from the base up is the petal's own, not the width where the
-    fixed band ends held constant down to the base (a clamp's last row falls at other
-    places on other meshes, and x near the base moved with it)."""
-    rim = boundary & ~end & ~on_axis
-    for sign in (-1.0, 1.0):
-        here = np.flatnonzero(end & (np.sign(side) == sign))
-        if len(here):
-            rim[here[np.argmax(sign * side[here])]] = True
-    return rim
-
-
 def _widen_base(base: np.ndarray, boundary: np.ndarray, proj: np.ndarray, pts: np.ndarray,
                 sub, limit: float) -> bool:
     """Add vertices to ``base`` (in place), nearest the base end first (by ``proj``),
@@ -605,12 +589,9 @@ def find_axes(vertices: np.ndarray, faces: np.ndarray, petal: np.ndarray, *,
                 side = -side
             on_axis[idx] = mine_axis
 
-            if surface:  # the cross-section coordinate
-                xs = cross_section(pts, local_faces, _side_rims(bnd, end, mine_axis, side),
-                                   side, s[idx])
-            else:  # (the paper's: over the rim above the fixed vertices)
-                xs = edge_cross_section(sub, mine_axis, bnd & ~mine_base & ~mine_axis, side,
-                                        s[idx])
+            rim = bnd & ~mine_base & ~mine_axis  # the cross-section coordinate:
+            xs = cross_section(pts, local_faces, rim, side, s[idx]) if surface \
+                else edge_cross_section(sub, mine_axis, rim, side, s[idx])
             x[idx] = xs
             _check_line(p, pts, sub, local_edges, mine_axis, dist_base, tip_local, xs)
             done.add(pts, local_faces, p)

@@ -15,8 +15,6 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.linalg import factorized
 
-from pipeline.mesh.topology import boundary_vertices
-
 
 def _operators(vertices: np.ndarray, faces: np.ndarray):
     """Cotangent Laplacian ``L`` (positive semi-definite), lumped mass ``m (V,)``,
@@ -59,8 +57,8 @@ def _operators(vertices: np.ndarray, faces: np.ndarray):
 
 
 class _Heat:
-    """The factorized systems of the heat method on one mesh (``time``: the diffusion
-    time in units of the mean edge length squared)."""
+    """The two factorized systems of the heat method on one mesh (``time``: the
+    diffusion time in units of the mean edge length squared)."""
 
     def __init__(self, vertices: np.ndarray, faces: np.ndarray, time: float):
         v = np.asarray(vertices, dtype=np.float64)
@@ -69,22 +67,9 @@ class _Heat:
         self.n, self.nf = len(v), len(f)
         edges = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
         h = float(np.linalg.norm(v[edges[:, 0]] - v[edges[:, 1]], axis=1).mean())
-        self.system = (sp.diags(m) + time * h * h * L).tocsc()
-        self.heat = factorized(self.system)
-        self.faces = f
+        self.heat = factorized((sp.diags(m) + time * h * h * L).tocsc())
         self.keep = np.arange(1, self.n)  # L is singular (constants): hold vertex 0, shift
         self.poisson = factorized(L[self.keep][:, self.keep].tocsc())
-
-    def heat_both(self, load: np.ndarray) -> np.ndarray:
-        """The heat from ``load`` with the mean of the two boundary conditions: Neumann
-        (the heat stays on the sheet) and Dirichlet (the rim is held cold). Each bends
-        the heat's fall-off near the rim, the other way; their mean cancels it to first
-        order (Crane, Weischedel and Wardetzky 2013, section 3.2.3)."""
-        inner = np.flatnonzero(~boundary_vertices(self.faces, self.n))
-        cold = np.zeros(self.n)
-        if len(inner):
-            cold[inner] = factorized(self.system[inner][:, inner].tocsc())(load[inner])
-        return 0.5 * (self.heat(load) + cold)
 
     def gradient(self, u: np.ndarray) -> np.ndarray:
         """``(F, 3)`` the per-face gradient of the vertex function ``u``."""
@@ -146,18 +131,20 @@ def signed_heat_distance(vertices: np.ndarray, faces: np.ndarray, level: np.ndar
     irregular mesh), the Poisson solution rounds the kink off, and the distance is short
     near the curve by a fraction of an edge (the cross-section coordinate was 3% low
     near the midrib of a 300-vertex Poisson-disc petal). The signed distance is smooth
-    across the curve, so it is exact there to the mesh's order. The heat is taken with
-    the mean of the two boundary conditions (:meth:`_Heat.heat_both`): with Neumann's
-    alone, a petal's cross-section coordinate came out 2.4% high at 300 vertices and
-    1.2% at 1,200 against the same petal's at 19,200 (first order in the edge, from
-    the rim), with the mean 0.7% and 0.4% (low: the 19,200-vertex x with Neumann's
-    alone is itself 0.6% high)."""
+    across the curve, so it is exact there to the mesh's order.
+
+    Tried and left out: the heat as the mean of the Neumann and the Dirichlet solutions
+    (Crane et al.'s remedy for the bend of the heat's fall-off near the rim, a first-
+    order error: a petal's x 2.4% high at 300 vertices, 1.2% at 1,200, against its x at
+    19,200): x came nearer (0.7 and 0.4%), but at a coarse petal's tip, narrower than
+    an edge, it moved a vertex's x from 0.7 to 0.5, and the water lily's petal 35
+    collapsed a triangle there at the start of its bloom."""
     f = np.asarray(faces, dtype=np.int64)
     lv = np.asarray(level, dtype=np.float64)
     lv = np.where(lv == 0.0, np.finfo(np.float64).tiny, lv)
     ops = _Heat(vertices, f, time)
     load = curve_load(vertices, f, lv)
-    field = -_unit(ops.gradient(ops.heat_both(load)))
+    field = -_unit(ops.gradient(ops.heat(load)))
     lf = lv[f]
     crossing = (lf.min(axis=1) < 0.0) & (lf.max(axis=1) > 0.0)
     field[lf.max(axis=1) < 0.0] *= -1.0
