@@ -13,12 +13,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.sparse.csgraph import dijkstra
 
-from pipeline.mesh.geodesic import (
-    curve_load,
-    heat_distance,
-    heat_distances,
-    signed_heat_distance,
-)
+from pipeline.mesh.geodesic import heat_distance, heat_distances, signed_heat_distance
 from pipeline.mesh.remesh import boundary_loops, corner_vertices
 
 
@@ -137,9 +132,11 @@ def cross_section(pts, faces, rim, side, s) -> np.ndarray:
     :func:`pipeline.mesh.geodesic.signed_heat_distance`), not from the vertices next to
     it along edges: the coordinate converges as the mesh is refined, on any
     triangulation. A uniform error of the distances cancels in the ratio."""
-    if curve_load(pts, faces, side).sum() > 0.0:
-        g = np.maximum(np.sign(side) * signed_heat_distance(pts, faces, side), 0.0)
-    else:  # the plane misses the petal: from the vertex nearest it
+    g = signed_heat_distance(pts, faces, side)
+    if g is None:  # the plane misses the petal: from the vertex nearest it
         load = (np.abs(side) == np.abs(side).min()).astype(np.float64)
-        g = np.maximum(heat_distances(pts, faces, [load])[0], 0.0)
+        g = heat_distances(pts, faces, [load])[0]
+    else:
+        g = np.sign(side) * g
+    g = np.maximum(g, 0.0)
     return _over_the_rim(g, np.sign(side), rim, s)

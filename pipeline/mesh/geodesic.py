@@ -119,12 +119,13 @@ def heat_distances(vertices: np.ndarray, faces: np.ndarray, sources: list,
 
 
 def signed_heat_distance(vertices: np.ndarray, faces: np.ndarray, level: np.ndarray,
-                         time: float = 1.0) -> np.ndarray:
+                         time: float = 1.0) -> np.ndarray | None:
     """``(V,)`` the signed geodesic distance from the curve where the piecewise-linear
     ``level`` (per vertex) is zero, positive where ``level`` is: the heat method's unit
     field, turned on the negative side so that it runs across the curve one way, and in
     the triangles the curve crosses the direction in which ``level`` grows; then the
-    function with that gradient, zero on the curve.
+    function with that gradient, zero on the curve. None where ``level`` does not change
+    sign on the mesh (no curve).
 
     The unsigned distance has a kink along the curve, which a piecewise-linear function
     represents only where the curve runs along edges: where it crosses triangles (an
@@ -142,8 +143,10 @@ def signed_heat_distance(vertices: np.ndarray, faces: np.ndarray, level: np.ndar
     f = np.asarray(faces, dtype=np.int64)
     lv = np.asarray(level, dtype=np.float64)
     lv = np.where(lv == 0.0, np.finfo(np.float64).tiny, lv)
-    ops = _Heat(vertices, f, time)
     load = curve_load(vertices, f, lv)
+    if not load.sum() > 0.0:
+        return None
+    ops = _Heat(vertices, f, time)
     field = -_unit(ops.gradient(ops.heat(load)))
     lf = lv[f]
     crossing = (lf.min(axis=1) < 0.0) & (lf.max(axis=1) > 0.0)
