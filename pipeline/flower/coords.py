@@ -15,12 +15,22 @@ from scipy.sparse.csgraph import dijkstra
 
 from pipeline.mesh.geodesic import heat_distance, heat_distances, signed_heat_distance
 from pipeline.mesh.remesh import boundary_loops, corner_vertices
+from pipeline.mesh.topology import boundary_vertices
 
 
-def _over_the_rim(g, sign, rim, s) -> np.ndarray:
+#: the cross-section coordinate from the mean of Neumann and Dirichlet heat where the
+#: petal's half-width is at least RIM_MEAN[1] mean edges, from Neumann heat alone where it
+#: is under RIM_MEAN[0] (a tip narrower than an edge or two, where the Dirichlet heat is
+#: all rim), blended linearly between (see :func:`cross_section`)
+RIM_MEAN = (1.0, 2.0)
+
+
+def _over_the_rim(g, sign, rim, s, widths: bool = False):
     """``x``: each vertex's distance ``g`` from the axis over the rim's at the same ``s``
-    on its side (``sign``: -1, +1, or 0 on the axis), clipped to [0, 1] and signed."""
+    on its side (``sign``: -1, +1, or 0 on the axis), clipped to [0, 1] and signed.
+    ``widths``: also return that rim distance per vertex (0 on the axis)."""
     xs = np.zeros(len(s))
+    wide = np.zeros(len(s))
     for sg in (-1.0, 1.0):
         ring = rim & (sign == sg)
         here = sign == sg
@@ -28,9 +38,10 @@ def _over_the_rim(g, sign, rim, s) -> np.ndarray:
             continue
         order = np.argsort(s[ring], kind="stable")
         width = np.interp(s[here], s[ring][order], g[ring][order])
+        wide[here] = width
         xs[here] = sg * np.clip(g[here] / np.maximum(width, 1e-12), 0.0, 1.0)
         xs[ring] = sg
-    return xs
+    return (xs, wide) if widths else xs
 
 
 def edge_cross_section(graph, axis, rim, side, s) -> np.ndarray:
@@ -131,12 +142,29 @@ def cross_section(pts, faces, rim, side, s) -> np.ndarray:
     triangles) along the surface, signed (the heat method,
     :func:`pipeline.mesh.geodesic.signed_heat_distance`), not from the vertices next to
     it along edges: the coordinate converges as the mesh is refined, on any
-    triangulation. A uniform error of the distances cancels in the ratio."""
+    triangulation. A uniform error of the distances cancels in the ratio.
+
+    The heat's fall-off bends near the rim with Neumann conditions (a first-order
+    error: x 2.4% high at 300 vertices, 1.2% at 1,200, against the petal's x at
+    19,200); the mean of the Neumann and the Dirichlet heat (Crane et al.) takes it
+    away (0.7 and 0.4%). But where the petal is narrower than an edge or two (a coarse
+    tip), nearly every vertex is on the rim, the Dirichlet heat is held at zero there,
+    and its x is noise (a tip vertex of the water lily moved 0.2). So x is the mean's
+    where the half-width is :data:`RIM_MEAN` [1] mean edges or more, Neumann's under
+    [0], blended between."""
     g = signed_heat_distance(pts, faces, side)
     if g is None:  # the plane misses the petal: from the vertex nearest it
         load = (np.abs(side) == np.abs(side).min()).astype(np.float64)
         g = heat_distances(pts, faces, [load])[0]
-    else:
-        g = np.sign(side) * g
-    g = np.maximum(g, 0.0)
-    return _over_the_rim(g, np.sign(side), rim, s)
+        return _over_the_rim(np.maximum(g, 0.0), np.sign(side), rim, s)
+    x, width = _over_the_rim(np.maximum(np.sign(side) * g, 0.0), np.sign(side), rim, s,
+                             widths=True)
+    f = np.asarray(faces, dtype=np.int64)
+    h = float(np.mean([np.linalg.norm(pts[f[:, k]] - pts[f[:, (k + 1) % 3]], axis=1).mean()
+                       for k in range(3)]))
+    weight = np.clip((width / h - RIM_MEAN[0]) / (RIM_MEAN[1] - RIM_MEAN[0]), 0.0, 1.0)
+    if not weight.any():
+        return x
+    mean = signed_heat_distance(pts, f, side, boundary=boundary_vertices(f, len(pts)))
+    xm = _over_the_rim(np.maximum(np.sign(side) * mean, 0.0), np.sign(side), rim, s)
+    return (1.0 - weight) * x + weight * xm
