@@ -197,6 +197,56 @@ def test_a_bloom_that_leaves_its_branch_is_the_path_back_played_forward(tmp_path
         assert h.attrs["summary"].startswith("sound")
 
 
+def test_a_path_back_that_stops_short_of_the_bud_blooms_from_where_it_stopped(
+        tmp_path, monkeypatch):
+    """Where the bloom forward leaves its branch and the model's own path back then finds
+    no equilibrium before A = 0 (a triangle that collapses near the bud), the bloom is
+    that path as far as it went, played forward: its first frames hold the last
+    equilibrium reached, logged and recorded (``bud_growth``), the last frame the model."""
+    from pipeline.chain import problem as chain
+    from pipeline.sim.run import Recording, frame_steps
+    from pipeline.sim.solver.newton import NotConverged
+
+    v, f, p = procedural.open_flower(3, 600, 0)
+    mesh = tmp_path / "open.obj"
+    procedural.write_obj(mesh, v, f, p, "an open flower")
+    out = {k: tmp_path / f"{k}.h5" for k in ("r", "a", "g", "s")}
+    for stage, src, dst in (("remesh", mesh, "r"), ("axis", out["r"], "a"), ("growth", out["a"], "g")):
+        assert CliRunner().invoke(cli, [stage, str(src), "--out", str(out[dst])]).exit_code == 0
+    forward, back = chain.integrate, reverse.integrate
+
+    def folds(model, state, control, integrator, **kwargs):
+        forward(model, state, control, integrator, **{**kwargs, "frames": 2, "steps": 1})
+        raise NotConverged(0, 0.3, 1.0, scale=1.0, vertex=len(v) - 1)
+
+    def stops(model, state, control, integrator, **kwargs):
+        rec, _ = back(model, state, control, integrator, **kwargs)
+        exc = NotConverged(0, 0.05, 1.0, scale=1.0, vertex=len(v) - 1)
+        exc.recording = Recording(rec.time[:6], rec.positions[:6],
+                                  {k: list(x[:6]) for k, x in rec.diagnostics.items()})
+        exc.frame_steps = frame_steps(kwargs["steps"], kwargs["frames"])
+        raise exc
+
+    monkeypatch.setattr(chain, "integrate", folds)
+    monkeypatch.setattr(reverse, "integrate", stops)
+    r = CliRunner().invoke(cli, ["simulate", str(out["g"]), "--out", str(out["s"]), "--set",
+                                 "growth.start=open", "--set", "simulate.frames=9"])
+    assert r.exit_code == 0, r.output
+    assert "the path back found no equilibrium below A = " in r.output
+    with h5py.File(out["s"]) as h:
+        X = h["frames/positions"][()]
+        growth = h["diagnostics/growth"][()]
+        reached = float(h.attrs["bud_growth"])
+        assert h.attrs["bloom_path"] == "retraced" and len(X) == 9
+        assert 0.0 < reached < 1.0 and growth[0] == reached and growth[-1] == 1.0
+        assert np.all(np.diff(growth) >= 0.0)
+        for k in range(1, 4):  # (the frames below the growth reached hold the bud)
+            np.testing.assert_array_equal(X[k], X[0])
+        assert not np.array_equal(X[4], X[0])
+        np.testing.assert_array_equal(h["open/bud"][()], X[0])
+        assert h.attrs["distance_to_model"] < 1e-12
+
+
 def test_an_open_shell_is_its_own_rest_state_and_blooms_back_to_itself():
     """The shell (``simulate.model = shell``) from an open model: at A = 1 the mesh is at
     rest, curvature included (with and without curl), and not at A = 0; the bud found

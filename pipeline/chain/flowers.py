@@ -382,7 +382,7 @@ def flowers_apart(prep: Prepared, job: Job, ckpt: Path, starts) -> Result:
             bud_info[key] = sum(values)
         elif key == "bud_close":
             bud_info[key] = min(values)
-        elif key == "recurve_share":
+        elif key in ("recurve_share", "bud_growth"):  # (the path back stopped highest)
             bud_info[key] = max(values)
     start_open = job.start.start == "open"
     distance = None

@@ -214,7 +214,7 @@ def problem(prep: Prepared, job: Job, ckpt: Path, label: str = "") -> Bloom:
             effects = build_effects(model_positions, apart)
             with Progress(steps, f"{what} (the path back)", progress) as bar:
                 try:
-                    rec, wall = retrace(
+                    rec, wall, back = retrace(
                         model, model_positions, control, integrator, effects, steps=steps,
                         frames=frames, h=h, progress=bar.update,
                         petals_at=lambda bud: prep.frames(bud).opening_toward(model_positions))
@@ -224,6 +224,12 @@ def problem(prep: Prepared, job: Job, ckpt: Path, label: str = "") -> Bloom:
             bud_info = {**bud_info, "bud_path": "own", "bloom_path": "retraced",
                         "bud_distance": distance_to_model(v0, model_positions, petal,
                                                           base)}
+            if back is not None:  # (the bud is the path's last equilibrium, short of A = 0)
+                bud_info["bud_growth"] = back[0]
+                log.warning("the path back found no equilibrium below A = %.4g (petal %d), "
+                            "even with the rescue: the bloom starts there, from the last "
+                            "equilibrium the path reached (its first frames hold it)",
+                            back[0], int(petal[back[1]]))
         distance = (None if model_positions is None else
                     distance_to_model(np.asarray(rec.positions[-1]), model_positions,
                                       petal, base))

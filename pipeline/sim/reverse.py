@@ -29,7 +29,7 @@ from pipeline.mesh.hinge import edge_lengths, hinge_cos_sin
 from pipeline.sim.budshape import BudShape, inner_sides, recurve_share
 from pipeline.sim.effects import Params, flower_axis_or_guess
 from pipeline.sim.model import Model, State
-from pipeline.sim.run import Recording, openings
+from pipeline.sim.run import Recording, hold_last, openings
 from pipeline.sim.run import run as integrate
 from pipeline.sim.solver.newton import NotConverged
 from pipeline.sim.solver.quasistatic import QuasiStatic
@@ -76,15 +76,29 @@ def retrace(model: Model, open_positions, control, integrator, effects, *, steps
     bud leaves the branch the bud was found on (a fold: a petal that closed smoothly
     snaps or crumples as it opens), this is the bloom on that branch.
 
-    Returns ``(recording, wall seconds)``: positions and the state's diagnostics
+    Where the path back finds no equilibrium before the bud (a triangle that collapses
+    near A = 0: the water lily's creased petal tip), the path is kept as far as it went:
+    the bloom starts from the last equilibrium it reached, held over the frames below
+    that growth (logged; ``stopped``). A refusal there would give the user nothing for a
+    bloom that is all there but its first few percent of growth.
+
+    Returns ``(recording, wall seconds, stopped)``: positions and the state's diagnostics
     reversed, the integrator's counts (work done so far) and the times as recorded; the
     opening angles measured from the first frame, in the petal frames ``petals_at(bud)``
-    gives (if given)."""
+    gives (if given); ``stopped``: None, or ``(growth, vertex)`` where the path back
+    stopped and the vertex the solver named."""
     back = Played(control, steps * h)
     state = State.at_rest(model, np.asarray(open_positions, dtype=np.float64), back)
     effects.constrain(state.forces)
-    rec, wall = integrate(model, state, back, integrator, steps=steps, frames=frames, h=h,
-                          effects=effects, progress=progress)
+    clock, stopped = time.perf_counter(), None
+    try:
+        rec, wall = integrate(model, state, back, integrator, steps=steps, frames=frames,
+                              h=h, effects=effects, progress=progress)
+    except NotConverged as exc:
+        if len(exc.recording.time) < 2:  # (not one frame of the path: nothing to keep)
+            raise
+        rec, wall = hold_last(exc.recording, exc.frame_steps, h), time.perf_counter() - clock
+        stopped = (float(exc.recording.diagnostics["growth"][-1]), int(exc.vertex))
     counts = set(integrator.diagnostics())
     out = Recording(time=rec.time, positions=rec.positions[::-1],
                     diagnostics={k: (v if k in counts else v[::-1])
@@ -94,7 +108,7 @@ def retrace(model: Model, open_positions, control, integrator, effects, *, steps
         for X in out.positions:
             for name, value in openings(petals, X).items():
                 out.add(name, value)
-    return out, wall
+    return out, wall, stopped
 
 
 #: a shell's triangle whose rest area at the bud would be under this fraction of what an
