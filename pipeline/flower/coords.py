@@ -17,7 +17,6 @@ from pipeline.mesh.geodesic import heat_distance, heat_distances, signed_heat_di
 from pipeline.mesh.remesh import boundary_loops, corner_vertices
 from pipeline.mesh.topology import boundary_vertices
 
-
 #: the cross-section coordinate from the mean of Neumann and Dirichlet heat where the
 #: petal's half-width is at least RIM_MEAN[1] mean edges, from Neumann heat alone where it
 #: is under RIM_MEAN[0] (a tip narrower than an edge or two, where the Dirichlet heat is
