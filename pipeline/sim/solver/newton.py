@@ -30,7 +30,7 @@ from pipeline.sim.solver.system import System
 from pipeline.sim.terms.connections import Springs
 from pipeline.sim.terms.contact import Contact
 from pipeline.sim.terms.inertia import Inertia
-from pipeline.sim.threads import parallel_map
+from pipeline.sim.threads import dot, parallel_map
 
 #: how far (mesh units) a search along a direction of negative curvature may go
 DESCENT = 2.0
@@ -503,7 +503,7 @@ class Newton:
         collision detection allows (1 without contact); moves X and returns the step
         length taken (0: none found). A change within rounding of the energy is accepted
         (as :meth:`rounding` measures it, or 1e-14 of the energy)."""
-        slope = float(g @ step)
+        slope = dot(g, step)
         length = 1.0
         base = X.copy()
         self._limited = False
@@ -533,7 +533,7 @@ class Newton:
         """The direction ``down`` (flattened) as :meth:`descend` searches it: per vertex,
         its largest component 1, its sign downhill on the energy of gradient ``g``."""
         d = down.reshape(-1, 3) / np.abs(down).max()
-        return -d if float(g @ down) > 0.0 else d
+        return -d if dot(g, down) > 0.0 else d
 
     def descend(self, X, scratch, energy, d, parts=None) -> float:
         """Move X along the downhill negative-curvature direction ``d``

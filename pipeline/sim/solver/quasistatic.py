@@ -82,7 +82,7 @@ from pipeline.sim.terms.connections import Springs
 from pipeline.sim.terms.contact import Contact
 from pipeline.sim.terms.inertia import Inertia
 from pipeline.sim.terms.shell import contact_stiffness
-from pipeline.sim.threads import parallel_map
+from pipeline.sim.threads import dot, parallel_map
 
 log = logging.getLogger("bloom")
 
@@ -531,12 +531,12 @@ class QuasiStatic:
         behind = self._behind
         if guess is not None:
             step = self.newton.constrained(guess)
-            if not np.any(step) or float(g @ step) >= 0.0:
+            if not np.any(step) or dot(g, step) >= 0.0:
                 step = None
         elif behind is not None and behind[0] != a_now and behind[1].shape == X.shape:
             secant = ((a_next - a_now) / (a_now - behind[0])) * (X - behind[1])
             step = self.newton.constrained(secant)
-            if float(g @ step) >= 0.0:  # not downhill on the new energy: no use
+            if dot(g, step) >= 0.0:  # not downhill on the new energy: no use
                 step = None
         if step is None:
             if not self.newton.system.tangent:

@@ -19,6 +19,7 @@ from pipeline.sim.effects import Effects
 from pipeline.sim.model import Model
 from pipeline.sim.solver.ldl import BlockLDL
 from pipeline.sim.terms.shell import ShellBlocks
+from pipeline.sim.threads import dot
 
 
 @dataclass
@@ -208,7 +209,7 @@ class System:
         if group.positive or not direction:
             return group.positive, None
         d, curvature = group.solver.curvature_direction(int(np.argmin(D)))
-        size = d @ d
+        size = dot(d, d)
         if size > 0.0:
             group.need = max(group.need, mu - curvature / size)
         if not curvature < mu * size:
