@@ -394,21 +394,8 @@ class Newton:
                                       gr.parts if self.by_parts() else None)
             if lost:
                 energy, g = self.gradient(X, scratch)
-
-                def shift(gr):
-                    """The group's shift search: (mu, shifts rejected); mu None if none."""
-                    mu, rejected = floor, 0
-                    # (a shift that a direction of negative curvature rules out is
-                    # rejected unfactored)
-                    while (mu * (1.0 + 1e-6) < gr.need
-                           or not system.factor(gr, mu, direction=False)[0]):
-                        rejected += 1
-                        mu *= 10.0
-                        if mu > top:  # no shift makes it positive: not finite?
-                            return None, rejected
-                    return mu, rejected
-
-                for _gr, (mu, rejected) in zip(lost, parallel_map(shift, lost), strict=True):
+                shifts = parallel_map(lambda gr: system.shifted(gr, floor, top), lost)
+                for mu, rejected in shifts:  # (mu None: no shift helps)
                     self.counts.shifted += rejected
                     if mu is None:
                         return Failure(residual, scale, "shift", self.factor_inertia(),
