@@ -144,6 +144,28 @@ def test_a_petal_keeps_off_itself_where_its_start_allows():
         assert (step < 0.5) == cut and (step == 1.0) == (not cut), (height, own, step)
 
 
+def test_a_petal_near_itself_at_the_start_leaves_the_others_keeping_off_themselves():
+    """Two folded petals side by side: petal 0's two sheets 1.5 gaps apart (within the
+    barrier's reach at the start: a curled tip), petal 1's 5 gaps apart. Petal 0 is left
+    to itself (its fold may close through itself), but petal 1 still keeps off itself
+    (the lotus's petal 2 folded through itself in a frame while one other petal's curled
+    tip turned self-contact off for all)."""
+    v, faces, sheet, _ = two_sheets(height=0.0)
+    X = np.concatenate([v, v + [20.0, 0.0, 0.0]])
+    F = np.concatenate([faces, faces + len(v)])
+    petal = np.r_[np.zeros(len(v), int), np.ones(len(v), int)]
+    upper = np.r_[sheet == 1, sheet == 1]
+    X[upper & (petal == 0), 2] = 1.5 * GAP
+    X[upper & (petal == 1), 2] = 5 * GAP
+    c = Contact.build(X, F, petal, gap=GAP, stiffness=0.1)
+    for p, cut in ((0, False), (1, True)):
+        through = X.copy()
+        moved = upper & (petal == p)
+        through[moved, 2] -= 2 * X[moved, 2]
+        step = c.max_step(X, through)
+        assert (step < 0.5) == cut and (step == 1.0) == (not cut), (p, step)
+
+
 def test_the_active_set_is_the_same_whatever_order_the_broad_phase_finds():
     """The broad phase runs in threads, which find the candidates in an order the
     scheduling decides; the active set is put in one order (``_canonical``), so the

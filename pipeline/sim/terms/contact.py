@@ -9,9 +9,13 @@ collision detection (:meth:`Contact.max_step`), so no iterate ever comes closer 
 ``gap``, let alone crosses: the energy stays finite and the barrier keeps it that way.
 
 - A petal keeps off itself too (ipctk leaves out primitives that share a vertex),
-  where its start allows it (:func:`_own_contact`: nothing through itself, none of its
-  own primitives within the barrier's reach); otherwise contact is between petals
-  only. The exact intersection test of the report (:func:`frame_intersections`) checks
+  where its start allows it (:func:`_own_contact`: none of its own primitives within
+  the barrier's reach, a curled tip's, say): such a petal keeps off the others only,
+  and every other petal keeps off itself as well (the lotus: its petal 11's curled
+  tip is within reach of itself at the start, and with contact between petals only for
+  all, its petal 2 folded through itself in one frame). Where a petal passes through
+  itself or another at the start, contact is between petals only. The exact
+  intersection test of the report (:func:`frame_intersections`) checks
   self-intersections.
 - ``gap`` is the key ``effects.collisions.thickness``; the band over which the barrier
   acts is as wide again, so petals feel each other from ``2 gap`` on.
@@ -103,6 +107,9 @@ class Contact(Term):
     candidates: object = field(repr=False, default=None)
     _low: np.ndarray | None = field(repr=False, default=None)
     _high: np.ndarray | None = field(repr=False, default=None)
+    #: the vertex patches of the collision filter (two vertices of one patch never
+    #: collide), or None (every petal keeps off itself too): :func:`_own_contact`
+    _patches: np.ndarray | None = field(repr=False, default=None)
 
     @classmethod
     def build(cls, positions, faces, petal, *, gap: float, stiffness: float,
@@ -116,11 +123,13 @@ class Contact(Term):
         F = np.asfortranarray(faces, dtype=np.int32)
         mesh = ipctk.CollisionMesh(X, ipctk.edges(F), F)
         petal = np.ascontiguousarray(petal, dtype=np.int32)
-        if not (own and _own_contact(mesh, X, petal, 2.0 * gap)):
-            mesh.can_collide = ipctk.make_vertex_patches_filter(petal)
+        patches = petal if not own else _own_contact(mesh, X, petal, 2.0 * gap)
+        if patches is not None:  # (the filter reads the array: it lives with the contact)
+            mesh.can_collide = ipctk.make_vertex_patches_filter(patches)
         band = gap
         kappa = stiffness / barrier_curvature(gap + 0.5 * band, gap, band)
         contact = cls(mesh, petal, float(gap), float(band), float(kappa))
+        contact._patches = patches
         contact.potential = ipctk.BarrierPotential(contact.band, contact.kappa)
         contact.ccd = ipctk.AdditiveCCD()
         return contact
@@ -297,29 +306,38 @@ class Contact(Term):
             np.asfortranarray(X1, dtype=np.float64), self.gap, self.ccd))
 
 
-def _own_contact(mesh, X, petal, reach: float) -> bool:
-    """Whether the barrier can keep each petal off itself from the start ``X``: no petal
-    passes through itself there, and no two of its primitives that share no vertex are
-    within the barrier's ``reach`` (they would feel it at rest; a sliver can). Otherwise
-    contact is between petals only, and the log says why."""
+def _own_contact(mesh, X, petal, reach: float) -> np.ndarray | None:
+    """Which petals the barrier can keep off themselves from the start ``X``: those no
+    two of whose primitives that share no vertex are within the barrier's ``reach``
+    (they would feel it at rest: a curled tip, a sliver). Returns the vertex patches of
+    the collision filter (``(V,)`` int32, two vertices of one patch never collide): each
+    vertex a patch of its own, but a petal that cannot keep off itself one patch; None
+    where every petal can. Where a petal passes through itself or another at ``X``,
+    contact is between petals only (every petal one patch). Logged."""
     ipctk = one_thread()
-    why = ""
+    log = logging.getLogger("bloom")
     if ipctk.has_intersections(mesh, X):
-        why = "a petal, or two, pass through themselves or each other"
-    else:
-        found = ipctk.NormalCollisions()
-        found.build(mesh, X, reach)
-        edges, faces = mesh.edges, mesh.faces
-        for k in range(len(found)):
-            ids = found[k].vertex_ids(edges, faces)
-            if len({int(petal[i]) for i in ids if i >= 0}) == 1:
-                why = (f"petal {int(petal[ids[0]])} has triangles within {reach:.3g} of "
-                       "each other")
-                break
-    if why:
-        logging.getLogger("bloom").info("contact: between petals only, not of a petal with "
-                                        "itself (%s at the start)", why)
-    return not why
+        log.info("contact: between petals only, not of a petal with itself (a petal, or two, "
+                 "pass through themselves or each other at the start)")
+        return petal
+    found = ipctk.NormalCollisions()
+    found.build(mesh, X, reach)
+    edges, faces = mesh.edges, mesh.faces
+    near = set()
+    for k in range(len(found)):
+        ids = {int(petal[i]) for i in found[k].vertex_ids(edges, faces) if i >= 0}
+        if len(ids) == 1:
+            near |= ids
+    if not near:
+        return None
+    near = sorted(near)
+    log.info("contact: petal(s) %s keep off the others but not off themselves (each has "
+             "triangles within %.3g of each other at the start); every other petal keeps off "
+             "itself too", ", ".join(map(str, near)), reach)
+    patches = np.arange(len(petal), dtype=np.int32) + np.int32(int(petal.max()) + 1)
+    held = np.isin(petal, near)
+    patches[held] = petal[held]
+    return np.ascontiguousarray(patches, dtype=np.int32)
 
 
 def _pairs(pairs) -> str:
