@@ -13,7 +13,12 @@ enabled that it can run (contact among them, so closing petals press on each oth
 never cross). The bloom is then a fresh forward run from that bud with the scene's own
 integrator and schedule. Its last frame lands on the model up to the solver's tolerance
 (quasi-static), or up to what the damping has left (dynamic); that distance is measured
-and recorded (:func:`distance_to_model`).
+and recorded (:func:`distance_to_model`). Where that run finds no equilibrium, the bloom
+is the path back played forward (:func:`retrace`).
+
+The module is long because the open start is one search: the bud's model, the lift that
+picks the branch, the search and its retries, and the path back share the model's rest
+state and the figures the artifact records.
 """
 
 from __future__ import annotations
@@ -76,11 +81,9 @@ def retrace(model: Model, open_positions, control, integrator, effects, *, steps
     bud leaves the branch the bud was found on (a fold: a petal that closed smoothly
     snaps or crumples as it opens), this is the bloom on that branch.
 
-    Where the path back finds no equilibrium before the bud (a triangle that collapses
-    near A = 0: the water lily's creased petal tip), the path is kept as far as it went:
-    the bloom starts from the last equilibrium it reached, held over the frames below
-    that growth (logged; ``stopped``). A refusal there would give the user nothing for a
-    bloom that is all there but its first few percent of growth.
+    Where the path back finds no equilibrium before the bud (a triangle collapsing near
+    A = 0: the water lily's creased petal tip), it is kept as far as it went: the bloom
+    starts from its last equilibrium, held over the frames below that growth.
 
     Returns ``(recording, wall seconds, stopped)``: positions and the state's diagnostics
     reversed, the integrator's counts (work done so far) and the times as recorded; the
