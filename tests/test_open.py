@@ -159,27 +159,39 @@ def test_a_bud_search_that_finds_no_equilibrium_closes_half_as_far(tmp_path, mon
     assert not (tmp_path / "t.h5").exists()
 
 
-def test_a_bloom_that_leaves_its_branch_is_the_path_back_played_forward(tmp_path, monkeypatch):
-    """Where the forward run from the bud finds no equilibrium (the path forward folds off
-    the branch the bud was found on), the bloom of an open model is the model's own path
-    to its bud, played forward: logged, recorded as bloom_path, the last frame the model
-    itself, the first the bud (more closed), growth and the solver's counts rising."""
-    from pipeline.chain import problem as chain
-    from pipeline.sim.solver.newton import NotConverged
-
+def _open_flower_stages(tmp_path) -> dict:
+    """A procedural open 3-petal flower through remesh, axis and growth: the artifacts'
+    paths (``r``, ``a``, ``g``; ``s`` for simulate's)."""
     v, f, p = procedural.open_flower(3, 600, 0)
     mesh = tmp_path / "open.obj"
     procedural.write_obj(mesh, v, f, p, "an open flower")
     out = {k: tmp_path / f"{k}.h5" for k in ("r", "a", "g", "s")}
     for stage, src, dst in (("remesh", mesh, "r"), ("axis", out["r"], "a"), ("growth", out["a"], "g")):
         assert CliRunner().invoke(cli, [stage, str(src), "--out", str(out[dst])]).exit_code == 0
-    real = chain.integrate
+    return out
+
+
+def _folds_at(real, growth: float):
+    """``real`` (the chain's integrate) cut to its first frame, then a NotConverged at
+    ``growth`` naming the last vertex: a bloom forward that folds off its branch."""
+    from pipeline.sim.solver.newton import NotConverged
 
     def folds(model, state, control, integrator, **kwargs):
         real(model, state, control, integrator, **{**kwargs, "frames": 2, "steps": 1})
-        raise NotConverged(0, 0.3, 1.0, scale=1.0, vertex=len(v) - 1)
+        raise NotConverged(0, growth, 1.0, scale=1.0, vertex=len(state.positions) - 1)
 
-    monkeypatch.setattr(chain, "integrate", folds)
+    return folds
+
+
+def test_a_bloom_that_leaves_its_branch_is_the_path_back_played_forward(tmp_path, monkeypatch):
+    """Where the forward run from the bud finds no equilibrium (the path forward folds off
+    the branch the bud was found on), the bloom of an open model is the model's own path
+    to its bud, played forward: logged, recorded as bloom_path, the last frame the model
+    itself, the first the bud (more closed), growth and the solver's counts rising."""
+    from pipeline.chain import problem as chain
+
+    out = _open_flower_stages(tmp_path)
+    monkeypatch.setattr(chain, "integrate", _folds_at(chain.integrate, 0.3))
     r = CliRunner().invoke(cli, ["simulate", str(out["g"]), "--out", str(out["s"]), "--set",
                                  "growth.start=open", "--set", "simulate.frames=9"])
     assert r.exit_code == 0, r.output
@@ -207,27 +219,18 @@ def test_a_path_back_that_stops_short_of_the_bud_blooms_from_where_it_stopped(
     from pipeline.sim.run import Recording, frame_steps
     from pipeline.sim.solver.newton import NotConverged
 
-    v, f, p = procedural.open_flower(3, 600, 0)
-    mesh = tmp_path / "open.obj"
-    procedural.write_obj(mesh, v, f, p, "an open flower")
-    out = {k: tmp_path / f"{k}.h5" for k in ("r", "a", "g", "s")}
-    for stage, src, dst in (("remesh", mesh, "r"), ("axis", out["r"], "a"), ("growth", out["a"], "g")):
-        assert CliRunner().invoke(cli, [stage, str(src), "--out", str(out[dst])]).exit_code == 0
-    forward, back = chain.integrate, reverse.integrate
-
-    def folds(model, state, control, integrator, **kwargs):
-        forward(model, state, control, integrator, **{**kwargs, "frames": 2, "steps": 1})
-        raise NotConverged(0, 0.3, 1.0, scale=1.0, vertex=len(v) - 1)
+    out = _open_flower_stages(tmp_path)
+    back = reverse.integrate
 
     def stops(model, state, control, integrator, **kwargs):
         rec, _ = back(model, state, control, integrator, **kwargs)
-        exc = NotConverged(0, 0.05, 1.0, scale=1.0, vertex=len(v) - 1)
+        exc = NotConverged(0, 0.05, 1.0, scale=1.0, vertex=len(state.positions) - 1)
         exc.recording = Recording(rec.time[:6], rec.positions[:6],
                                   {k: list(x[:6]) for k, x in rec.diagnostics.items()})
         exc.frame_steps = frame_steps(kwargs["steps"], kwargs["frames"])
         raise exc
 
-    monkeypatch.setattr(chain, "integrate", folds)
+    monkeypatch.setattr(chain, "integrate", _folds_at(chain.integrate, 0.3))
     monkeypatch.setattr(reverse, "integrate", stops)
     r = CliRunner().invoke(cli, ["simulate", str(out["g"]), "--out", str(out["s"]), "--set",
                                  "growth.start=open", "--set", "simulate.frames=9"])
