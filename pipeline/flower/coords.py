@@ -13,7 +13,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.sparse.csgraph import dijkstra
 
-from pipeline.mesh.geodesic import heat_distance, heat_distances, signed_heat_distance
+from pipeline.mesh.geodesic import heat_distance, heat_distances, signed_heat_distances
 from pipeline.mesh.remesh import boundary_loops, corner_vertices
 from pipeline.mesh.topology import boundary_vertices
 
@@ -151,19 +151,20 @@ def cross_section(pts, faces, rim, side, s) -> np.ndarray:
     and its x is noise (a tip vertex of the water lily moved 0.2). So x is the mean's
     where the half-width is :data:`RIM_MEAN` [1] mean edges or more, Neumann's under
     [0], blended between."""
-    g = signed_heat_distance(pts, faces, side)
+    f = np.asarray(faces, dtype=np.int64)
+    distances = signed_heat_distances(pts, f, side, boundary=boundary_vertices(f, len(pts)))
+    g = next(distances)
     if g is None:  # the plane misses the petal: from the vertex nearest it
         load = (np.abs(side) == np.abs(side).min()).astype(np.float64)
         g = heat_distances(pts, faces, [load])[0]
         return _over_the_rim(np.maximum(g, 0.0), np.sign(side), rim, s)
     x, width = _over_the_rim(np.maximum(np.sign(side) * g, 0.0), np.sign(side), rim, s,
                              widths=True)
-    f = np.asarray(faces, dtype=np.int64)
     h = float(np.mean([np.linalg.norm(pts[f[:, k]] - pts[f[:, (k + 1) % 3]], axis=1).mean()
                        for k in range(3)]))
     weight = np.clip((width / h - RIM_MEAN[0]) / (RIM_MEAN[1] - RIM_MEAN[0]), 0.0, 1.0)
     if not weight.any():
         return x
-    mean = signed_heat_distance(pts, f, side, boundary=boundary_vertices(f, len(pts)))
+    mean = next(distances)  # (the same factorizations)
     xm = _over_the_rim(np.maximum(np.sign(side) * mean, 0.0), np.sign(side), rim, s)
     return (1.0 - weight) * x + weight * xm

@@ -58,9 +58,10 @@ def _operators(vertices: np.ndarray, faces: np.ndarray):
 
 class _Heat:
     """The factorized systems of the heat method on one mesh (``time``: the diffusion
-    time in units of the mean edge length squared). With ``boundary`` (``(V,)`` bool, the
-    mesh's rim), the heat is the mean of the Neumann and the Dirichlet solutions (Crane
-    et al.'s remedy for the fall-off of the heat bending near the rim); else Neumann."""
+    time in units of the mean edge length squared). Neumann heat; with ``boundary``
+    (``(V,)`` bool, the mesh's rim) also the mean of the Neumann and the Dirichlet
+    solutions (Crane et al.'s remedy for the fall-off of the heat bending near the rim),
+    the Dirichlet system factorized at its first use."""
 
     def __init__(self, vertices: np.ndarray, faces: np.ndarray, time: float,
                  boundary: np.ndarray | None = None):
@@ -70,20 +71,23 @@ class _Heat:
         self.n, self.nf = len(v), len(f)
         edges = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
         h = float(np.linalg.norm(v[edges[:, 0]] - v[edges[:, 1]], axis=1).mean())
-        A = (sp.diags(m) + time * h * h * L).tocsc()
-        self._neumann = factorized(A)
+        self._A = (sp.diags(m) + time * h * h * L).tocsc()
+        self._neumann = factorized(self._A)
         self._dirichlet = None
+        self._inner = None
         if boundary is not None and np.any(boundary) and not np.all(boundary):
             self._inner = np.flatnonzero(~np.asarray(boundary, dtype=bool))
-            self._dirichlet = factorized(A[self._inner][:, self._inner].tocsc())
         self.keep = np.arange(1, self.n)  # L is singular (constants): hold vertex 0, shift
         self.poisson = factorized(L[self.keep][:, self.keep].tocsc())
 
-    def heat(self, load: np.ndarray) -> np.ndarray:
-        """``(V,)`` the heat from ``load`` after the diffusion time."""
+    def heat(self, load: np.ndarray, mean: bool = False) -> np.ndarray:
+        """``(V,)`` the heat from ``load`` after the diffusion time; ``mean``: the mean of
+        the Neumann and the Dirichlet heat (Neumann's where there is no rim)."""
         u = self._neumann(load)
-        if self._dirichlet is None:
+        if not mean or self._inner is None:
             return u
+        if self._dirichlet is None:
+            self._dirichlet = factorized(self._A[self._inner][:, self._inner].tocsc())
         d = np.zeros(self.n)
         d[self._inner] = self._dirichlet(load[self._inner])
         return 0.5 * (u + d)
@@ -136,15 +140,23 @@ def heat_distances(vertices: np.ndarray, faces: np.ndarray, sources: list,
 
 
 def signed_heat_distance(vertices: np.ndarray, faces: np.ndarray, level: np.ndarray,
-                         time: float = 1.0, boundary: np.ndarray | None = None
-                         ) -> np.ndarray | None:
+                         time: float = 1.0) -> np.ndarray | None:
     """``(V,)`` the signed geodesic distance from the curve where the piecewise-linear
-    ``level`` (per vertex) is zero, positive where ``level`` is: the heat method's unit
-    field, turned on the negative side so that it runs across the curve one way, and in
-    the triangles the curve crosses the direction in which ``level`` grows; then the
-    function with that gradient, zero on the curve. None where ``level`` does not change
-    sign on the mesh (no curve). ``boundary`` (``(V,)`` bool, the rim): the heat as the
-    mean of the Neumann and the Dirichlet solutions (:class:`_Heat`).
+    ``level`` (per vertex) is zero, positive where ``level`` is (see
+    :func:`signed_heat_distances`, the first it yields)."""
+    return next(signed_heat_distances(vertices, faces, level, time))
+
+
+def signed_heat_distances(vertices: np.ndarray, faces: np.ndarray, level: np.ndarray,
+                          time: float = 1.0, boundary: np.ndarray | None = None):
+    """Yields the ``(V,)`` signed geodesic distance from the curve where the
+    piecewise-linear ``level`` (per vertex) is zero, positive where ``level`` is: the heat
+    method's unit field, turned on the negative side so that it runs across the curve one
+    way, and in the triangles the curve crosses the direction in which ``level`` grows;
+    then the function with that gradient, zero on the curve. Yields None where ``level``
+    does not change sign on the mesh (no curve). With ``boundary`` (``(V,)`` bool, the
+    rim), it then yields the same from the mean of the Neumann and the Dirichlet heat
+    (:class:`_Heat`), on the same factorizations, its own made only if asked for.
 
     The unsigned distance has a kink along the curve, which a piecewise-linear function
     represents only where the curve runs along edges: where it crosses triangles (an
@@ -157,14 +169,17 @@ def signed_heat_distance(vertices: np.ndarray, faces: np.ndarray, level: np.ndar
     lv = np.where(lv == 0.0, np.finfo(np.float64).tiny, lv)
     load = curve_load(vertices, f, lv)
     if not load.sum() > 0.0:
-        return None
+        yield None
+        return
     ops = _Heat(vertices, f, time, boundary)
-    field = -_unit(ops.gradient(ops.heat(load)))
     lf = lv[f]
     crossing = (lf.min(axis=1) < 0.0) & (lf.max(axis=1) > 0.0)
-    field[lf.max(axis=1) < 0.0] *= -1.0
-    field[crossing] = _unit(ops.gradient(lv))[crossing]
-    return ops.integrate(field, load)
+    across = _unit(ops.gradient(lv))[crossing]
+    for mean in (False, True) if boundary is not None else (False,):
+        field = -_unit(ops.gradient(ops.heat(load, mean)))
+        field[lf.max(axis=1) < 0.0] *= -1.0
+        field[crossing] = across
+        yield ops.integrate(field, load)
 
 
 def curve_load(vertices: np.ndarray, faces: np.ndarray, level: np.ndarray) -> np.ndarray:
