@@ -107,6 +107,30 @@ def test_barrier_gradient_and_hessian_match_finite_differences():
     assert np.linalg.eigvalsh(H).min() < -1e-6 * np.abs(H).max()  # (the exact one is not)
 
 
+def test_contact_on_the_first_vertices_leaves_the_others_out():
+    """count: a mesh cut finer keeps its contact on the coarse triangles (their vertices
+    first). Vertices past count, here one between the sheets and one in the top sheet's
+    way, feel no barrier and stop no step; the first rows' energy, forces and Hessian
+    are those of the contact of those rows alone, the Hessian padded to every
+    vertex."""
+    X, faces, petal = _sheets_in_the_band()
+    n = len(X)
+    extra = np.array([[0.5, 0.5, 0.5 * GAP], [0.5, 0.5, 2.5 * GAP]])
+    both = np.vstack([X, extra])
+    alone = Contact.build(X, faces, petal, gap=GAP, stiffness=0.1)
+    first = Contact.build(both, faces, np.r_[petal, 0, 1], gap=GAP, stiffness=0.1, count=n)
+    Fa, Fb = np.zeros_like(X), np.zeros_like(both)
+    assert first.forces(both, Fb) == alone.forces(X, Fa)
+    assert np.array_equal(Fb[:n], Fa) and not Fb[n:].any()
+    Ha, Hb = alone.hessian(X, project=True), first.hessian(both, project=True)
+    assert Hb.shape == (3 * (n + 2),) * 2
+    assert (Hb[:3 * n, :3 * n] != Ha).nnz == 0 and Hb[3 * n:].nnz == 0
+    down = both.copy()
+    down[n:, 2] = -GAP  # (the extra vertices through the bottom sheet: not the contact's)
+    assert first.max_step(both, down) == 1.0
+    assert first.active_count(both) == alone.active_count(X)
+
+
 def test_ipctk_runs_on_one_thread(monkeypatch):
     """ipctk's threads are not reproducible (its broad phase and CCD in two threads gave a
     14-petal flower's bud search 807 to 819 Newton iterations on four runs; the rose

@@ -29,6 +29,20 @@ CARRIED = ("mesh/vertices", "mesh/faces", "mesh/petal", "mesh/patch", "mesh/part
 LINES = 50
 
 
+def axis_options(get) -> dict:
+    """The scene's choices :func:`~pipeline.flower.axis.find_axes` is run with, from its
+    keys (``get(dotted key)``): the shell (simulate.model = shell) runs on s and x along
+    the surface and holds a band (the same region at any resolution); the paper's springs
+    on distances along edges and the rim."""
+    shell = get("simulate.model") == "shell"
+    region = get("axis.base_region")
+    if region == "auto":
+        region = "band" if shell else "rim"
+    fraction = get("axis.base_band") if region == "band" else get("axis.base_fraction")
+    return {"base_mode": get("axis.base"), "base_fraction": fraction, "base_region": region,
+            "surface": shell, "flower_axis": get("axis.flower_axis")}
+
+
 def run(remesh_h5: str | Path, out: str | Path, cfg: Config, *, overwrite: bool = False) -> None:
     """Find each petal's base, tip, center plane and cross-section coordinates, and each
     flower's axis from its own petals (``flower/axis``, (K, 6))."""
@@ -46,19 +60,10 @@ def run(remesh_h5: str | Path, out: str | Path, cfg: Config, *, overwrite: bool 
         # each petal's flower (remesh.h5 of before the flowers were found: one flower)
         flower = src["flower/petal_flower"] if "flower/petal_flower" in src else None
         try:
-            # the shell (simulate.model = shell) runs on s and x along the surface and
-            # holds a band (the same region at any resolution); the paper's springs on
-            # distances along edges and the rim
-            shell = cfg["simulate.model"] == "shell"
-            region = cfg["axis.base_region"]
-            if region == "auto":
-                region = "band" if shell else "rim"
-            fraction = cfg["axis.base_band"] if region == "band" else cfg["axis.base_fraction"]
             with Steps("axis", str(remesh_h5)) as progress:
-                axes = find_axes(v, f, petal, base_mode=cfg["axis.base"], base_fraction=fraction,
-                                 base_region=region, surface=shell,
+                axes = find_axes(v, f, petal, **axis_options(cfg.__getitem__),
                                  planes=src["mesh/plane"] if "mesh/plane" in src else None,
-                                 flower_axis=cfg["axis.flower_axis"], up=np.array(DIRECTIONS[up]),
+                                 up=np.array(DIRECTIONS[up]),
                                  flower=flower, progress=progress,
                                  hold_bad=flower_count(src) > 1,
                                  held_rim=src["mesh/cut_rim"] if "mesh/cut_rim" in src else None)

@@ -12,7 +12,7 @@ from pipeline import artifact
 from pipeline.chain import carried_attrs
 from pipeline.config import Config
 from pipeline.errors import BloomError
-from pipeline.flower.growth import assign_growth
+from pipeline.flower.growth import assign_growth, growth_rule
 from pipeline.sim.build import REST_STIFFNESS, rest_stiffness
 
 log = logging.getLogger("bloom")
@@ -28,14 +28,10 @@ def run(axis_h5: str | Path, out: str | Path, cfg: Config, *, overwrite: bool = 
     """Assign each edge its growth ratio alpha = growth.curve(x) and list the hinges."""
     where = str(cfg.path) if cfg.path else "defaults"
     out = artifact.check_output(out, "growth", overwrite)
-    wrinkles = cfg["effects.wrinkles.enabled"]
     with artifact.Artifact(axis_h5, needs="axis", reader="growth") as src:
         v, f, x = src["mesh/vertices"], src["mesh/faces"], src["axis/x"]
         try:
-            g = assign_growth(v, f, x, cfg["growth.curve"],
-                              alpha_add=cfg["effects.wrinkles.alpha_add"] if wrinkles else 0.0,
-                              boundary_stiffness=(cfg["effects.wrinkles.boundary_stiffness"]
-                                                  if wrinkles else 1.0))
+            g = assign_growth(v, f, x, **growth_rule(cfg.__getitem__))
         except ValueError as exc:
             raise BloomError(f"growth.curve: {exc}", where=where) from None
         # no NaN leaves this stage: alpha and the rest angles finite, or refused naming the petal

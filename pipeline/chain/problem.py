@@ -5,6 +5,7 @@ in :mod:`pipeline.chain.flowers`); the solver's failures as one line naming the 
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import time
 from dataclasses import dataclass, field
@@ -12,8 +13,10 @@ from pathlib import Path
 
 import numpy as np
 
+from pipeline.chain.axis import axis_options
 from pipeline.config import KEYS, Config
 from pipeline.errors import BloomError
+from pipeline.flower.growth import growth_rule
 from pipeline.flower.measure import Start
 from pipeline.progress import Progress
 from pipeline.review import report
@@ -70,6 +73,8 @@ class Result:
     #: a file of many flowers: ``(K,)`` each flower's problem, the first flower in it
     #: (flowers that bloom together start together), or None: each its own
     together: np.ndarray | None = None
+    #: the vertices of the mesh it was solved on, where that was cut finer (else None)
+    solved_on: int | None = None
 
     @classmethod
     def of(cls, run: Bloom) -> Result:
@@ -77,7 +82,7 @@ class Result:
         return cls(run.bud, run.bud_info, run.effects.names, run.effects.connections,
                    np.asarray(run.rec.time), np.asarray(run.rec.positions), run.rec.arrays(),
                    run.wall, run.resumed, run.resumed_step, run.distance,
-                   stopped=[run.stopped] if run.stopped else [])
+                   stopped=[run.stopped] if run.stopped else [], solved_on=run.solved_on)
 
 
 def unlink_checkpoints(ckpt: Path) -> None:
@@ -87,11 +92,56 @@ def unlink_checkpoints(ckpt: Path) -> None:
         path.unlink(missing_ok=True)
 
 
+#: the most times a mesh is cut finer for the solve (each time four times the faces)
+MAX_LEVELS = 3
+
+
+def levels_for(prep: Prepared, cfg: Config) -> int:
+    """How many times the shell's solve cuts ``prep`` finer (:meth:`Prepared.refined`):
+    until its median petal holds ``simulate.petal_vertices`` (each cut about four times
+    the vertices), at most :data:`MAX_LEVELS` and ``simulate.max_vertices`` in all; 0 for
+    the paper's springs (their energy is the triangles': a finer mesh is another
+    material) and the dynamic integrators (their push-back is on every vertex: the
+    coarse mesh's contact, :attr:`Prepared.contact_faces`, is the quasi-static
+    solver's)."""
+    want, most = cfg["simulate.petal_vertices"], cfg["simulate.max_vertices"]
+    if (cfg["simulate.model"] != "shell" or cfg["simulate.integrator"] != "quasi-static"
+            or want <= 0 or len(prep.vertices) == 0):
+        return 0
+    n = float(np.median(np.bincount(np.asarray(prep.petal))[np.unique(prep.petal)]))
+    total = float(len(prep.vertices))
+    levels = 0
+    while n < want and levels < MAX_LEVELS and 4.0 * total <= most:
+        n, total, levels = 4.0 * n, 4.0 * total, levels + 1
+    return levels
+
+
 def problem(prep: Prepared, job: Job, ckpt: Path, label: str = "") -> Bloom:
-    """One problem's bloom (a whole file, or one flower of many): the model and effects
-    built, the bud found for an open start (and searched again without the lift where
-    the bloom ends off the model), integrated; the solver's failures as one line naming
-    the key (:class:`BloomError`)."""
+    """One problem's bloom (a whole file, or one flower of many), solved on ``prep`` cut
+    finer where its petals are coarser than ``simulate.petal_vertices`` (:func:`levels_for`;
+    the bloom's frames then those of ``prep``'s own vertices)."""
+    levels = levels_for(prep, job.cfg)
+    if levels == 0:
+        return _problem(prep, job, ckpt, label)
+    cfg = job.cfg
+
+    def made(key: str):  # (the axes and growth as their stages made them: their keys as
+        # growth.h5 records them, where it does)
+        return prep.recorded[key] if key in prep.recorded else cfg[key]
+
+    fine = prep.refined(levels, growth_rule(made), axes=axis_options(made))
+    log.info("simulate.petal_vertices = %d: %s solved on a mesh cut %d time(s) finer (%d "
+             "vertices for %d), its frames those of its own vertices",
+             cfg["simulate.petal_vertices"], label or "the bloom", levels, len(fine.vertices),
+             len(prep.vertices))
+    return _problem(fine, job, ckpt, label).coarse(len(prep.vertices))
+
+
+def _problem(prep: Prepared, job: Job, ckpt: Path, label: str = "") -> Bloom:
+    """One problem's bloom on ``prep`` as it is: the model and effects built, the bud
+    found for an open start (and searched again without the lift where the bloom ends
+    off the model), integrated; the solver's failures as one line naming the key
+    (:class:`BloomError`)."""
     cfg, start, where, progress = job.cfg, job.start, job.where, job.progress
     sim = cfg.section("simulate")
     steps, frames, h = sim["steps"], sim["frames"], sim["h"]
@@ -355,6 +405,17 @@ class Bloom:
     resumed_step: int
     distance: float | None
     stopped: tuple | None = None
+    #: the vertices of the mesh it was solved on, where that was cut finer (else None)
+    solved_on: int | None = None
+
+    def coarse(self, count: int) -> Bloom:
+        """This bloom of a mesh cut finer, seen on the first ``count`` vertices (the
+        coarse mesh's own, :meth:`Prepared.refined`; its connection springs tie them
+        only): its bud and frames those rows."""
+        rec = dataclasses.replace(self.rec, positions=[np.asarray(p)[:count]
+                                                       for p in self.rec.positions])
+        return dataclasses.replace(self, bud=np.asarray(self.bud)[:count], rec=rec,
+                                   solved_on=len(self.bud))
 
 
 class Saver:

@@ -104,6 +104,8 @@ def run(growth_h5: str | Path, out: str | Path, cfg: Config, *, overwrite: bool 
         attrs["growth_start"], attrs["growth_start_rule"] = start.start, start.reason
         if held is not None:
             attrs["base_held_to"] = held
+        if result.solved_on is not None:  # (simulate.petal_vertices: the mesh cut finer)
+            attrs["solved_on_vertices"] = result.solved_on
         if result.held:
             attrs["flowers_kept_as_modelled"] = np.asarray(result.held, dtype=np.int64)
         if result.stopped:  # a bloom held where no equilibrium was found past it
@@ -193,7 +195,7 @@ def hold_bowls(cfg: Config, prep: Prepared, job, ckpt: Path, result):
              "to s = %g (the bottom of a bowl-shaped petal can turn inward under the rims' "
              "growth; axis.base_band sets it)", shut, np.asarray(opening).shape[1],
              report.NOT_OPEN, HOLD_BOWL)
-    held = dataclasses.replace(prep, base=wider)
+    held = dataclasses.replace(prep, base=wider, held=HOLD_BOWL)
     again_job = dataclasses.replace(job, inputs={**job.inputs, "base held to": HOLD_BOWL})
     try:
         again = problem.Result.of(problem.problem(held, again_job,

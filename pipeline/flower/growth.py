@@ -23,6 +23,16 @@ class GrowthMap:
     rest_angle: np.ndarray  #: (H,) signed dihedral angle of the initial mesh
 
 
+def growth_rule(get) -> dict:
+    """What :func:`assign_growth` is called with beside the mesh, from a scene's keys
+    (``get(dotted key)``): the growth curve, and the wrinkles' extra rim growth and
+    softer rim where the scene turns wrinkles on."""
+    wrinkles = bool(get("effects.wrinkles.enabled"))
+    return {"curve": get("growth.curve"),
+            "alpha_add": get("effects.wrinkles.alpha_add") if wrinkles else 0.0,
+            "boundary_stiffness": get("effects.wrinkles.boundary_stiffness") if wrinkles else 1.0}
+
+
 def assign_growth(vertices: np.ndarray, faces: np.ndarray, x: np.ndarray, curve: str, *,
                   alpha_add: float = 0.0, boundary_stiffness: float = 1.0) -> GrowthMap:
     """alpha_e = curve(x_e), x_e the mean of the edge's end coordinates; boundary edges

@@ -10,6 +10,10 @@ import numpy as np
 from pipeline.mesh import topology
 from pipeline.mesh.hinge import dihedral_angles
 
+#: a chord that turns less than this (radians, about 0.06 deg) to reach an open model
+#: tells no direction of its own (:meth:`PetalFrames.opening_toward`)
+TURNED = 1e-3
+
 
 @dataclass
 class PetalFrames:
@@ -62,11 +66,20 @@ class PetalFrames:
                    np.array(chords).reshape(-1, 3), np.array(outs).reshape(-1, 3))
 
     def opening_toward(self, X) -> PetalFrames:
-        """The same frames with each petal's outward direction the way it turns to reach
-        ``X`` (an open start's model: the bloom ends there, and it is open by definition;
-        a bud found backward may curl so far that its chord and cup no longer tell)."""
+        """The same frames with each petal's outward direction the way its chord turns to
+        reach ``X`` (an open start's model: the bloom ends there, and it is open by
+        definition; a bud found backward may curl so far that its chord and cup no longer
+        tell, and a nearly flat petal's cup tells no direction at all): the opening is
+        measured in the plane of the chord's turn. A petal whose chord does not turn
+        keeps its outward direction, turned the way it goes."""
+        chord = np.asarray(X)[self.tips] - self.base_centers
+        turn = chord - np.einsum("ij,ij->i", chord, self.chord_dirs)[:, None] * self.chord_dirs
+        size = np.linalg.norm(turn, axis=1)
+        moved = size > TURNED * np.linalg.norm(chord, axis=1)
         sign = np.where(self.opening_angles(X) < 0.0, -1.0, 1.0)
-        return dataclasses.replace(self, outward_dirs=self.outward_dirs * sign[:, None])
+        out = np.where(moved[:, None], turn / np.where(moved, size, 1.0)[:, None],
+                       self.outward_dirs * sign[:, None])
+        return dataclasses.replace(self, outward_dirs=out)
 
     def opening_angles(self, X) -> np.ndarray:
         """``(P,)`` opening angle of each petal in degrees (0 on the initial mesh)."""

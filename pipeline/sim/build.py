@@ -10,11 +10,14 @@ the Effects, so a scene simulated by the pipeline and by a study are the same pr
 
 from __future__ import annotations
 
+import dataclasses
+import json
+import logging
 from dataclasses import dataclass
 
 import numpy as np
 
-from pipeline.flower.axis import find_axes
+from pipeline.flower.axis import BadPetal, WeakBase, find_axes
 from pipeline.flower.growth import GrowthMap, assign_growth
 from pipeline.flower.measure import PetalFrames, leans
 from pipeline.mesh import clean
@@ -23,6 +26,8 @@ from pipeline.sim import effects as fx
 from pipeline.sim.model import Model
 from pipeline.sim.terms.elastic import internal_forces
 from pipeline.sim.terms.shell import POISSON, ShellData, petal_size
+
+log = logging.getLogger("bloom")
 
 
 @dataclass
@@ -60,6 +65,15 @@ class Prepared:
     #: flowers that bloom together (:meth:`flowers_part`): the bud search keeps contact
     #: within each (:attr:`flower` apart), the bloom has contact between them too
     together: bool = False
+    #: each petal held further than its base, up to this ``s`` (every vertex within it
+    #: fixed; simulate's second try for a bowl), or None
+    held: float | None = None
+    #: the triangles contact keeps apart where the solve is on a mesh cut finer (the
+    #: coarse mesh's, on its vertices, which come first: :meth:`refined`), or None: faces
+    contact_faces: np.ndarray | None = None
+    #: the keys the stages that made these arrays ran with, dotted (growth.h5's record;
+    #: empty where unknown): what a solve cut finer finds the axes and growth again by
+    recorded: dict = dataclasses.field(default_factory=dict)
 
     @classmethod
     def from_artifact(cls, src) -> Prepared:
@@ -73,7 +87,9 @@ class Prepared:
                    src["mesh/patch"] if "mesh/patch" in src else None,
                    np.asarray(src["flower/petal_flower"])[np.asarray(src["mesh/petal"])]
                    if "flower/petal_flower" in src else None,
-                   np.asarray(src["flower/axis"]) if "flower/axis" in src else None)
+                   np.asarray(src["flower/axis"]) if "flower/axis" in src else None,
+                   recorded=_dotted(json.loads(src.attrs["config"]))
+                   if "config" in src.attrs else {})
 
     @classmethod
     def of(cls, vertices, faces, petal, axes, growth) -> Prepared:
@@ -149,6 +165,80 @@ class Prepared:
             np.asarray(self.stiffness)[on_edge], hinges, np.asarray(self.rest_angle)[on_hinge],
             part(self.thickness), part(self.patch), **together), idx
 
+    def refined(self, levels: int, rule: dict, *, axes: dict | None = None) -> Prepared:
+        """The same petals cut ``levels`` times finer (:func:`pipeline.mesh.subdivide.
+        subdivide`), the old vertices first, with their indices (so a frame of the fine
+        problem holds this one's in its first rows), each new vertex on the smooth surface
+        through the old.
+
+        ``axes``: the axis stage's options (:func:`pipeline.chain.axis.axis_options`):
+        each petal's base, axis, tip, ``s`` and ``x`` found again on the finer mesh (the
+        same center planes), as the axis stage would have found them there, unless a
+        petal's base would then lie elsewhere (its old base vertices past
+        :data:`REFINED_BASE` of its length: then, and without ``axes``, every new vertex
+        has its edge's mean ``s``, ``x`` and thickness, and is fixed and on the axis where
+        both ends are). A base held further (:attr:`held`) is held as far on the finer
+        mesh. The growth map is made again on the finer edges by the growth stage's own
+        rule (``rule``: :func:`pipeline.flower.growth.growth_rule`). Contact stays on this
+        mesh's triangles (:attr:`contact_faces`), whose vertices come first."""
+        from pipeline.mesh.subdivide import subdivide
+
+        v, f = np.asarray(self.vertices, dtype=np.float64), np.asarray(self.faces)
+        fields = {"petal": self.petal, "base": self.base, "on_axis": self.on_axis, "s": self.s,
+                  "x": self.x, "thickness": self.thickness, "patch": self.patch,
+                  "flower": self.flower}
+        fields = {k: None if a is None else np.asarray(a) for k, a in fields.items()}
+        for _ in range(levels):
+            v, f, parent = subdivide(v, f)
+            i, j = parent[:, 0], parent[:, 1]
+            for k, a in fields.items():
+                if a is None:
+                    continue
+                if a.dtype == bool:  # (fixed, on the axis: where both ends are)
+                    new = a[i] & a[j]
+                elif k in ("s", "x", "thickness"):
+                    new = 0.5 * (a[i] + a[j])
+                else:  # (petal, patch, flower: an edge's ends share them)
+                    new = a[i]
+                fields[k] = np.concatenate([a, new])
+        tip, plane = np.asarray(self.tip), np.asarray(self.plane)
+        if axes is not None and levels > 0:
+            found = self._axes_again(v, f, fields, axes)
+            if found is not None:
+                fields.update(base=found.base, on_axis=found.on_axis, s=found.s, x=found.x)
+                tip, plane = found.tip, found.plane
+        if self.held is not None:
+            fields["base"] = fields["base"] | (fields["s"] <= self.held)
+        g = assign_growth(v, f, fields["x"], **rule)
+        return dataclasses.replace(self, vertices=v, faces=f, tip=tip, plane=plane, edges=g.edges,
+                                   alpha=g.alpha, stiffness=g.stiffness, hinges=g.hinges,
+                                   rest_angle=g.rest_angle, contact_faces=self.faces
+                                   if self.contact_faces is None else self.contact_faces,
+                                   **fields)
+
+    def _axes_again(self, v, f, fields: dict, axes: dict):
+        """The axes found on the finer mesh ``v, f`` (:meth:`refined`), or None where they
+        cannot be found or a petal's base would move (logged)."""
+        petal = fields["petal"]
+        flower = None
+        if fields["flower"] is not None:  # (each petal's flower)
+            flower = np.zeros(len(self.tip), dtype=np.int64)
+            flower[petal] = fields["flower"]
+        try:
+            found = find_axes(v, f, petal, **axes, planes=np.asarray(self.plane), flower=flower)
+        except (BadPetal, WeakBase, ValueError) as exc:
+            log.info("the axes on the finer mesh: %s; the old ones carried over", exc)
+            return None
+        old = np.flatnonzero(np.asarray(self.base))  # (the old vertices keep their indices)
+        reach = np.zeros(len(self.tip))
+        np.maximum.at(reach, petal[old], found.s[old])
+        if np.any(reach > REFINED_BASE):
+            log.info("the axes on the finer mesh put petal %d's base elsewhere (its old base "
+                     "up to s = %.2f); the old ones carried over", int(np.argmax(reach)),
+                     float(reach.max()))
+            return None
+        return found
+
     def model(self, stretch: float, bending: float, mass: float = 1.0, pinned=None) -> Model:
         """The springs (``stretch`` times each edge's stiffness factor) and hinges
         (``bending``), rest state measured on :attr:`vertices`, the base fixed."""
@@ -212,7 +302,7 @@ class Prepared:
                         pinned=self.base, on_axis=self.on_axis, plane=self.plane, s=self.s,
                         rest_angle=self.rest_angle if rest_angle is None else rest_angle,
                         flower_axis=self.flower_axis, max_edge=max_edge, params=params,
-                        pushback=pushback)
+                        pushback=pushback, contact_faces=self.contact_faces)
 
     def max_grown_edge(self) -> float:
         """The longest edge at full growth (``L (1 + max(alpha, 0))``, measured as the
@@ -265,6 +355,22 @@ class Prepared:
         return PetalFrames.from_mesh(self.vertices if positions is None else positions,
                                      self.petal, self.base, self.on_axis, self.tip, self.plane,
                                      flower_axis=self.flower_axis)
+
+
+def _dotted(nested: dict, prefix: str = "") -> dict:
+    """A config's nested sections as one level of dotted keys."""
+    out = {}
+    for key, value in nested.items():
+        if isinstance(value, dict):
+            out.update(_dotted(value, f"{prefix}{key}."))
+        else:
+            out[f"{prefix}{key}"] = value
+    return out
+
+
+#: a petal's old base vertices further than this along it (s) on the finer mesh: the
+#: axes found there put its base elsewhere (:meth:`Prepared.refined`)
+REFINED_BASE = 0.25
 
 
 #: rest-state check: every vertex is nudged by this many mean edges (far above rounding,

@@ -220,13 +220,16 @@ class Effects:
 
 def build(names, *, vertices, faces, petal, pinned, on_axis, plane, s, rest_angle,
           flower_axis, max_edge: float, params: Params, patch=None, flower=None,
-          pushback: bool = True) -> Effects:
+          pushback: bool = True, contact_faces=None) -> Effects:
     """Build the enabled effects (``names``) from the mesh and their parameters.
     ``patch`` (V,): contact patches (petals left through each other as modelled share one,
     and do not collide); None: each petal its own. ``flower`` (V,): each vertex's flower
     in a file of many (each flower blooms as a problem of its own, with contact among its
     own petals only); None: one flower. ``pushback``: the collisions' arrays for the
-    push-back of the dynamic integrators (False: the quasi-static solver's contact only)."""
+    push-back of the dynamic integrators (False: the quasi-static solver's contact only).
+    ``contact_faces``: the triangles contact keeps apart and connection springs tie, on
+    the first vertices (a mesh cut finer for the solve: the coarse mesh's), or None:
+    ``faces``."""
     names = tuple(n for n in ORDER if n in set(names))
     petal = np.asarray(petal, dtype=np.int64)
     point, direction = flower_axis_or_guess(vertices, flower_axis)
@@ -236,17 +239,22 @@ def build(names, *, vertices, faces, petal, pinned, on_axis, plane, s, rest_angl
         fx.curl = Curl.build(rest_angle, params.curl.beta)
     if "collisions" in names:
         c = params.collisions
-        fx.collisions = Collisions.build(vertices, faces, petal if patch is None else patch,
+        fx.collisions = Collisions.build(vertices, faces if contact_faces is None
+                                         else contact_faces,
+                                         petal if patch is None else patch,
                                          offset=c.offset,
                                          max_edge=max_edge, thickness=c.thickness,
                                          pushback=pushback)
+        if contact_faces is not None:
+            fx.collisions.in_contact = int(np.max(contact_faces)) + 1
         fx.collisions.joined = patch is not None and bool(patch_groups(petal, patch))
         if flower is not None and len(flower) and int(np.max(flower)) > 0:
             fx.collisions.vertex_flower = np.asarray(flower, dtype=np.int64)
     if "connections" in names:
         c = params.connections
-        fx.connections = Connections.build(
-            vertices, faces, petal, pinned, s, layer, stiffness=c.stiffness,
+        fx.connections = Connections.build(  # (between the contact's vertices)
+            vertices, faces if contact_faces is None else contact_faces, petal, pinned, s,
+            layer, stiffness=c.stiffness,
             critical_stretch=c.critical_stretch, max_distance=c.max_distance, min_s=c.min_s)
     if "center_plane" in names:
         fx.center_plane = CenterPlane.build(vertices, on_axis, pinned, petal, plane)

@@ -322,7 +322,8 @@ def contact_free(lift, positions, effects):
             faces = np.searchsorted(idx, faces[flower[faces[:, 0]] == f])
             petal = petal[idx]
         contact = Contact.build(X[idx], faces, petal, gap=c.thickness, stiffness=1.0,
-                                own=not c.joined)
+                                own=not c.joined, count=None if c.in_contact is None
+                                else int(np.sum(idx < c.in_contact)))
         fraction = contact.max_step(X[idx], X[idx] + out[idx])
         if fraction < 1.0:
             out[idx] *= 0.5 * fraction

@@ -344,6 +344,10 @@ class Collisions:
     #: as problems apart (each from its own bud, and staggered in time by the scene, so
     #: their petals are never in one equilibrium), contact kept within each flower
     vertex_flower: np.ndarray | None = None
+    #: the quasi-static solver's contact is on the first ``in_contact`` vertices only
+    #: (``faces`` on them: a mesh cut finer for the solve keeps its contact on the coarse
+    #: mesh's triangles), or None: all
+    in_contact: int | None = None
 
     @classmethod
     def build(cls, vertices, faces, petal, *, offset: float, max_edge: float,

@@ -137,6 +137,8 @@ def split(model: Model, effects: Effects, positions=None) -> list[Piece]:
                 offset=offset, max_edge=cell - 2.0 * (margin + offset + slack),
                 thickness=k.thickness, margin=margin, slack=slack, pushback=False)
             fx.collisions.joined = k.joined
+            if k.in_contact is not None:  # (the cluster's vertices in contact come first)
+                fx.collisions.in_contact = int(np.sum(idx < k.in_contact))
         zeros = np.zeros((len(idx), 3))
         state = State(zeros.copy(), zeros.copy(), zeros.copy(), 0, 0.0, zeros.copy())
         parts.append(Piece(idx, sub, fx, state))

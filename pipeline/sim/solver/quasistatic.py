@@ -218,7 +218,7 @@ class QuasiStatic:
                 stiffness = contact_stiffness(model.shell)
             self.newton.contact = Contact.build(positions, c.faces, c.vertex_petal,
                                                 gap=c.thickness, stiffness=stiffness,
-                                                own=not c.joined)
+                                                own=not c.joined, count=c.in_contact)
             if getattr(model, "shell", None) is not None:  # (its gap in units of the petal)
                 self.newton.contact.key = "effects.collisions.gap"
                 self.newton.contact.unit = model.shell.size

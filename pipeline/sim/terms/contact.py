@@ -110,25 +110,30 @@ class Contact(Term):
     #: the vertex patches of the collision filter (two vertices of one patch never
     #: collide), or None (every petal keeps off itself too): :func:`_own_contact`
     _patches: np.ndarray | None = field(repr=False, default=None)
+    #: the contact's vertices are the first ``count`` (a mesh cut finer for the solve
+    #: keeps its contact on the coarse mesh's triangles, whose vertices come first), or
+    #: None: all
+    count: int | None = None
 
     @classmethod
     def build(cls, positions, faces, petal, *, gap: float, stiffness: float,
-              own: bool = True) -> Contact:
+              own: bool = True, count: int | None = None) -> Contact:
         """``stiffness``: what the barrier's curvature is at the middle of its band.
         ``own``: a petal keeps off itself too (its triangles that share no vertex), where
         the start allows it (:func:`_own_contact`); False: between petals only (``petal``
-        then holds patches that join petals left through each other)."""
+        then holds patches that join petals left through each other). ``count``: only
+        the first ``count`` vertices are in contact (``faces`` on them), or None: all."""
         ipctk = one_thread()
-        X = np.asfortranarray(positions, dtype=np.float64)
+        X = np.asfortranarray(np.asarray(positions)[:count], dtype=np.float64)
         F = np.asfortranarray(faces, dtype=np.int32)
         mesh = ipctk.CollisionMesh(X, ipctk.edges(F), F)
-        petal = np.ascontiguousarray(petal, dtype=np.int32)
+        petal = np.ascontiguousarray(np.asarray(petal)[:count], dtype=np.int32)
         patches = petal if not own else _own_contact(mesh, X, petal, 2.0 * gap)
         if patches is not None:  # (the filter reads the array: it lives with the contact)
             mesh.can_collide = ipctk.make_vertex_patches_filter(patches)
         band = gap
         kappa = stiffness / barrier_curvature(gap + 0.5 * band, gap, band)
-        contact = cls(mesh, petal, float(gap), float(band), float(kappa))
+        contact = cls(mesh, petal, float(gap), float(band), float(kappa), count=count)
         contact._patches = patches
         contact.potential = ipctk.BarrierPotential(contact.band, contact.kappa)
         contact.ccd = ipctk.AdditiveCCD()
@@ -140,7 +145,7 @@ class Contact(Term):
         touching; names the petal pairs. Petals closer than the gap (but apart) make the
         gap half their distance (logged)."""
         ipctk = one_thread()
-        X = np.asfortranarray(X, dtype=np.float64)
+        X = self._mine(X)
         if ipctk.has_intersections(self.mesh, X):
             pairs = self.intersecting_pairs(X)
             raise ContactError(
@@ -179,12 +184,12 @@ class Contact(Term):
     def intersecting_pairs(self, X) -> list[tuple[int, int]]:
         """Petal pairs that intersect at X (an edge of one through a triangle of the
         other: one pass over the mesh, :func:`pipeline.mesh.separate.crossed_pairs`)."""
-        return crossed_pairs(X, self.mesh.faces, self.petal)
+        return crossed_pairs(self._mine(X), self.mesh.faces, self.petal)
 
     def close_pairs(self, X, distance: float) -> list[tuple[int, int, float]]:
         """Petal pairs closer than ``distance`` at X, with their smallest distance."""
         ipctk = one_thread()
-        X = np.asfortranarray(X, dtype=np.float64)
+        X = self._mine(X)
         found = ipctk.NormalCollisions()
         found.build(self.mesh, X, distance)
         edges, faces = self.mesh.edges, self.mesh.faces
@@ -227,17 +232,24 @@ class Contact(Term):
         a narrow phase's cost: one sweep serves a growth increment's iterations as
         long as they stay in it."""
         ipctk = one_thread()
+        X0, X1 = self._mine(X0), self._mine(X1)
         low = np.asfortranarray(np.minimum(X0, X1) - margin, dtype=np.float64)
         high = np.asfortranarray(np.maximum(X0, X1) + margin, dtype=np.float64)
         self.candidates = ipctk.Candidates()
         self.candidates.build(self.mesh, low, high, self.gap + self.band)
         self._low, self._high = low, high
 
+    def _mine(self, X) -> np.ndarray:
+        """The contact's vertices' rows of ``X`` (:attr:`count`)."""
+        return np.asfortranarray(np.asarray(X)[:self.count], dtype=np.float64)
+
     def _swept(self, X) -> bool:
+        X = np.asarray(X)[:self.count]
         return (self.candidates is not None and bool(np.all(self._low <= X))
                 and bool(np.all(X <= self._high)))
 
     def _active(self, X):
+        X = self._mine(X)
         if self._at is None or not np.array_equal(self._at, X):
             ipctk = one_thread()
             self.collisions = ipctk.NormalCollisions()
@@ -252,13 +264,13 @@ class Contact(Term):
     def forces(self, X, F) -> float:
         """The barrier's energy at X; subtracts its gradient from the forces ``F``
         (V, 3). Infinite where a pair is at or below the gap."""
-        X = np.asfortranarray(X, dtype=np.float64)
+        X = self._mine(X)
         active = self._active(X)
         if len(active) == 0:
             return 0.0
         energy = float(self.potential(active, self.mesh, X))
         if math.isfinite(energy):
-            F -= self.potential.gradient(active, self.mesh, X).reshape(-1, 3)
+            F[:len(X)] -= self.potential.gradient(active, self.mesh, X).reshape(-1, 3)
         return energy
 
     def hessian(self, X, project: bool = False) -> sp.csc_matrix | None:
@@ -266,17 +278,22 @@ class Contact(Term):
         semi-definite (``project``, as the solver takes it) or exact; None when no pair
         is within the band."""
         ipctk = one_thread()
-        X = np.asfortranarray(X, dtype=np.float64)
+        n = len(X)
+        X = self._mine(X)
         active = self._active(X)
         if len(active) == 0:
             return None
         how = ipctk.PSDProjectionMethod.CLAMP if project else ipctk.PSDProjectionMethod.NONE
-        return self.potential.hessian(active, self.mesh, X, how)
+        H = self.potential.hessian(active, self.mesh, X, how)
+        if len(X) < n:  # (the vertices past the contact's: no entries)
+            H = sp.csc_matrix(H)
+            H.resize((3 * n, 3 * n))
+        return H
 
     def linked(self, X) -> np.ndarray:
         """(k, 2) vertex pairs that the contacts within the barrier's band join at X (the
         Hessian couples their unknowns): each contact's vertices, chained to its first."""
-        active = self._active(np.asfortranarray(X, dtype=np.float64))
+        active = self._active(X)
         edges, faces = self.mesh.edges, self.mesh.faces
         pairs = []
         for k in range(len(active)):
@@ -285,7 +302,7 @@ class Contact(Term):
         return np.array(pairs, dtype=np.int64).reshape(-1, 2)
 
     def active_count(self, X) -> int:
-        return len(self._active(np.asfortranarray(X, dtype=np.float64)))
+        return len(self._active(X))
 
     # --- steps ----------------------------------------------------------------------------
     def cover(self, X0, X1) -> None:
@@ -302,8 +319,7 @@ class Contact(Term):
         it: its candidates serve the CCD and the active sets along it."""
         self.cover(X0, X1)
         return float(self.candidates.compute_collision_free_stepsize(
-            self.mesh, np.asfortranarray(X0, dtype=np.float64),
-            np.asfortranarray(X1, dtype=np.float64), self.gap, self.ccd))
+            self.mesh, self._mine(X0), self._mine(X1), self.gap, self.ccd))
 
 
 def _own_contact(mesh, X, petal, reach: float) -> np.ndarray | None:
