@@ -50,10 +50,16 @@ class PetalFrames:
             chord /= length
             axis_pts = mine & on_axis
             ref = v[axis_pts].mean(axis=0) if axis_pts.any() else centroid
-            out = ref - centroid
+            # within the center plane, across the chord (a symmetric petal opens in its
+            # center plane): the midrib's offset from the centroid says which side only.
+            # That offset is small on a shallow cup, and off the plane where the triangles
+            # are not symmetric (a Poisson-disc petal's turned the measure by up to 40 deg)
+            out = np.cross(plane[p, :3], chord)
+            if np.linalg.norm(out) < 1e-9:  # (a chord across the plane: the offset alone)
+                out = ref - centroid
             out -= chord * (out @ chord)
-            if np.linalg.norm(out) < 1e-9:  # a flat petal: take its normal (plane x chord)
-                out = np.cross(plane[p, :3], chord)
+            if out @ (ref - centroid) < 0.0:
+                out = -out
             out /= np.linalg.norm(out)
             away = _away((center, centroid), chord, length, flower_axis if flower_axis is None
                          or np.ndim(flower_axis) == 1 else flower_axis[p])
