@@ -504,6 +504,18 @@ class Config:
         return json.dumps(self.nested(), sort_keys=True)
 
 
+def dotted_keys(nested: dict, prefix: str = "") -> dict[str, Any]:
+    """A config's nested sections (:meth:`Config.nested`, an artifact's recorded config)
+    as one level of dotted keys, unchecked."""
+    out: dict[str, Any] = {}
+    for key, value in nested.items():
+        if isinstance(value, dict):
+            out.update(dotted_keys(value, f"{prefix}{key}."))
+        else:
+            out[f"{prefix}{key}"] = value
+    return out
+
+
 def parse_override(text: str) -> tuple[str, Any]:
     """Split ``section.key=value``; the value is read as a TOML value, else as a string."""
     if "=" not in text:

@@ -17,6 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from pipeline.config import dotted_keys
 from pipeline.flower.axis import BadPetal, WeakBase, find_axes
 from pipeline.flower.growth import GrowthMap, assign_growth
 from pipeline.flower.measure import PetalFrames, leans
@@ -88,7 +89,7 @@ class Prepared:
                    np.asarray(src["flower/petal_flower"])[np.asarray(src["mesh/petal"])]
                    if "flower/petal_flower" in src else None,
                    np.asarray(src["flower/axis"]) if "flower/axis" in src else None,
-                   recorded=_dotted(json.loads(src.attrs["config"]))
+                   recorded=dotted_keys(json.loads(src.attrs["config"]))
                    if "config" in src.attrs else {})
 
     @classmethod
@@ -355,17 +356,6 @@ class Prepared:
         return PetalFrames.from_mesh(self.vertices if positions is None else positions,
                                      self.petal, self.base, self.on_axis, self.tip, self.plane,
                                      flower_axis=self.flower_axis)
-
-
-def _dotted(nested: dict, prefix: str = "") -> dict:
-    """A config's nested sections as one level of dotted keys."""
-    out = {}
-    for key, value in nested.items():
-        if isinstance(value, dict):
-            out.update(_dotted(value, f"{prefix}{key}."))
-        else:
-            out[f"{prefix}{key}"] = value
-    return out
 
 
 #: a petal's old base vertices further than this along it (s) on the finer mesh: the

@@ -249,7 +249,8 @@ class Contact(Term):
                 and bool(np.all(X <= self._high)))
 
     def _active(self, X):
-        X = self._mine(X)
+        """The pairs within the barrier's band at ``X`` (the contact's rows,
+        :meth:`_mine`), built once per position."""
         if self._at is None or not np.array_equal(self._at, X):
             ipctk = one_thread()
             self.collisions = ipctk.NormalCollisions()
@@ -293,7 +294,7 @@ class Contact(Term):
     def linked(self, X) -> np.ndarray:
         """(k, 2) vertex pairs that the contacts within the barrier's band join at X (the
         Hessian couples their unknowns): each contact's vertices, chained to its first."""
-        active = self._active(X)
+        active = self._active(self._mine(X))
         edges, faces = self.mesh.edges, self.mesh.faces
         pairs = []
         for k in range(len(active)):
@@ -302,7 +303,7 @@ class Contact(Term):
         return np.array(pairs, dtype=np.int64).reshape(-1, 2)
 
     def active_count(self, X) -> int:
-        return len(self._active(X))
+        return len(self._active(self._mine(X)))
 
     # --- steps ----------------------------------------------------------------------------
     def cover(self, X0, X1) -> None:
