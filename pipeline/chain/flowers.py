@@ -344,8 +344,11 @@ def flowers_apart(prep: Prepared, job: Job, ckpt: Path, starts) -> Result:
     info: dict = {}
     wall, resumed, resumed_step = 0.0, None, 0
     stopped = []
+    s, x, solved = np.array(prep.s, dtype=np.float64), np.array(prep.x, dtype=np.float64), False
     for run_, idx in runs.values():
         bud[idx] = run_.bud
+        if run_.axes is not None:  # (a flower solved on its mesh cut finer)
+            s[idx], x[idx], solved = run_.axes[0], run_.axes[1], True
         mine = np.unique(petal[idx])
         if run_.stopped:
             stopped.append((run_.stopped[0], int(mine[run_.stopped[1]])))
@@ -397,6 +400,6 @@ def flowers_apart(prep: Prepared, job: Job, ckpt: Path, starts) -> Result:
     return Result(bud, bud_info, sorted(names, key=lambda n: ORDER.index(n)
                                          if n in ORDER else len(ORDER)),
                    connections, times, positions, diag, wall, resumed, resumed_step, distance,
-                   held, stopped, together)
+                   held, stopped, together, axes=(s, x) if solved else None)
 
 

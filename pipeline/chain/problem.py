@@ -75,6 +75,9 @@ class Result:
     together: np.ndarray | None = None
     #: the vertices of the mesh it was solved on, where that was cut finer (else None)
     solved_on: int | None = None
+    #: where it was cut finer: ``(s, x)`` of the mesh's own vertices as the solve found
+    #: them on the finer mesh (else None: the axis stage's)
+    axes: tuple | None = None
 
     @classmethod
     def of(cls, run: Bloom) -> Result:
@@ -82,7 +85,8 @@ class Result:
         return cls(run.bud, run.bud_info, run.effects.names, run.effects.connections,
                    np.asarray(run.rec.time), np.asarray(run.rec.positions), run.rec.arrays(),
                    run.wall, run.resumed, run.resumed_step, run.distance,
-                   stopped=[run.stopped] if run.stopped else [], solved_on=run.solved_on)
+                   stopped=[run.stopped] if run.stopped else [], solved_on=run.solved_on,
+                   axes=run.axes)
 
 
 def unlink_checkpoints(ckpt: Path) -> None:
@@ -134,7 +138,7 @@ def problem(prep: Prepared, job: Job, ckpt: Path, label: str = "") -> Bloom:
              "vertices for %d), its frames those of its own vertices",
              cfg["simulate.petal_vertices"], label or "the bloom", levels, len(fine.vertices),
              len(prep.vertices))
-    return _problem(fine, job, ckpt, label).coarse(len(prep.vertices))
+    return _problem(fine, job, ckpt, label).coarse(prep, fine)
 
 
 def _problem(prep: Prepared, job: Job, ckpt: Path, label: str = "") -> Bloom:
@@ -407,15 +411,25 @@ class Bloom:
     stopped: tuple | None = None
     #: the vertices of the mesh it was solved on, where that was cut finer (else None)
     solved_on: int | None = None
+    #: where it was cut finer: ``(s, x)`` of the coarse mesh's vertices as found on the
+    #: finer one (:meth:`coarse`)
+    axes: tuple | None = None
 
-    def coarse(self, count: int) -> Bloom:
-        """This bloom of a mesh cut finer, seen on the first ``count`` vertices (the
-        coarse mesh's own, :meth:`Prepared.refined`; its connection springs tie them
-        only): its bud and frames those rows."""
+    def coarse(self, prep: Prepared, fine: Prepared) -> Bloom:
+        """This bloom of ``fine`` (``prep`` cut finer, :meth:`Prepared.refined`) seen on
+        ``prep``'s own vertices, its first rows (its connection springs tie them only):
+        its bud and frames those rows, and the s and x the solve found at them (each
+        petal's x the sign of ``prep``'s: the same side of its center plane)."""
+        count = len(prep.vertices)
         rec = dataclasses.replace(self.rec, positions=[np.asarray(p)[:count]
                                                        for p in self.rec.positions])
+        s, x, was = (np.asarray(fine.s)[:count], np.asarray(fine.x)[:count].copy(),
+                     np.asarray(prep.x))
+        petal = np.asarray(prep.petal)
+        flip = np.bincount(petal, weights=x * was) < 0.0
+        x[flip[petal]] *= -1.0
         return dataclasses.replace(self, bud=np.asarray(self.bud)[:count], rec=rec,
-                                   solved_on=len(self.bud))
+                                   solved_on=len(self.bud), axes=(s, x))
 
 
 class Saver:

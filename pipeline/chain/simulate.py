@@ -142,8 +142,16 @@ def run(growth_h5: str | Path, out: str | Path, cfg: Config, *, overwrite: bool 
         (log.info if attrs["summary"].startswith("sound") else log.warning)("%s", attrs["summary"])
         with artifact.writing(out, stage="simulate", config_json=cfg.to_json(),
                               inputs=inputs, attrs=attrs, previous=src) as h5:
-            src.copy_to(h5, CARRIED if held is None else tuple(n for n in CARRIED
-                                                                if n != "axis/base"))
+            solved = () if result.axes is None else ("axis/s", "axis/x")
+            src.copy_to(h5, tuple(n for n in CARRIED if n not in solved
+                                  and (held is None or n != "axis/base")))
+            if result.axes is not None:  # (the mesh cut finer: its axes found there)
+                artifact.put(h5, "axis/s", result.axes[0],
+                             "(V,) distance from the base over the petal's length, as the "
+                             "solve found it on the mesh cut finer (solved_on_vertices)")
+                artifact.put(h5, "axis/x", result.axes[1],
+                             "(V,) cross-section coordinate in [-1, 1], as the solve found "
+                             "it on the mesh cut finer (solved_on_vertices)")
             if held is not None:
                 artifact.put(h5, "axis/base", np.asarray(prep.base, dtype=bool),
                              f"(V,) fixed base vertices: every vertex within s = {held:g} "

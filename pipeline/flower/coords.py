@@ -14,7 +14,7 @@ import numpy as np
 from scipy.sparse.csgraph import dijkstra
 
 from pipeline.mesh.geodesic import heat_distance, heat_distances, signed_heat_distances
-from pipeline.mesh.remesh import boundary_loops, corner_vertices
+from pipeline.mesh.remesh import OUTLINE_CORNER, boundary_loops, corner_vertices
 from pipeline.mesh.topology import boundary_vertices
 
 #: the cross-section coordinate from the mean of Neumann and Dirichlet heat where the
@@ -92,15 +92,15 @@ def tip_distance(dist, side, faces, fallback: float) -> float:
 
 def base_edge(pts, faces, rim, proj, reach) -> np.ndarray:
     """``(n,) bool`` the petal's base edge: the stretch of rim through its vertex
-    nearest the base end (least ``proj``) up to the corners (turns of 30 degrees or
-    more) on either side, none farther than ``reach`` along the petal. A petal whose
+    nearest the base end (least ``proj``) up to the corners (turns of :data:`OUTLINE_CORNER`
+    or more) on either side, none farther than ``reach`` along the petal. A petal whose
     base has no such corners (a pointed or rounded base): the rim within 1% of ``reach``
     of the end, and at least that vertex."""
     out = np.zeros(len(pts), dtype=bool)
     if not rim.any():
         return out
     start = int(np.flatnonzero(rim)[np.argmin(proj[rim])])
-    corner = corner_vertices(pts, faces, 30.0)
+    corner = corner_vertices(pts, faces, OUTLINE_CORNER)
     for loop in boundary_loops(faces):
         at = np.flatnonzero(loop == start)
         if len(at) == 0:

@@ -226,6 +226,12 @@ def pinched_rim(faces: np.ndarray, vertex_count: int) -> int:
     return int(np.sum(out > 1))
 
 
+#: the turn (deg) at which a petal's outline has a corner: its base edge ends there
+#: (:func:`pipeline.flower.coords.base_edge`), and a finer mesh draws no curve through it
+#: (:func:`pipeline.mesh.subdivide.subdivide`)
+OUTLINE_CORNER = 30.0
+
+
 def corner_vertices(vertices: np.ndarray, faces: np.ndarray, angle_deg: float = 50.0) -> np.ndarray:
     """``(V,) bool``: boundary vertices where the rim turns by more than ``angle_deg``."""
     corner = np.zeros(len(vertices), dtype=bool)

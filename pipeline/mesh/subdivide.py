@@ -8,7 +8,9 @@ along that end's tangent plane (the edge curves of PN triangles, Vlachos et al. 
 normals (the six-petal bud at 50 vertices per petal 0.97 deg from its finest against
 1.04 with area-weighted ones). On a circle this is the arc's midpoint to second order
 (the chord's sagitta ``L^2 / 8R``), so a cupped petal stays cupped, where plain
-midpoints would leave its facets flat.
+midpoints would leave its facets flat. The outline's new vertices are on the curve
+through the outline's own vertices (:func:`_along_the_outline`), where the normals would
+leave it a polygon in the petal's plane.
 """
 
 from __future__ import annotations
@@ -17,6 +19,7 @@ import numpy as np
 import trimesh
 
 from pipeline.mesh import topology
+from pipeline.mesh.remesh import OUTLINE_CORNER, corner_vertices
 
 
 def subdivide(vertices: np.ndarray, faces: np.ndarray):
@@ -28,7 +31,7 @@ def subdivide(vertices: np.ndarray, faces: np.ndarray):
     middle one last."""
     v = np.asarray(vertices, dtype=np.float64)
     f = np.asarray(faces, dtype=np.int64)
-    edges, he_edge, _ = topology.unique_edges(f)
+    edges, he_edge, uses = topology.unique_edges(f)
     tri = trimesh.Trimesh(v, f, process=False)
     n = trimesh.geometry.weighted_vertex_normals(len(v), f, tri.face_normals, tri.face_angles)
     a, b = v[edges[:, 0]], v[edges[:, 1]]
@@ -36,6 +39,7 @@ def subdivide(vertices: np.ndarray, faces: np.ndarray):
     lift = (np.einsum("ij,ij->i", b - a, na)[:, None] * na
             + np.einsum("ij,ij->i", a - b, nb)[:, None] * nb)
     mid = 0.5 * (a + b) - lift / 8.0
+    _along_the_outline(v, f, edges, uses, mid)
     count = len(f)
     m = len(v) + he_edge  # the new vertex on each half-edge: (a, b), (b, c), (c, a)
     ab, bc, ca = m[:count], m[count:2 * count], m[2 * count:]
@@ -44,3 +48,47 @@ def subdivide(vertices: np.ndarray, faces: np.ndarray):
                                np.stack([ca, bc, r], axis=1), np.stack([ab, bc, ca], axis=1)])
     return np.concatenate([v, mid]), children, edges
 
+
+def _along_the_outline(v: np.ndarray, faces: np.ndarray, edges: np.ndarray, uses: np.ndarray,
+                       mid: np.ndarray) -> None:
+    """Each outline edge's new vertex (in ``mid``, in place) on the smooth curve through
+    the outline's vertices rather than off its chord along the normals, which leave the
+    outline a polygon: the four-point rule ``9/16 (a + b) - 1/16 (a' + b')`` (Dyn, Levin
+    and Gregory 1987; ``a'``, ``b'`` the outline's next vertices beyond ``a`` and ``b``),
+    the three-point one ``3/8 a + 3/4 b - 1/8 b'`` where ``a`` is a corner
+    (:data:`~pipeline.mesh.remesh.OUTLINE_CORNER`: the axis stage's base edge ends at
+    corners, and rounded off, the finer mesh's ran up a Poisson-disc bud's petal sides,
+    s 0.025 low there), and the normals' where both ends are, or where the outline is not
+    a simple loop at an end. (The six-petal bud's Poisson-disc mesh at 50 vertices per
+    petal: 2.0 -> 1.35 deg, 2.9 -> 2.3% from its finest.)"""
+    ends = np.flatnonzero(uses == 1)
+    if not len(ends):
+        return
+    ring = edges[ends]
+    degree = np.bincount(ring.ravel(), minlength=len(v))
+    # each outline vertex's two outline neighbours (where it has exactly two)
+    first = np.full(len(v), -1)
+    second = np.full(len(v), -1)
+    for col in (0, 1):
+        i, j = ring[:, col], ring[:, 1 - col]
+        free = first[i] < 0
+        first[i[free]] = j[free]
+        second[i[~free]] = j[~free]
+    a, b = ring[:, 0], ring[:, 1]
+
+    def beyond(x, y):  # the outline's vertex past x, coming from y (-1: none)
+        out = np.where(first[x] == y, second[x], first[x])
+        return np.where(degree[x] == 2, out, -1)
+
+    pa, pb = beyond(a, b), beyond(b, a)
+    corner = corner_vertices(v, np.asarray(faces), OUTLINE_CORNER)
+    sa, sb = (pa >= 0) & ~corner[a], (pb >= 0) & ~corner[b]
+    va, vb = v[a], v[b]
+    both = sa & sb
+    out = mid[ends]
+    out[both] = (9.0 * (va + vb)[both] - (v[pa[both]] + v[pb[both]])) / 16.0
+    only_b = ~sa & sb  # a is a corner: the parabola through a, b and past b
+    out[only_b] = 0.375 * va[only_b] + 0.75 * vb[only_b] - 0.125 * v[pb[only_b]]
+    only_a = sa & ~sb
+    out[only_a] = 0.375 * vb[only_a] + 0.75 * va[only_a] - 0.125 * v[pa[only_a]]
+    mid[ends] = out
