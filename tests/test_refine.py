@@ -79,6 +79,35 @@ def test_the_outline_is_cut_along_its_curve_and_kept_at_its_corners():
                        rtol=0.0, atol=1e-12)
 
 
+def test_the_outline_curve_does_not_fold_a_thin_rim_triangle():
+    """A hole's rim of 16 chords of the unit circle, each the edge of a sliver whose third
+    corner lies between the chord and the circle (0.99 out at its middle): the curve
+    through the rim would put the new vertex past that corner and fold the sliver's
+    children (quality -0.07 measured); held to a quarter of the sliver's height into it,
+    every child keeps its side and half its parent's quality."""
+    n = 16
+    turn = 2.0 * np.pi * np.arange(n) / n
+    ring = lambda r, a: np.c_[r * np.cos(a), r * np.sin(a), np.zeros(n)]  # noqa: E731
+    v = np.r_[ring(1.0, turn), ring(0.99, turn + np.pi / n), ring(1.5, turn)]
+    f = []
+    for k in range(n):
+        k1 = (k + 1) % n
+        f += [[k, n + k, k1], [k1, n + k, 2 * n + k1], [n + k, 2 * n + k, 2 * n + k1],
+              [k, 2 * n + k, n + k]]
+    f = np.array(f)
+
+    def quality(v, f):  # twice the area (signed, +z up) over the longest edge squared
+        a, b, c = v[f[:, 0]], v[f[:, 1]], v[f[:, 2]]
+        longest = np.max([np.linalg.norm(b - a, axis=1), np.linalg.norm(c - b, axis=1),
+                          np.linalg.norm(a - c, axis=1)], axis=0)
+        return np.cross(b - a, c - a)[:, 2] / longest ** 2
+
+    before = quality(v, f)
+    assert np.all(before > 0.0)
+    fine_v, fine_f, _ = subdivide(v, f)
+    assert np.all(quality(fine_v, fine_f) >= 0.49 * np.tile(before, 4))
+
+
 def _bud(vertices: int) -> Prepared:
     """A 3-petal bud through the shell's axis stage (the band, s and x on the surface)."""
     from pipeline.flower.axis import find_axes
