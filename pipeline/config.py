@@ -254,13 +254,14 @@ SCHEMA: dict[str, Any] = {
                             "base): where a symmetric petal "
                             "must lean or twist one way, it chooses the same way at any mesh "
                             "resolution (0: none; the solver then nudges at random)", low=0.0),
-        "petal_vertices": Key(int, 250, "shell: solve each petal on at least about this many "
+        "petal_vertices": Key(int, 500, "shell: solve each petal on at least about this many "
                               "vertices: a coarser mesh is cut finer for the solve (each "
                               "triangle in four, the new vertices on the smooth surface "
                               "through the old, the axes and growth found again on it), and "
                               "its frames are those of its own vertices, contact keeping its "
                               "own triangles apart; a bud of 50 vertices per petal then "
-                              "blooms within about 1 deg of one of 800 (quasi-static only; 0: "
+                              "blooms within about 1 deg of one of 800, a lone petal of 300 within 0.6 deg of one of "
+                              "4,800 (quasi-static only; 0: "
                               "the mesh as it is)", low=0),
         "max_vertices": Key(int, 6000, "shell: a mesh is cut finer for the solve "
                             "(simulate.petal_vertices) only while the solve keeps to this many "
