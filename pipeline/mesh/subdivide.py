@@ -67,8 +67,8 @@ def _along_the_outline(v: np.ndarray, faces: np.ndarray, edges: np.ndarray,
     a simple loop at an end. A new vertex moves into its face by at most
     :data:`INTO_FACE` of the face's height over the edge (a ragged rim's curve can cross a
     thin rim triangle: ericrius1's petal's 0.02-quality rim sliver cut to 0.004, and the
-    bud search found a face with no area). (The six-petal bud's Poisson-disc mesh at 50 vertices per
-    petal: 2.0 -> 1.35 deg, 2.9 -> 2.3% from its finest.)"""
+    bud search found a face with no area). (The six-petal bud's Poisson-disc mesh at 50
+    vertices per petal: 2.0 -> 1.35 deg, 2.9 -> 2.3% from its finest.)"""
     ends = np.flatnonzero(uses == 1)
     if not len(ends):
         return
