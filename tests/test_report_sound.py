@@ -79,6 +79,24 @@ def test_an_open_bloom_from_a_bud_that_hangs_open_the_other_way_is_unsound():
     assert report.summary_line(closed).startswith("sound: ")
 
 
+def test_a_flower_that_closes_before_it_opens_is_unsound():
+    """hallgeirl's flower, from the bud found for it, closed 38.7 deg (the mean over its
+    petals) by frame 11 and then opened 98 deg onto its model: every other figure sound,
+    yet no bloom. A dip within 5 deg (the open lily's petals settling, 1.1) is not."""
+    X = np.stack([two_triangles(False)] * 3)
+    sound = report.soundness(X, FACES, np.array([[0.0, 0.0], [-40.0, -37.4], [60.0, 80.0]]),
+                             distance_to_model=3e-9, bud_closed=30.0)
+    assert sound["closes_first"] == pytest.approx(38.7)
+    assert report.summary_line(sound) == (
+        "unsound: 0 of 3 frames with an intersection (checked exactly); last frame 3e-09 "
+        "petal lengths (RMS) from the model; the flower closes 38.7 deg (mean over its "
+        "petals) before it opens; every petal opened (least 60.0 deg)")
+    settles = report.soundness(X, FACES, np.array([[0.0, 0.0], [-1.0, -1.2], [60.0, 80.0]]),
+                               distance_to_model=3e-9, bud_closed=30.0)
+    assert settles["closes_first"] == pytest.approx(1.1)
+    assert report.summary_line(settles).startswith("sound: ")
+
+
 def test_a_petal_leans_from_its_own_flower_axis():
     """measure.leans: the chord from a petal's base to its tip against its flower's axis;
     two flowers with axes of their own (a bed), one petal each: upright along its axis

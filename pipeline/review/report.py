@@ -7,7 +7,8 @@ drawn as a small plot.
 
 Whether the bloom is sound (:func:`soundness`, :func:`summary`): the frames with an
 intersection, the last frame's distance to the model (an open start), and the petals
-that did not open (under :data:`NOT_OPEN` degrees), in one line a batch log shows.
+that did not open (under :data:`NOT_OPEN` degrees), and how far the flower closes
+before it opens (over :data:`CLOSES_FIRST` degrees), in one line a batch log shows.
 """
 
 from __future__ import annotations
@@ -29,6 +30,10 @@ NOT_OPEN = 5.0
 #: an open start's last frame further than this from the model (RMS, in petal lengths)
 #: did not bloom back onto it
 OFF_MODEL = 0.01
+#: a flower whose opening (the mean over its petals) falls more than this (degrees) below
+#: its start before it opens closes first: no bloom (hallgeirl's flower, from its found
+#: bud, closed 38.7 deg by frame 11 and then opened 98; a daisy of the bush 23 deg)
+CLOSES_FIRST = 5.0
 
 
 def crossings(X, faces, petal) -> int:
@@ -83,8 +88,9 @@ def soundness(positions: np.ndarray, faces: np.ndarray, opening_per_petal: np.nd
     -------
     dict with ``frames`` (the frames checked), ``intersecting`` (a bool each), ``intersecting_frames``,
     ``distance_to_model`` (float or None), ``opening_final_per_petal`` (P degrees),
-    ``did_not_open`` (P bools: under :data:`NOT_OPEN` degrees at the last frame) and
-    ``not_opened`` (one ``{"petal", "name", "opening"}`` per petal that did not open).
+    ``did_not_open`` (P bools: under :data:`NOT_OPEN` degrees at the last frame),
+    ``not_opened`` (one ``{"petal", "name", "opening"}`` per petal that did not open) and
+    ``closes_first`` (degrees: how far the mean opening falls below its start, 0 if never).
     """
     opening = np.asarray(opening_per_petal, dtype=np.float64).reshape(len(positions), -1)
     if intersecting is None:
@@ -96,6 +102,7 @@ def soundness(positions: np.ndarray, faces: np.ndarray, opening_per_petal: np.nd
                                                                  range(len(final))]
     closed = final < NOT_OPEN
     distance = None if distance_to_model is None else float(distance_to_model)
+    dip = float(max(0.0, -np.min(opening.mean(axis=1)))) if opening.size else 0.0
     return {
         "frames": int(len(intersecting)),
         "intersecting": [bool(b) for b in intersecting],
@@ -110,6 +117,7 @@ def soundness(positions: np.ndarray, faces: np.ndarray, opening_per_petal: np.nd
         "flowers_kept_as_modelled": [int(k) for k in (held_flowers if held_flowers is not None
                                                       else [])],
         "bloom_stopped_at": None if stopped is None else float(stopped),
+        "closes_first": dip,
     }
 
 
@@ -136,7 +144,8 @@ def summary_line(sound: dict) -> str:
     did not open, an open start's last frame is off the model (over :data:`OFF_MODEL`),
     or its bud is no more closed than the model (``bud_closed`` <= 0: the bloom closes),
     or a flower of many was kept as modelled (no bloom found for it), or the bloom
-    stopped short of full growth (``bloom_stopped_at``)."""
+    stopped short of full growth (``bloom_stopped_at``), or the flower closes by more than
+    :data:`CLOSES_FIRST` before it opens."""
     left = sound.get("left") or []
     checked = "checked exactly"
     if left:
@@ -160,6 +169,10 @@ def summary_line(sound: dict) -> str:
     if cut is not None:
         parts.append(f"the bloom stops at A = {cut:.3g} (no equilibrium past it): the frames "
                      "after hold it")
+    dip = sound.get("closes_first") or 0.0
+    first = dip > CLOSES_FIRST
+    if first:
+        parts.append(f"the flower closes {dip:.1f} deg (mean over its petals) before it opens")
     final = sound["opening_final_per_petal"]
     if sound["not_opened"]:
         shown = ", ".join(f"{d['name']} {d['opening']:+.1f} deg" for d in sound["not_opened"][:6])
@@ -169,7 +182,7 @@ def summary_line(sound: dict) -> str:
     elif final:
         parts.append(f"every petal opened (least {min(final):.1f} deg)")
     sound_ = (sound["intersecting_frames"] == 0 and not sound["not_opened"] and not off
-              and not backward and not held and cut is None)
+              and not backward and not held and cut is None and not first)
     return ("sound: " if sound_ else "unsound: ") + "; ".join(parts)
 
 

@@ -8,7 +8,9 @@ would judge the bloom:
   degrees more closed than the model;
 - a lone petal opens by at least :data:`LONE_OPENS` degrees;
 - a closed bud opens forward (its opening grows) with no petal through another;
-- every petal opens (at least :data:`~pipeline.review.report.NOT_OPEN` degrees).
+- every petal opens (at least :data:`~pipeline.review.report.NOT_OPEN` degrees);
+- the flower does not close first (its mean opening never more than
+  :data:`~pipeline.review.report.CLOSES_FIRST` degrees below its start).
 
 Each model runs in a subprocess per stage (the ``bloom`` commands), with a time limit, so
 one that hangs or crashes is a row of the table, not the end of the study. The table
@@ -30,7 +32,7 @@ import numpy as np
 
 from pipeline.chain import SIMULATION, argv
 from pipeline.mesh.separate import patch_groups
-from pipeline.review.report import NOT_OPEN
+from pipeline.review.report import CLOSES_FIRST, NOT_OPEN
 
 #: an open model's last frame is within this fraction of a petal length of the model (RMS)
 ON_MODEL = 0.01
@@ -132,6 +134,8 @@ def judge(row: Row, h) -> None:
         failed.append(f"opens backward ({row.opened:.1f} deg)")
     if row.least < NOT_OPEN:
         failed.append(f"a petal did not open ({row.least:.1f} deg)")
+    if -float(opening.min()) > CLOSES_FIRST:
+        failed.append(f"closes {-float(opening.min()):.1f} deg before it opens")
     row.verdict = "; ".join(failed) or "ok"
 
 
