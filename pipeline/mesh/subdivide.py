@@ -89,7 +89,7 @@ def _along_the_outline(v: np.ndarray, faces: np.ndarray, edges: np.ndarray,
         return np.where(degree[x] == 2, out, -1)
 
     pa, pb = beyond(a, b), beyond(b, a)
-    corner = corner_vertices(v, np.asarray(faces), OUTLINE_CORNER)
+    corner = corner_vertices(v, faces, OUTLINE_CORNER)
     sa, sb = (pa >= 0) & ~corner[a], (pb >= 0) & ~corner[b]
     va, vb = v[a], v[b]
     both = sa & sb
@@ -100,11 +100,8 @@ def _along_the_outline(v: np.ndarray, faces: np.ndarray, edges: np.ndarray,
     only_a = sa & ~sb
     out[only_a] = 0.375 * vb[only_a] + 0.75 * va[only_a] - 0.125 * v[pa[only_a]]
     # no deeper into its face than INTO_FACE of the face's height over the edge
-    count = len(faces)
-    corner = np.asarray(faces)[np.arange(3 * count) % count,
-                               (np.arange(3 * count) // count + 2) % 3]  # across each half-edge
-    across = np.empty(len(edges), dtype=np.int64)
-    across[he_edge] = corner
+    across = np.empty(len(edges), dtype=np.int64)  # each edge's vertex across (an outline
+    across[he_edge] = topology.half_edges(faces)[1]  # edge has one face)
     c = v[across[ends]]
     along = (vb - va) / np.maximum(np.linalg.norm(vb - va, axis=1), 1e-300)[:, None]
     into = c - va

@@ -134,8 +134,9 @@ def judge(row: Row, h) -> None:
         failed.append(f"opens backward ({row.opened:.1f} deg)")
     if row.least < NOT_OPEN:
         failed.append(f"a petal did not open ({row.least:.1f} deg)")
-    if -float(opening.min()) > CLOSES_FIRST:
-        failed.append(f"closes {-float(opening.min()):.1f} deg before it opens")
+    dip = -float(opening.min())
+    if dip > CLOSES_FIRST:
+        failed.append(f"closes {dip:.1f} deg before it opens")
     row.verdict = "; ".join(failed) or "ok"
 
 
