@@ -79,12 +79,27 @@ def check_output(path: str | Path, stage: str, overwrite: bool) -> Path:
                          "(pass --overwrite to replace it)", where=str(path))
     parent = path.parent
     if not parent.exists():
+        missing = [p for p in (parent, *parent.parents) if not p.exists()]
         parent.mkdir(parents=True, exist_ok=True)
+        CREATED.extend(missing)  # (deepest first)
     return path
 
 
 #: when the running stage began (set by the command line for each command)
 STARTED = [time.monotonic()]
+#: the folders this command made for its output (:func:`check_output`), deepest first
+CREATED: list[Path] = []
+
+
+def remove_created() -> None:
+    """Remove the folders :func:`check_output` made for a command that then failed,
+    those still empty (nothing half-made is left behind, not even a folder)."""
+    for folder in CREATED:
+        try:
+            folder.rmdir()
+        except OSError:  # (not empty, or gone: left as it is)
+            pass
+    CREATED.clear()
 
 
 @contextmanager

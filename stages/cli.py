@@ -66,11 +66,16 @@ class LazyGroup(click.Group):
         from pipeline import artifact
 
         artifact.STARTED[0] = time.monotonic()  # this command's stage timing starts here
+        artifact.CREATED.clear()
         try:
             return super().invoke(ctx)
         except BloomError as exc:
+            artifact.remove_created()
             name = ctx.invoked_subcommand or ""
             raise StageError(name, exc) from None
+        except BaseException:
+            artifact.remove_created()
+            raise
 
 
 @click.group(cls=LazyGroup, context_settings={"help_option_names": ["-h", "--help"]})

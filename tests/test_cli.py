@@ -195,6 +195,17 @@ def test_missing_input_is_one_line_and_writes_nothing(tmp_path, stage, needs):
     assert not out.exists()
 
 
+def test_a_broken_mesh_leaves_no_folder_made_for_its_output(tmp_path):
+    """The folders --out names that did not exist are made for the artifact, and taken
+    away again when the stage fails: nothing half-made is left, not even a folder."""
+    broken = tmp_path / "broken.obj"
+    broken.write_text("v 0 0 0\nv 1 0 0\nf 1 2 3\n")
+    out = tmp_path / "new" / "deeper" / "remesh.h5"
+    r = CliRunner().invoke(cli, ["remesh", str(broken), "--out", str(out)])
+    assert r.exit_code == 1 and "broken.obj: not a readable OBJ mesh" in r.output
+    assert not (tmp_path / "new").exists()
+
+
 def test_wrong_stage_input_is_refused(chain, tmp_path):
     out = tmp_path / "sim.h5"
     r = CliRunner().invoke(cli, ["simulate", str(chain["axis"]), "--out", str(out)])
