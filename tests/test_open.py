@@ -209,6 +209,73 @@ def test_a_bloom_that_leaves_its_branch_is_the_path_back_played_forward(tmp_path
         assert h.attrs["summary"].startswith("sound")
 
 
+def _closes_first(real, dip: float):
+    """``real`` (the chain's integrate), its frames' openings lowered by a bump of
+    ``dip`` deg over the first half: a bloom forward that closes before it opens."""
+    def closes(model, state, control, integrator, **kwargs):
+        rec, wall = real(model, state, control, integrator, **kwargs)
+        frames = len(rec.time)
+        bump = dip * np.sin(np.pi * np.clip(np.arange(frames) / (frames // 2), 0.0, 1.0))
+        per = rec.diagnostics["opening_angle_per_petal"]
+        rec.diagnostics["opening_angle_per_petal"] = [a - b for a, b in zip(per, bump, strict=True)]
+        rec.diagnostics["opening_angle"] = [float(np.mean(a)) for a in
+                                            rec.diagnostics["opening_angle_per_petal"]]
+        return rec, wall
+
+    return closes
+
+
+@pytest.mark.parametrize("bud_hangs_open", [False, True])
+def test_a_bloom_that_closes_first_is_the_path_back_played_forward(tmp_path, monkeypatch,
+                                                                   bud_hangs_open):
+    """An open start whose bloom from its bud closes first (its mean opening more than
+    report.CLOSES_FIRST below the start: hallgeirl's flower closed 48 deg at once) is the
+    model's own path back to its bud, played forward, where that closes less first and
+    its bud is more closed than the model: logged, recorded, sound. A path back whose bud
+    hangs open the other way is no bloom: the bloom from the bud is kept, and starts from
+    its most closed frame (its first frames hold it)."""
+    from pipeline.chain import problem as chain
+    from pipeline.review import report
+    from pipeline.sim.build import Prepared
+
+    out = _open_flower_stages(tmp_path)
+    monkeypatch.setattr(chain, "integrate", _closes_first(chain.integrate, 30.0))
+    if bud_hangs_open:
+        monkeypatch.setattr(Prepared, "bud_closed", lambda self, bud, model: -4.0)
+    r = CliRunner().invoke(cli, ["simulate", str(out["g"]), "--out", str(out["s"]), "--set",
+                                 "growth.start=open", "--set", "simulate.frames=9",
+                                 "--set", "simulate.petal_vertices=0"])  # (as it is: quicker)
+    assert r.exit_code == 0, r.output
+    assert "deg (mean over its petals) before it opens (over 5)" in r.output
+    with h5py.File(out["s"]) as h:
+        opening = h["diagnostics/opening_angle_per_petal"][()]
+        if bud_hangs_open:  # (its bloom then starts from its most closed frame)
+            assert "the bloom from the bud kept" in r.output
+            assert "it starts from its most closed frame (frame " in r.output
+            assert "bloom_path" not in h.attrs  # (not the path back)
+            X, growth = h["frames/positions"][()], h["diagnostics/growth"][()]
+            first = int(np.argmax(growth > growth[0])) - 1  # (the most closed frame)
+            assert first >= 1 and 0.0 < h.attrs["bud_growth"] == growth[0] < growth[-1]
+            for k in range(first):
+                np.testing.assert_array_equal(X[k], X[first])
+            np.testing.assert_array_equal(h["open/bud"][()], X[0])
+            assert report.closing_dip(opening) <= report.CLOSES_FIRST
+        else:
+            assert "the path back kept: it closes 0.0 deg first" in r.output
+            assert h.attrs["bloom_path"] == "retraced" and h.attrs["bud_path"] == "own"
+            assert report.closing_dip(opening) == 0.0 and opening[-1].min() > 10.0
+            assert h.attrs["distance_to_model"] < 1e-12
+            assert h.attrs["summary"].startswith("sound")
+
+
+def test_closing_dip_is_the_mean_openings_fall_below_its_start():
+    from pipeline.review.report import closing_dip
+
+    assert closing_dip(np.array([[0.0, 0.0], [-4.0, -8.0], [10.0, 20.0]])) == 6.0
+    assert closing_dip(np.array([[0.0, 0.0], [1.0, -0.5], [10.0, 20.0]])) == 0.0
+    assert closing_dip(np.zeros((0, 3))) == 0.0
+
+
 def test_a_path_back_that_stops_short_of_the_bud_blooms_from_where_it_stopped(
         tmp_path, monkeypatch):
     """Where the bloom forward leaves its branch and the model's own path back then finds

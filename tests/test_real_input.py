@@ -11,6 +11,7 @@ import trimesh
 from click.testing import CliRunner
 
 from pipeline.mesh import procedural, topology
+from pipeline.review import report
 from stages.cli import cli
 from tests.conftest import SHARED
 
@@ -399,7 +400,10 @@ def test_hallgeirls_flat_flower_blooms_from_a_closed_bud(tmp_path):
     the bud, undoing the rims' growth rolled its petals further down and under: a bud
     63.5 deg more open than the model, the "bloom" closing it. With the recurve left out
     of the bud and the bud cupped toward the inside (growth.recurve, growth.cup): a bud
-    34.3 deg more closed than the model, every petal opening over 100 deg, sound."""
+    34.3 deg more closed than the model, every petal opening over 100 deg. That bloom then
+    closed 38.7 deg before it opened (its upright petals, pressed together, fell in across
+    the axis at once): it is now the model's own path played forward, from its most
+    closed frame, and sound."""
     scene = tmp_path / "scene.toml"
     scene.write_text(f'[scene]\nmesh = "{EXTERNAL / "hallgeirl_petals.obj"}"\n')
     run_stages(tmp_path, scene)
@@ -408,4 +412,7 @@ def test_hallgeirls_flat_flower_blooms_from_a_closed_bud(tmp_path):
         assert h.attrs["bud_closed"] > 20.0
         assert h.attrs["recurve_share"] > 0.3
         assert h.attrs["summary"].startswith("sound"), h.attrs["summary"]
-        assert h["diagnostics/opening_angle_per_petal"][-1].min() > 20.0
+        assert h.attrs["bloom_path"] == "retraced"
+        opening = h["diagnostics/opening_angle_per_petal"][()]
+        assert opening[-1].min() > 20.0
+        assert report.closing_dip(opening) <= report.CLOSES_FIRST

@@ -27,7 +27,7 @@ from pipeline.sim.explicit.semi_implicit import Diverged
 from pipeline.sim.integrators import make_integrator
 from pipeline.sim.model import Control, State
 from pipeline.sim.reverse import distance_to_model, open_start, retrace
-from pipeline.sim.run import hold_last
+from pipeline.sim.run import hold_first, hold_last
 from pipeline.sim.run import run as integrate
 from pipeline.sim.solver.newton import NotConverged
 
@@ -258,32 +258,48 @@ def _problem(prep: Prepared, job: Job, ckpt: Path, label: str = "") -> Bloom:
                     raise refusal(exc, sim, steps, petal, where) from None
                 else:
                     failed = exc
+
+        def retraced():
+            """The model's own path back to a bud, played forward (every frame an
+            equilibrium at its growth): ``(recording, wall, bud, bud_info, effects)``."""
+            fx = build_effects(model_positions, apart)
+            with Progress(steps, f"{what} (the path back)", progress) as bar:
+                rec_, wall_, back = retrace(
+                    model, model_positions, control, fresh_integrator(), fx, steps=steps,
+                    frames=frames, h=h, progress=bar.update,
+                    petals_at=lambda bud: prep.frames(bud).opening_toward(model_positions))
+            bud = np.asarray(rec_.positions[0])
+            info = {**bud_info, "bud_path": "own", "bloom_path": "retraced",
+                    "bud_distance": distance_to_model(bud, model_positions, petal, base)}
+            if back is not None:  # (the bud is the path's last equilibrium, short of A = 0)
+                info["bud_growth"] = back[0]
+                log.warning("the path back found no equilibrium below A = %.4g (petal %d), "
+                            "even with the rescue: the bloom starts there, from the last "
+                            "equilibrium the path reached (its first frames hold it)",
+                            back[0], int(petal[back[1]]))
+            return rec_, wall_, bud, info, fx
+
         if failed is not None:  # an open model: its own path, from the model to a bud
             log.warning("the bloom from the bud found no equilibrium at A = %.4g (petal "
                         "%d): the path forward leaves the branch the bud is on; the bloom "
                         "is the model's own path to its bud, played forward (every frame "
                         "an equilibrium at its growth)", failed.growth,
                         int(petal[failed.vertex]))
-            integrator = fresh_integrator()  # (its nudge at the start, as the search's)
-            effects = build_effects(model_positions, apart)
-            with Progress(steps, f"{what} (the path back)", progress) as bar:
-                try:
-                    rec, wall, back = retrace(
-                        model, model_positions, control, integrator, effects, steps=steps,
-                        frames=frames, h=h, progress=bar.update,
-                        petals_at=lambda bud: prep.frames(bud).opening_toward(model_positions))
-                except (Diverged, NotConverged, ValueError, RuntimeError) as exc:
-                    raise refusal(exc, sim, steps, petal, where) from None
-            v0 = np.asarray(rec.positions[0])
-            bud_info = {**bud_info, "bud_path": "own", "bloom_path": "retraced",
-                        "bud_distance": distance_to_model(v0, model_positions, petal,
-                                                          base)}
-            if back is not None:  # (the bud is the path's last equilibrium, short of A = 0)
-                bud_info["bud_growth"] = back[0]
-                log.warning("the path back found no equilibrium below A = %.4g (petal %d), "
-                            "even with the rescue: the bloom starts there, from the last "
-                            "equilibrium the path reached (its first frames hold it)",
-                            back[0], int(petal[back[1]]))
+            try:
+                rec, wall, v0, bud_info, effects = retraced()
+            except (Diverged, NotConverged, ValueError, RuntimeError) as exc:
+                raise refusal(exc, sim, steps, petal, where) from None
+        elif (model_positions is not None and sim["integrator"] == "quasi-static"
+              and "opening_angle_per_petal" in rec.diagnostics):
+            dip = report.closing_dip(rec.diagnostics["opening_angle_per_petal"])
+            if dip > report.CLOSES_FIRST:
+                rec, wall, v0, bud_info, effects = _closes_first(
+                    dip, (rec, wall, v0, bud_info, effects), retraced,
+                    lambda bud: prep.bud_closed(bud, model_positions))
+        if (model_positions is not None and getattr(integrator, "equilibria", False)
+                and "opening_angle_per_petal" in rec.diagnostics):  # (frames at rest)
+            rec, v0, bud_info = _from_most_closed(
+                rec, bud_info, lambda bud: prep.frames(bud).opening_toward(model_positions))
         distance = (None if model_positions is None else
                     distance_to_model(np.asarray(rec.positions[-1]), model_positions,
                                       petal, base))
@@ -320,6 +336,54 @@ def _problem(prep: Prepared, job: Job, ckpt: Path, label: str = "") -> Bloom:
                 if better:
                     run_ = other
     return run_
+
+
+def _closes_first(dip: float, forward: tuple, retraced, bud_closed) -> tuple:
+    """An open start's bloom from its bud that closes ``dip`` deg first (over
+    :data:`~pipeline.review.report.CLOSES_FIRST`: its path left the bud's branch at once,
+    hallgeirl's flower 38.7 deg): the model's own path back to a bud, played forward
+    (``retraced()``), where it closes less first and its bud is more closed than the model
+    (``bud_closed(bud)`` > 0 or None; a bud that hangs open the other way makes no bloom).
+    ``forward`` and the result: ``(recording, wall, bud, bud_info, effects)``, the wall
+    time of both runs where the path back is kept. Logged."""
+    log.warning("the bloom from the bud closes %.1f deg (mean over its petals) before it "
+                "opens (over %g): its path leaves the branch the bud is on; trying the "
+                "model's own path to its bud, played forward", dip, report.CLOSES_FIRST)
+    try:
+        back = retraced()
+    except (Diverged, NotConverged, ValueError, RuntimeError) as exc:
+        log.warning("the path back found no bud (%s): the bloom from the bud kept",
+                    str(exc).split(";")[0])
+        return forward
+    dip_back = report.closing_dip(back[0].diagnostics["opening_angle_per_petal"])
+    closed = bud_closed(back[2])
+    if dip_back < dip and (closed is None or closed > 0.0):
+        log.info("the path back kept: it closes %.1f deg first%s", dip_back,
+                 "" if closed is None else f", its bud {closed:.1f} deg more closed than "
+                 "the model (its petals' lean from the axis)")
+        return (back[0], forward[1] + back[1]) + back[2:]
+    log.warning("the path back closes %.1f deg first%s: the bloom from the bud kept",
+                dip_back, "" if closed is None or closed > 0.0 else
+                f" and its bud hangs open the other way ({closed:.1f} deg)")
+    return forward
+
+
+def _from_most_closed(rec, bud_info: dict, petals_at) -> tuple:
+    """An open start's bloom that still closes first (over
+    :data:`~pipeline.review.report.CLOSES_FIRST`): it starts from its most closed frame
+    (an equilibrium at its growth, the bud; the frames before hold it, as a path back
+    that stops short of A = 0 does: ``bud_growth``), its openings measured from there in
+    ``petals_at(bud)``. Returns ``(recording, bud, bud_info)``; logged."""
+    dip = report.closing_dip(rec.diagnostics["opening_angle_per_petal"])
+    if dip <= report.CLOSES_FIRST:
+        return rec, np.asarray(rec.positions[0]), bud_info
+    first = int(np.argmin(rec.diagnostics["opening_angle"]))
+    growth = float(rec.diagnostics["growth"][first])
+    log.warning("the bloom still closes %.1f deg before it opens: it starts from its most "
+                "closed frame (frame %d, A = %.4g), which its first frames hold", dip, first,
+                growth)
+    rec = hold_first(rec, first, petals_at(np.asarray(rec.positions[first])))
+    return rec, np.asarray(rec.positions[0]), {**bud_info, "bud_growth": growth}
 
 
 def _stopped(exc: NotConverged, petal, h: float):

@@ -36,6 +36,16 @@ OFF_MODEL = 0.01
 CLOSES_FIRST = 5.0
 
 
+def closing_dip(opening_per_petal) -> float:
+    """How far a bloom's opening (the mean over its petals, ``(frames, petals)`` degrees
+    from its first frame) falls below its start before it opens (degrees, 0 if never):
+    over :data:`CLOSES_FIRST`, the flower closes first."""
+    opening = np.asarray(opening_per_petal, dtype=np.float64)
+    if not opening.size:
+        return 0.0
+    return float(max(0.0, -np.min(opening.reshape(len(opening), -1).mean(axis=1))))
+
+
 def crossings(X, faces, petal) -> int:
     """Edges of one petal that pass through a face of another: 0 when no petal has gone
     through another. Needs no history, so any frame can be checked alone."""
@@ -102,7 +112,7 @@ def soundness(positions: np.ndarray, faces: np.ndarray, opening_per_petal: np.nd
                                                                  range(len(final))]
     closed = final < NOT_OPEN
     distance = None if distance_to_model is None else float(distance_to_model)
-    dip = float(max(0.0, -np.min(opening.mean(axis=1)))) if opening.size else 0.0
+    dip = closing_dip(opening)
     return {
         "frames": int(len(intersecting)),
         "intersecting": [bool(b) for b in intersecting],

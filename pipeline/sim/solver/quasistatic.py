@@ -93,6 +93,11 @@ HALVINGS = 6
 class QuasiStatic:
     """Path-following Newton solver; see the module docstring."""
 
+    @property
+    def equilibria(self) -> bool:
+        """Whether every frame it reaches is an equilibrium (without inertia)."""
+        return not self.inertia
+
     stages: int = 20  #: growth increments over the whole ramp (at least)
     tolerance: float = 1e-6  #: converged when a Newton step moves no vertex further (mesh units)
     max_iterations: int = 200  #: Newton iterations per increment before it is halved (a snap takes ~50)
