@@ -99,8 +99,12 @@ def leans(X, petal, base, tips, axes) -> np.ndarray:
     """``(P,)`` how far each petal leans from its flower's axis: the angle in degrees
     between its chord (its base's centre to its tip) and the axis's direction (from the
     receptacle toward the tips), ``axes`` ``(P, 6)`` each petal's flower's point and
-    direction (nan for none: nan). A bud's petals lean less than the open flower's; a
-    bud found backward whose petals hang down leans more."""
+    direction (nan for none: nan); negative where the chord leans in, across the axis
+    (its part away from the axis points back toward it: a bud's petal whose tip curls
+    over the centre, a rose's, leans in). A bud's petals lean less than the open
+    flower's; a bud found backward whose petals hang down leans more. Away from the axis
+    is from the axis to the petal's base centre, or to its centroid where the base is on
+    the axis (within a fiftieth of the chord); where both are, the angle is unsigned."""
     X = np.asarray(X, dtype=np.float64)
     petal = np.asarray(petal)
     count = len(tips)
@@ -108,11 +112,24 @@ def leans(X, petal, base, tips, axes) -> np.ndarray:
     total = np.zeros((count, 3))
     np.add.at(total, petal[base], X[base])
     n = np.bincount(petal[base], minlength=count)[:, None]
-    chord = X[np.asarray(tips)] - total / np.maximum(n, 1)
-    a = np.asarray(axes, dtype=np.float64)[:, 3:]
-    cos = np.einsum("ij,ij->i", chord, a) / (np.linalg.norm(chord, axis=1)
-                                              * np.linalg.norm(a, axis=1))
-    return np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))
+    centre = total / np.maximum(n, 1)
+    chord = X[np.asarray(tips)] - centre
+    a = np.asarray(axes, dtype=np.float64)
+    direction = a[:, 3:] / np.linalg.norm(a[:, 3:], axis=1)[:, None]
+    length = np.linalg.norm(chord, axis=1)
+    cos = np.einsum("ij,ij->i", chord, direction) / length
+    angle = np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))
+    whole = np.zeros((count, 3))
+    np.add.at(whole, petal, X)
+    centroid = whole / np.maximum(np.bincount(petal, minlength=count), 1)[:, None]
+    sign = np.ones(count)
+    for point in (centroid, centre):  # (the base centre's, where it is off the axis)
+        r = point - a[:, :3]
+        r -= direction * np.einsum("ij,ij->i", r, direction)[:, None]
+        off = np.linalg.norm(r, axis=1) > 0.02 * length
+        inward = np.einsum("ij,ij->i", chord, r) < 0.0
+        sign = np.where(off, np.where(inward, -1.0, 1.0), sign)
+    return sign * angle
 
 
 def _away(where, chord, length: float, flower_axis) -> np.ndarray | None:
