@@ -87,3 +87,41 @@ def test_same_inputs_give_bit_identical_frames():
         return np.asarray(grow_petal("smootherstep", 1500.0, steps=2000, frames=3)[2].positions)
 
     assert np.array_equal(once(), once())
+
+
+class _Pushes:
+    """A stand-in integrator that moves every free vertex a little further each call,
+    raising the energy while growth holds (``equilibria``: what it says of its frames)."""
+
+    def __init__(self, equilibria: bool):
+        self.equilibria = equilibria
+
+    def advance(self, model, state, control, n, h, effects):
+        state.positions[~model.pinned] *= 1.01
+        state.potential_energy += 1.0 + abs(state.potential_energy)
+        state.step += n
+
+    def diagnostics(self):
+        return {}
+
+
+@pytest.mark.parametrize("equilibria", [False, True])
+def test_the_hold_energy_guard_is_for_motion_not_for_equilibria(equilibria):
+    """While growth holds, energy that rises is a time-stepper running away (Diverged);
+    a solver whose every frame is an equilibrium (the quasi-static one, without inertia)
+    is not guarded: a path played back from a model at rest (energy 0) meets contact in
+    its hold (hallgeirl's: 1e-29 to 5e-6) and is no instability."""
+    from pipeline.sim.explicit.semi_implicit import Diverged
+    from pipeline.sim.solver.quasistatic import QuasiStatic
+
+    assert QuasiStatic().equilibria and not QuasiStatic(inertia=True).equilibria
+    v, f, petal, axes, growth = prepared(1, 150, curve="0")
+    model = build_model(v, growth, axes)
+    control = Control("linear", 1.0)  # (full growth from the first step on: a hold)
+    state = State.at_rest(model, v, control)
+    if equilibria:
+        rec, _ = run(model, state, control, _Pushes(True), steps=10, frames=6, h=1.0)
+        assert np.diff(rec.diagnostics["total_energy"]).min() > 0.0  # (it rose, unguarded)
+    else:
+        with pytest.raises(Diverged, match="while growth held"):
+            run(model, state, control, _Pushes(False), steps=10, frames=6, h=1.0)

@@ -32,7 +32,7 @@ import numpy as np
 
 from pipeline.chain import SIMULATION, argv
 from pipeline.mesh.separate import patch_groups
-from pipeline.review.report import CLOSES_FIRST, NOT_OPEN
+from pipeline.review.report import CLOSES_FIRST, NOT_OPEN, closing_dip
 
 #: an open model's last frame is within this fraction of a petal length of the model (RMS)
 ON_MODEL = 0.01
@@ -134,7 +134,8 @@ def judge(row: Row, h) -> None:
         failed.append(f"opens backward ({row.opened:.1f} deg)")
     if row.least < NOT_OPEN:
         failed.append(f"a petal did not open ({row.least:.1f} deg)")
-    dip = -float(opening.min())
+    dip = (closing_dip(h["diagnostics/opening_angle_per_petal"][()])
+           if "diagnostics/opening_angle_per_petal" in h else -float(opening.min()))
     if dip > CLOSES_FIRST:
         failed.append(f"closes {dip:.1f} deg before it opens")
     row.verdict = "; ".join(failed) or "ok"
