@@ -101,21 +101,24 @@ def test_a_petal_leans_from_its_own_flower_axis():
     """measure.leans: the chord from a petal's base to its tip against its flower's axis;
     flowers with axes of their own (a bed), one petal each: upright along its axis
     (0 deg), out flat (90), hanging down (135), and, its base off the axis, leaning in
-    across it (a rose's bud: -26.6, signed), or leaning out as far (+26.6)."""
+    across it (a rose's bud: -26.6, signed), or leaning out as far (+26.6); one that
+    hangs down and in under its base hangs down (153.4: unsigned)."""
     from pipeline.flower.measure import leans
 
     X = np.array([[0.0, 0.0, 0.0], [0.0, 0.0, 1.0],  # petal 0: base, tip straight up
                   [5.0, 0.0, 0.0], [6.0, 0.0, 0.0],  # petal 1: out flat
                   [9.0, 0.0, 0.0], [10.0, 0.0, -1.0],  # petal 2: hanging down
                   [21.0, 0.0, 0.0], [20.5, 0.0, 1.0],  # petal 3: in, toward its axis
-                  [21.0, 0.0, 0.0], [21.5, 0.0, 1.0]])  # petal 4: out as far
-    petal = np.array([0, 0, 1, 1, 2, 2, 3, 3, 4, 4])
-    base = np.array([True, False] * 5)
+                  [21.0, 0.0, 0.0], [21.5, 0.0, 1.0],  # petal 4: out as far
+                  [21.0, 0.0, 0.0], [20.5, 0.0, -1.0]])  # petal 5: down, and in under
+    petal = np.array([0, 0, 1, 1, 2, 2, 3, 3, 4, 4, 5, 5])
+    base = np.array([True, False] * 6)
     axes = np.array([[0, 0, 0, 0, 0, 1.0], [5, 0, 0, 0, 0, 2.0], [9, 0, 0, 0, 0, 1.0],
-                     [20, 0, 0, 0, 0, 1.0], [20, 0, 0, 0, 0, 1.0]])
+                     [20, 0, 0, 0, 0, 1.0], [20, 0, 0, 0, 0, 1.0], [20, 0, 0, 0, 0, 1.0]])
     inward = np.degrees(np.arctan(0.5))
-    np.testing.assert_allclose(leans(X, petal, base, np.array([1, 3, 5, 7, 9]), axes),
-                               [0.0, 90.0, 135.0, -inward, inward], atol=1e-12)
+    np.testing.assert_allclose(leans(X, petal, base, np.array([1, 3, 5, 7, 9, 11]), axes),
+                               [0.0, 90.0, 135.0, -inward, inward, 180.0 - inward],
+                               atol=1e-12)
 
 
 def test_petal_names_come_from_the_parts_or_else_from_the_binding():

@@ -119,7 +119,7 @@ def run(growth_h5: str | Path, out: str | Path, cfg: Config, *, overwrite: bool 
             if less is not None:
                 attrs["bud_closed"] = less
                 log.info("the bud's petals lean %.1f deg less from the flower's axis than the "
-                         "model's (mean over petals)", less)
+                         "model's (median over petals)", less)
             log.info("last frame %.3g petal lengths (RMS) from the model",
                      attrs["distance_to_model"])
         names = report.petal_names(petal, src["mesh/part_names"], src["mesh/part"]) \

@@ -99,10 +99,11 @@ def leans(X, petal, base, tips, axes) -> np.ndarray:
     """``(P,)`` how far each petal leans from its flower's axis: the angle in degrees
     between its chord (its base's centre to its tip) and the axis's direction (from the
     receptacle toward the tips), ``axes`` ``(P, 6)`` each petal's flower's point and
-    direction (nan for none: nan); negative where the chord leans in, across the axis
-    (its part away from the axis points back toward it: a bud's petal whose tip curls
-    over the centre, a rose's, leans in). A bud's petals lean less than the open
-    flower's; a bud found backward whose petals hang down leans more. Away from the axis
+    direction (nan for none: nan); negative where the chord rises and leans in, across
+    the axis (its part away from the axis points back toward it: a bud's petal whose tip
+    curls over the centre, a rose's, leans in); a chord that falls hangs down, in or out.
+    A bud's petals lean less than the open flower's; a bud found backward whose petals
+    hang down leans more. Away from the axis
     is from the axis to the petal's base centre, or to its centroid where the base is on
     the axis (within a fiftieth of the chord); where both are, the angle is unsigned."""
     X = np.asarray(X, dtype=np.float64)
@@ -127,7 +128,7 @@ def leans(X, petal, base, tips, axes) -> np.ndarray:
         r = point - a[:, :3]
         r -= direction * np.einsum("ij,ij->i", r, direction)[:, None]
         off = np.linalg.norm(r, axis=1) > 0.02 * length
-        inward = np.einsum("ij,ij->i", chord, r) < 0.0
+        inward = (np.einsum("ij,ij->i", chord, r) < 0.0) & (cos > 0.0)
         sign = np.where(off, np.where(inward, -1.0, 1.0), sign)
     return sign * angle
 

@@ -86,8 +86,8 @@ def soundness(positions: np.ndarray, faces: np.ndarray, opening_per_petal: np.nd
         and ``mesh/patch``), or None: petals that share a patch were left through each
         other as modelled, and their crossings are not counted (``left``: those pairs).
     bud_closed : an open start's bud in a flower: how much less its petals lean from
-        their flower's axis than the model's (sim.h5's ``bud_closed``, degrees, the mean
-        over petals; negative: they hang open the other way, and the bloom closes them),
+        their flower's axis than the model's (sim.h5's ``bud_closed``, degrees, the median
+        over petals; negative: most hang open the other way, and the bloom closes them),
         or None.
     held_flowers : a file of many flowers: those kept as modelled because no bloom was
         found for them (sim.h5's ``flowers_kept_as_modelled``), or None.

@@ -326,13 +326,18 @@ class Prepared:
 
     def bud_closed(self, bud, model) -> float | None:
         """How much less the petals of ``bud`` lean from their flower's axis than those
-        of ``model`` (deg, the mean over petals; negative: they lean further, the bud
-        hangs open the other way). None without a flower's axis (a lone petal)."""
+        of ``model`` (deg, the lower median over petals; not positive: half of them or
+        more lean further, the bud hangs open the other way). None without a flower's
+        axis (a lone petal). The median, not the mean: a bud of which half the petals hang
+        down under the others' (a daisy's own path: eight of sixteen at 162-176 deg, the
+        others curled in over the disc) is no bud, whatever the curled ones add to the
+        mean; the lower one, so that half is not a tie."""
         axes = self.petal_axes()
         if not np.all(np.isfinite(axes)):
             return None
-        return float(np.mean(leans(model, self.petal, self.base, self.tip, axes)
-                             - leans(bud, self.petal, self.base, self.tip, axes)))
+        return float(np.percentile(leans(model, self.petal, self.base, self.tip, axes)
+                                   - leans(bud, self.petal, self.base, self.tip, axes), 50,
+                                   method="lower"))
 
     def recurve(self) -> float | None:
         """How much of the model's curvature curves away from its flower's inside: the
