@@ -1,7 +1,12 @@
 """One bloom problem of the simulate stage (:mod:`pipeline.chain.simulate`): a whole
 file, or one flower of a file of many (:func:`problem`; a file's flowers are put together
 in :mod:`pipeline.chain.flowers`); the solver's failures as one line naming the key
-(:func:`refusal`); the checkpoints a run writes as it goes (:class:`Saver`)."""
+(:func:`refusal`); the checkpoints a run writes as it goes (:class:`Saver`).
+
+The module is long because one problem's bloom is one sequence of fallbacks (the run
+from the bud; the model's own path back where that fails or closes first; its most
+closed frame; the search without the lift where the bloom ends off the model), which
+share the closures that build the run's effects, integrator and petal frames."""
 
 from __future__ import annotations
 
