@@ -103,9 +103,9 @@ def leans(X, petal, base, tips, axes) -> np.ndarray:
     the axis (its part away from the axis points back toward it: a bud's petal whose tip
     curls over the centre, a rose's, leans in); a chord that falls hangs down, in or out.
     A bud's petals lean less than the open flower's; a bud found backward whose petals
-    hang down leans more. Away from the axis
-    is from the axis to the petal's base centre, or to its centroid where the base is on
-    the axis (within a fiftieth of the chord); where both are, the angle is unsigned."""
+    hang down leans more. Away from the axis is from the axis to the petal's base centre,
+    or to its centroid where the base is on the axis (within a fiftieth of the chord);
+    where both are, the angle is unsigned."""
     X = np.asarray(X, dtype=np.float64)
     petal = np.asarray(petal)
     count = len(tips)

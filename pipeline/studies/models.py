@@ -134,8 +134,8 @@ def judge(row: Row, h) -> None:
         failed.append(f"opens backward ({row.opened:.1f} deg)")
     if row.least < NOT_OPEN:
         failed.append(f"a petal did not open ({row.least:.1f} deg)")
-    dip = (closing_dip(h["diagnostics/opening_angle_per_petal"][()])
-           if "diagnostics/opening_angle_per_petal" in h else -float(opening.min()))
+    dip = closing_dip(h["diagnostics/opening_angle_per_petal"][()]
+                      if "diagnostics/opening_angle_per_petal" in h else opening)
     if dip > CLOSES_FIRST:
         failed.append(f"closes {dip:.1f} deg before it opens")
     row.verdict = "; ".join(failed) or "ok"
