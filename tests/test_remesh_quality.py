@@ -287,3 +287,32 @@ def test_a_fold_on_the_rim_is_dropped_with_the_faces_around_it():
     assert 0 < dropped <= 15 and len(faces) == len(tri) - dropped
     assert not remesh.inverted_faces(out, faces).any()
     assert np.array_equal(np.unique(faces), np.arange(len(out)))
+
+
+def test_a_flap_that_hangs_on_the_sheet_by_a_vertex_is_dropped():
+    """Two faces joined to a sheet at one corner vertex and no edge (what dropping a rim
+    fold left on the lotus's petal 11, 0.002 edges from its neighbour): the sheet's edge-
+    joined pieces are two, and the flap goes with its own vertices; the sheet itself and a
+    piece too large to be a flap are left."""
+    from pipeline.mesh import topology
+    from tests.test_separate import sheet
+
+    pts, tri = sheet(0, 6, 0, 6)
+    v = np.c_[pts, np.zeros(len(pts))]
+    assert remesh.drop_flaps(v, tri)[2] == 0
+    corner = int(np.argmin(np.linalg.norm(v - [6.0, 6.0, 0.0], axis=1)))
+    flap = np.array([[6.2, 6.1, 0.0], [6.3, 6.4, 0.0], [6.0, 6.3, 0.0]])
+    n = len(v)
+    f = np.r_[tri, [[corner, n, n + 1], [corner, n + 1, n + 2]]]
+    w = np.r_[v, flap]
+    piece = topology.face_components(f)
+    assert piece.max() == 1 and np.sum(piece == 1) == 2
+    out, faces, dropped = remesh.drop_flaps(w, f)
+    assert dropped == 2 and len(faces) == len(tri) and len(out) == len(v)
+    assert np.array_equal(out, v)
+    # a second sheet as large as the first, joined at the same corner: not a flap
+    big = np.r_[tri, tri + len(v)]
+    twice = np.r_[v, v + [6.0, 6.0, 0.0]]
+    twice_faces = np.where(big == len(v) + int(np.argmin(np.linalg.norm(v, axis=1))), corner, big)
+    assert topology.face_components(twice_faces).max() == 1
+    assert remesh.drop_flaps(twice, twice_faces)[2] == 0

@@ -297,6 +297,10 @@ def _one_petal(pts, lf, target_edge, petal_vertices, symmetrize, label, scale,
         notes.append(f"{label}: dropped {folds} face(s) on its rim folded over their "
                      "neighbours, or around such a fold (a crumpled tip would pass "
                      "through itself)")
+    pts, lf, flaps = remesh.drop_flaps(pts, lf)
+    if flaps:
+        notes.append(f"{label}: dropped {flaps} face(s) joined to it by a vertex only (a flap "
+                     "within a hair of the petal: it would fold through it)")
     try:  # what growth needs of a sheet: each edge of one or two faces, one orientation
         topology.hinges(lf)
     except ValueError as exc:

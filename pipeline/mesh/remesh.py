@@ -44,6 +44,9 @@ RIM_TURN = 10.0  #: degrees: :func:`improve` may remove a rim vertex where the r
 #: :func:`isotropic` first halves every edge (midpoints) while the mean edge is over
 #: COARSE times the target, at most MAX_UPSAMPLE times
 COARSE, MAX_UPSAMPLE = 2.0, 8
+#: :func:`drop_flaps` drops pieces that hang on a sheet by a vertex while they hold less
+#: than this share of its area
+FLAP = 0.05
 
 
 def clean_mean_edge(vertices: np.ndarray, faces: np.ndarray) -> float:
@@ -197,6 +200,27 @@ def drop_rim_folds(vertices: np.ndarray, faces: np.ndarray):
     used, remap = topology.used_vertices(f[~gone], len(v))
     v, f, ears = drop_ears(v[used], remap[f[~gone]])
     return v, f, int(gone.sum()) + ears
+
+
+def drop_flaps(vertices: np.ndarray, faces: np.ndarray, most: float = FLAP):
+    """The sheet without the pieces that hang on it by a vertex only (faces joined to the
+    rest across no edge: what dropping a rim fold can leave, or a bow-tie of the input),
+    where together they hold less than ``most`` of its area: ``(vertices, faces,
+    dropped)``, the largest piece kept. Such a flap starts within a hair of the sheet
+    (the lotus's: 0.002 edges from its neighbour), too near for contact to keep the petal
+    off itself, and folds through it as the petal grows. Larger pieces are left (a
+    sheet cut in two is the petal stage's to find)."""
+    v = np.asarray(vertices, dtype=np.float64)
+    f = np.asarray(faces, dtype=np.int64)
+    piece = topology.face_components(f)
+    if len(f) == 0 or piece.max() == 0:
+        return vertices, faces, 0
+    area = np.bincount(piece, weights=0.5 * np.linalg.norm(topology.face_normals(v, f), axis=1))
+    keep = piece == int(np.argmax(area))
+    if area.sum() - area.max() >= most * area.sum():
+        return vertices, faces, 0
+    used, remap = topology.used_vertices(f[keep], len(v))
+    return v[used], remap[f[keep]], int(np.sum(~keep))
 
 
 def boundary_loops(faces: np.ndarray) -> list[np.ndarray]:

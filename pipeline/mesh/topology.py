@@ -155,6 +155,21 @@ def _components(f, vertex_count):
     return label
 
 
+def face_components(faces: np.ndarray) -> np.ndarray:
+    """``(F,) int``: the piece of the sheet each face is in, faces joined across the edges
+    they share (two pieces that meet at a vertex only are apart), numbered by first
+    face."""
+    f = np.ascontiguousarray(faces, dtype=np.int64)
+    if len(f) == 0:
+        return np.zeros(0, dtype=np.int64)
+    _, he_edge, _ = unique_edges(f)
+    face = np.tile(np.arange(len(f), dtype=np.int64), 3)  # (half-edges run edge-major)
+    order = np.argsort(he_edge, kind="stable")
+    same = np.flatnonzero(he_edge[order][1:] == he_edge[order][:-1])
+    pairs = np.stack([face[order][same], face[order][same + 1]], axis=1)
+    return _components(np.ascontiguousarray(pairs), len(f))
+
+
 def edge_graph(vertices: np.ndarray, edges: np.ndarray) -> sp.csr_matrix:
     """Symmetric sparse matrix of edge lengths, for shortest paths along the mesh."""
     v = np.asarray(vertices, dtype=np.float64)
