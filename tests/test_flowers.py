@@ -711,3 +711,30 @@ def test_each_petals_axis_is_the_flowers_axis_where_all_are_one():
                                rtol=1e-15, atol=0)
     np.testing.assert_allclose(petal_layers(v, petal, p1, up1), petal_layers(v, petal, p5, up5),
                                rtol=1e-12)
+
+
+def test_one_sheet_of_petals_around_a_wide_hub_is_one_flower(tmp_path):
+    """A flower modelled as one sheet (an OpenSCAD union, a low-poly star) whose hub is
+    wider than its petals are long: the sheet is split into its petals at the hub, and
+    they are one flower, though their bases are further apart than the flowers' rule
+    links (each its own flower before)."""
+    from tests.test_lobes import star
+
+    v, f = star(k=6, hub=1.5, length=1.0, rings=12, around=180, cup=0.1)
+    base = flowers(*_star_petals(v, f, 6))
+    assert base.count == 6  # by their bases alone: six flowers
+    mesh = write_parts(tmp_path / "star.obj", [("Star", v, f)])
+    r = CliRunner().invoke(cli, ["remesh", str(mesh), "--out", str(tmp_path / "r.h5")])
+    assert r.exit_code == 0, r.output
+    assert "joined at a hub" in r.output and "1 flower(s)" in r.output, r.output
+    with h5py.File(tmp_path / "r.h5") as h:
+        assert h.attrs["petal_count"] == 6 and h.attrs["flower_count"] == 1
+        assert np.all(h["mesh/flower"][()] == 0)
+
+
+def _star_petals(v, f, k):
+    """The star's vertices outside its hub, labelled by the petal (angle) each is in."""
+    r = np.linalg.norm(v[:, :2], axis=1)
+    out = r > 1.6
+    petal = np.round(np.arctan2(v[out, 1], v[out, 0]) * k / (2 * np.pi)).astype(int) % k
+    return v[out], petal

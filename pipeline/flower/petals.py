@@ -569,6 +569,7 @@ def prepare_parts(mesh_file, *, where: str, target_edge: float = 0.0, petal_vert
                 for n, c in zip(names, chosen, strict=True)]
     total = clean.CleanReport()
     sheets = []  # (vertices, faces, part index, thickness or None)
+    hubs = []  # the sheets of one flower that one sheet joined at a hub gave
     problems, failing, dropped, notes, info = [], [], [], [], []
     found = {}  # part index -> {"pieces": petal pieces, "area": their area (one side), "lost": ...}
     rest = {}  # part index -> (vertices, faces): a whole flower's pieces that are not petals
@@ -610,6 +611,7 @@ def prepare_parts(mesh_file, *, where: str, target_edge: float = 0.0, petal_vert
         for name, value in vars(done.counts).items():
             if name != "notes":
                 setattr(total, name, getattr(total, name) + value)
+        hubs += [[len(sheets) + k for k in hub] for hub in done.hubs]
         sheets += done.sheets
         if done.found is not None:
             found[i] = done.found
@@ -634,7 +636,8 @@ def prepare_parts(mesh_file, *, where: str, target_edge: float = 0.0, petal_vert
                 "; repair the part(s) named and export again, or name the petals with scene.petals")
         raise BloomError("no petals: " + "; ".join(problems + others) + hint, where=where)
     grouped = flowers(np.vstack([sv for sv, _, _, _ in sheets]),
-                      np.concatenate([np.full(len(sv), k) for k, (sv, _, _, _) in enumerate(sheets)]))
+                      np.concatenate([np.full(len(sv), k) for k, (sv, _, _, _) in enumerate(sheets)]),
+                      joined=hubs)
     picked = _pick_flower(flower, grouped, [i for _, _, i, _ in sheets], names, where)
     if picked is not None:
         notes.append(f"scene.flower = {flower!r}: flower {picked} of {grouped.count} "
@@ -729,6 +732,9 @@ class _PartSheets:
     found: dict | None  #: {"pieces", "area" (one side), "lost"}, None if it gave no sheet
     problem: str = ""  #: why it cannot be simulated ("" if it can)
     dropped: str = ""  #: a closed part left out (remesh.closed_parts = "drop")
+    #: the sheets (indices into ``sheets``) that one sheet joined at a hub gave: one
+    #: flower each, however wide the hub left out
+    hubs: list = field(default_factory=list)
 
 
 def _moved_part(done: _PartSheets, i: int, k: float, rot: np.ndarray, t: np.ndarray) -> _PartSheets:
@@ -736,7 +742,7 @@ def _moved_part(done: _PartSheets, i: int, k: float, rot: np.ndarray, t: np.ndar
     sheets = [(k * sv @ rot.T + t, sf, i, None if th is None else (k * th[0] @ rot.T + t, k * th[1]))
               for sv, sf, _, th in done.sheets]
     found = None if done.found is None else {**done.found, "area": k * k * done.found["area"]}
-    return _PartSheets(sheets, done.counts, [], found)
+    return _PartSheets(sheets, done.counts, [], found, hubs=done.hubs)
 
 
 def _part_sheets(part, part_faces, verdict, i: int, *, dust: float, closed_parts: str) -> _PartSheets:
@@ -753,6 +759,7 @@ def _part_sheets(part, part_faces, verdict, i: int, *, dust: float, closed_parts
         done.counts.ring_splits += 1
         done.notes.append(f"{part.name}: one sheet of {len(petals_of)} petals joined at a hub: "
                           "split into its petals, the hub left out")
+        done.hubs.append(list(range(len(sheets), len(sheets) + len(petals_of))))
         sheets += [(pv, pf, i, t) for pv, pf in petals_of]
     for k, (sv, sf, _, t) in enumerate(sheets):
         sv, sf, zipped = repair.zip_slits(sv, sf)  # a sliver dropped in a mid-surface, a seam

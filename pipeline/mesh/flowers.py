@@ -39,7 +39,8 @@ def _principal(points: np.ndarray, label: np.ndarray, count: int):
     return mean, axes[:, :, 2]
 
 
-def flowers(points: np.ndarray, label: np.ndarray, link: float = LINK) -> Flowers:
+def flowers(points: np.ndarray, label: np.ndarray, link: float = LINK,
+            joined: list | None = None) -> Flowers:
     """Group petals into flowers: petals whose bases gather at one place are one flower.
 
     Parameters
@@ -51,6 +52,10 @@ def flowers(points: np.ndarray, label: np.ndarray, link: float = LINK) -> Flower
     link : float
         Two petals are linked when their bases are closer than ``link`` times the
         shorter petal's length; flowers are the linked groups.
+    joined : list of lists of petal indices, optional
+        Petals known to be of one flower whatever their bases' distance: those one sheet
+        held, joined at a hub the remesh left out (a flower modelled as one solid, whose
+        hub can be wider than its petals are long).
 
     Returns
     -------
@@ -133,9 +138,11 @@ def flowers(points: np.ndarray, label: np.ndarray, link: float = LINK) -> Flower
     if len(pairs):
         d = np.linalg.norm(base[pairs[:, 0]] - base[pairs[:, 1]], axis=1)
         pairs = pairs[d < link * np.minimum(scale[pairs[:, 0]], scale[pairs[:, 1]])]
-    g = sp.coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1]) if len(pairs) else
-                       (np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64))),
-                      shape=(count, count))
+    pairs = np.asarray(pairs, dtype=np.int64).reshape(-1, 2)
+    hubs = [(int(g[0]), int(q)) for g in joined or [] for q in g[1:]]
+    if hubs:
+        pairs = np.vstack([pairs, np.asarray(hubs, dtype=np.int64)])
+    g = sp.coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(count, count))
     _, group = connected_components(g, directed=False)
     # numbered by each flower's first petal, so the labels do not depend on scipy
     _, first_petal = np.unique(group, return_index=True)
