@@ -168,6 +168,33 @@ def test_a_petal_keeps_off_itself_where_its_start_allows():
         assert (step < 0.5) == cut and (step == 1.0) == (not cut), (height, own, step)
 
 
+def test_a_petal_near_itself_at_one_spot_keeps_off_itself_everywhere_else():
+    """A petal folded over itself, its two sheets 5 gaps apart, but one vertex of the upper
+    sheet 1.5 gaps from the lower (within the barrier's reach at the start: a rim's hairpin
+    turn). Only the vertices of that spot (with their rings) are left to themselves: a move
+    of the upper sheet's far corner through the lower one is cut by the CCD (with the whole
+    petal left to itself, as before, it was not), and a move of the spot's vertex alone is
+    not."""
+    v, faces, sheet, _ = two_sheets(height=0.0)
+    one = np.zeros_like(sheet)
+    X = v.copy()
+    X[sheet == 1, 2] = 5 * GAP
+    upper = np.flatnonzero(sheet == 1)
+    spot = upper[np.argmin(np.linalg.norm(X[upper, :2] - [2.0, 2.0], axis=1))]
+    X[spot, 2] = 1.5 * GAP
+    c = Contact.build(X, faces, one, gap=GAP, stiffness=0.1)
+    held = np.bincount(c._patches)[c._patches] > 1
+    far = (sheet == 1) & (X[:, 0] > 2.5) & (X[:, 1] < 1.5)  # (a corner away from the spot)
+    # the spot, the vertices under it and their rings, not the far corner
+    assert held[spot] and 1 < held.sum() <= 30 and not held[far].any()
+    through = X.copy()
+    through[far, 2] -= 10 * GAP
+    assert c.max_step(X, through) < 0.5
+    alone = X.copy()
+    alone[spot, 2] -= 3 * GAP
+    assert c.max_step(X, alone) == 1.0
+
+
 def test_a_petal_near_itself_at_the_start_leaves_the_others_keeping_off_themselves():
     """Two folded petals side by side: petal 0's two sheets 1.5 gaps apart (within the
     barrier's reach at the start: a curled tip), petal 1's 5 gaps apart. Petal 0 is left

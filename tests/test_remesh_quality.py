@@ -284,7 +284,8 @@ def test_a_fold_on_the_rim_is_dropped_with_the_faces_around_it():
     v[rim, :2] = [1.5, 0.2]  # past its rim neighbour at (2, 0): its face there turns over
     assert remesh.inverted_faces(v, tri).any()
     out, faces, dropped = remesh.drop_rim_folds(v, tri)
-    assert 0 < dropped <= 15 and len(faces) == len(tri) - dropped
+    # (the fold and the faces around it; with the faces that pass through the sheet: 16)
+    assert 0 < dropped <= 18 and len(faces) == len(tri) - dropped
     assert not remesh.inverted_faces(out, faces).any()
     assert np.array_equal(np.unique(faces), np.arange(len(out)))
 
@@ -316,3 +317,28 @@ def test_a_flap_that_hangs_on_the_sheet_by_a_vertex_is_dropped():
     twice_faces = np.where(big == len(v) + int(np.argmin(np.linalg.norm(v, axis=1))), corner, big)
     assert topology.face_components(twice_faces).max() == 1
     assert remesh.drop_flaps(twice, twice_faces)[2] == 0
+
+
+def test_a_rim_tucked_through_the_sheet_is_dropped_though_no_face_turns_over():
+    """A rim strip folded back over the sheet, a little past flat at one end and short of
+    it at the other, so it passes through the sheet between (what the mid-surface of a
+    fused solid, an OpenSCAD union of petals, gave one petal): no face is inverted against
+    its neighbours (the strip's faces neighbour each other), but the sheet passes through
+    itself; the faces that cross, and those around them, are dropped and the sheet no
+    longer crosses itself."""
+    from tests.test_separate import sheet
+
+    pts, tri = sheet(0, 6, 0, 6)
+    v = np.c_[pts, np.zeros(len(pts))]
+    hinge = np.unique(np.round(v[:, 1], 9))[1]
+    rim = v[:, 1] < 1e-9
+    turn = np.radians(170.0 + 20.0 * v[rim, 0] / 6.0)
+    depth = hinge - v[rim, 1]
+    v[rim, 1] = hinge - depth * np.cos(turn)
+    v[rim, 2] = -depth * np.sin(turn)
+    assert not remesh.inverted_faces(v, tri).any()
+    assert remesh.self_crossed_faces(v, tri).any()
+    out, faces, dropped = remesh.drop_rim_folds(v, tri)
+    assert 0 < dropped <= 16 and len(faces) == len(tri) - dropped
+    assert not remesh.self_crossed_faces(out, faces).any()
+    assert not remesh.self_crossed_faces(np.c_[pts, np.zeros(len(pts))], tri).any()

@@ -295,8 +295,8 @@ def _one_petal(pts, lf, target_edge, petal_vertices, symmetrize, label, scale,
     pts, lf, folds = remesh.drop_rim_folds(pts, lf)
     if folds:
         notes.append(f"{label}: dropped {folds} face(s) on its rim folded over their "
-                     "neighbours, or around such a fold (a crumpled tip would pass "
-                     "through itself)")
+                     "neighbours or through the petal, or around such a fold (a crumpled "
+                     "tip or a tucked rim would pass through itself)")
     pts, lf, flaps = remesh.drop_flaps(pts, lf)
     if flaps:
         notes.append(f"{label}: dropped {flaps} face(s) joined to it by a vertex only (a flap "

@@ -181,15 +181,18 @@ def drop_ears(vertices: np.ndarray, faces: np.ndarray, angle: float = EAR_ANGLE)
 
 def drop_rim_folds(vertices: np.ndarray, faces: np.ndarray):
     """The sheet without the faces folded over their neighbours on its rim
-    (:func:`inverted_faces` with an edge on the rim: a mirrored tip that crumpled) and the
-    faces that share a vertex with them (the fold's own neighbours cross it), then without
-    the ears that leaves (:func:`drop_ears`) and the vertices no face holds:
-    ``(vertices, faces, dropped)``. A fold inside the sheet is left (a warning's)."""
+    (:func:`inverted_faces` with an edge on the rim: a mirrored tip that crumpled), or
+    passing through the sheet with a vertex on its rim (:func:`self_crossed_faces`: a rim
+    the mid-surface of a fused solid tucked under itself), and the faces that share a
+    vertex with them (the fold's own neighbours cross it), then without the ears that
+    leaves (:func:`drop_ears`) and the vertices no face holds: ``(vertices, faces,
+    dropped)``. A fold inside the sheet is left (a warning's)."""
     v = np.asarray(vertices, dtype=np.float64)
     f = np.asarray(faces, dtype=np.int64)
     _, he_edge, count = topology.unique_edges(f)
     on_rim = (count[he_edge] == 1).reshape(3, -1).any(axis=0)
-    folded = inverted_faces(v, f) & on_rim
+    rim_vertex = topology.boundary_vertices(f, len(v))
+    folded = (inverted_faces(v, f) & on_rim) | (self_crossed_faces(v, f) & rim_vertex[f].any(axis=1))
     if not folded.any() or folded.all():
         return vertices, faces, 0
     around = np.zeros(len(v), dtype=bool)
@@ -200,6 +203,33 @@ def drop_rim_folds(vertices: np.ndarray, faces: np.ndarray):
     used, remap = topology.used_vertices(f[~gone], len(v))
     v, f, ears = drop_ears(v[used], remap[f[~gone]])
     return v, f, int(gone.sum()) + ears
+
+
+def self_crossed_faces(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """``(F,) bool``: the faces of a sheet that pass through it, an edge of one through
+    another that shares no vertex with it (ipctk's exact test): the face and the faces of
+    the edge."""
+    from pipeline.mesh.ipc import ipctk
+    from pipeline.mesh.separate import crossings
+
+    f = np.asarray(faces, dtype=np.int64)
+    out = np.zeros(len(f), dtype=bool)
+    if len(f) < 2:
+        return out
+    edges, he_edge, _ = topology.unique_edges(f)
+    X = np.asfortranarray(vertices, dtype=np.float64)  # (ipctk's test first: in C++, and
+    # it leaves out what shares a vertex; the pairs only where it finds one)
+    E32, F32 = np.asfortranarray(edges, dtype=np.int32), np.asfortranarray(f, dtype=np.int32)
+    if not ipctk().has_intersections(ipctk().CollisionMesh(X, E32, F32), X):
+        return out
+    found = crossings(np.asarray(vertices, dtype=np.float64), f, edges, np.arange(len(vertices)))
+    if not len(found):
+        return out
+    apart = ~np.any(edges[found[:, 0]][:, :, None] == f[found[:, 1]][:, None, :], axis=(1, 2))
+    found = found[apart]
+    out[found[:, 1]] = True
+    out[np.flatnonzero(np.isin(he_edge, found[:, 0])) % len(f)] = True
+    return out
 
 
 def drop_flaps(vertices: np.ndarray, faces: np.ndarray, most: float = FLAP):

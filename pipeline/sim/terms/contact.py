@@ -9,11 +9,12 @@ collision detection (:meth:`Contact.max_step`), so no iterate ever comes closer 
 ``gap``, let alone crosses: the energy stays finite and the barrier keeps it that way.
 
 - A petal keeps off itself too (ipctk leaves out primitives that share a vertex),
-  where its start allows it (:func:`_own_contact`: none of its own primitives within
-  the barrier's reach, a curled tip's, say): such a petal keeps off the others only,
-  and every other petal keeps off itself as well (the lotus: its petal 11's curled
-  tip is within reach of itself at the start, and with contact between petals only for
-  all, its petal 2 folded through itself in one frame). Where a petal passes through
+  everywhere but where its own primitives start within the barrier's reach of each
+  other (:func:`_own_contact`: a rim's hairpin turn, a sliver; those few vertices are
+  left to themselves, the rest of the petal keeps off itself; with the whole petal left
+  to itself, the lotus's petal 2 folded through itself in one frame, and an OpenSCAD
+  flower's every petal, each with a rim vertex 0.03 edges from its rim, folded through
+  itself in its bud). Where a petal passes through
   itself or another at the start, contact is between petals only. The exact
   intersection test of the report (:func:`frame_intersections`) checks
   self-intersections.
@@ -324,37 +325,67 @@ class Contact(Term):
 
 
 def _own_contact(mesh, X, petal, reach: float) -> np.ndarray | None:
-    """Which petals the barrier can keep off themselves from the start ``X``: those no
-    two of whose primitives that share no vertex are within the barrier's ``reach``
-    (they would feel it at rest: a curled tip, a sliver). Returns the vertex patches of
-    the collision filter (``(V,)`` int32, two vertices of one patch never collide): each
-    vertex a patch of its own, but a petal that cannot keep off itself one patch; None
-    where every petal can. Where a petal passes through itself or another at ``X``,
-    contact is between petals only (every petal one patch). Logged."""
+    """Where the barrier can keep each petal off itself from the start ``X``: everywhere
+    but among the primitives of one petal that share no vertex and are within the
+    barrier's ``reach`` of each other (they would feel it at rest: a hairpin turn of a
+    rim, a flap, a sliver). Those primitives' vertices are joined in a patch (the vertices
+    of one patch never collide), grown until no two primitives of a petal in different
+    patches are within reach; every other vertex is a patch of its own, so the rest of
+    the petal keeps off itself. Returns the patches (``(V,)`` int32), or None where no
+    vertex is joined. Where a petal passes through itself or another at ``X``, contact
+    is between petals only (every petal one patch). Logged."""
     ipctk = one_thread()
     log = logging.getLogger("bloom")
     if ipctk.has_intersections(mesh, X):
         log.info("contact: between petals only, not of a petal with itself (a petal, or two, "
                  "pass through themselves or each other at the start)")
         return petal
-    found = ipctk.NormalCollisions()
-    found.build(mesh, X, reach)
     edges, faces = mesh.edges, mesh.faces
-    near = set()
-    for k in range(len(found)):
-        ids = {int(petal[i]) for i in found[k].vertex_ids(edges, faces) if i >= 0}
-        if len(ids) == 1:
-            near |= ids
-    if not near:
+    root = np.arange(len(petal), dtype=np.int64)
+    ring: dict[int, set] = {}
+    for a, b in np.asarray(edges):
+        ring.setdefault(int(a), set()).add(int(b))
+        ring.setdefault(int(b), set()).add(int(a))
+
+    def find(i: int) -> int:
+        while root[i] != i:
+            root[i] = root[root[i]]
+            i = int(root[i])
+        return i
+
+    patches = None
+    while True:
+        found = ipctk.NormalCollisions()
+        found.build(mesh, X, reach)
+        joined = False
+        for k in range(len(found)):
+            ids = [int(i) for i in found[k].vertex_ids(edges, faces) if i >= 0]
+            if len({int(petal[i]) for i in ids}) != 1:
+                continue  # (between petals: the start's check, Contact.check_start)
+            # with their rings: a triangle that has a vertex outside the patch still stops
+            # the patch's vertices at the gap (ipctk keeps a pair if any two of its
+            # vertices may collide)
+            ids = sorted(set(ids).union(*(ring[i] for i in ids)))
+            first = find(ids[0])
+            for i in ids[1:]:
+                other = find(i)
+                if other != first:
+                    root[max(first, other)] = min(first, other)
+                    first = min(first, other)
+                    joined = True
+        if not joined:
+            break
+        patches = np.ascontiguousarray([find(i) for i in range(len(root))], dtype=np.int32)
+        mesh.can_collide = ipctk.make_vertex_patches_filter(patches)  # (and look again)
+    if patches is None:
         return None
-    near = sorted(near)
-    log.info("contact: petal(s) %s keep off the others but not off themselves (each has "
-             "triangles within %.3g of each other at the start); every other petal keeps off "
-             "itself too", ", ".join(map(str, near)), reach)
-    patches = np.arange(len(petal), dtype=np.int32) + np.int32(int(petal.max()) + 1)
-    held = np.isin(petal, near)
-    patches[held] = petal[held]
-    return np.ascontiguousarray(patches, dtype=np.int32)
+    held = np.bincount(patches, minlength=len(patches)) > 1
+    near = np.unique(np.asarray(petal)[held[patches]])
+    log.info("contact: petal(s) %s keep off themselves but where their own triangles start "
+             "within %.3g of each other (%d vertices, in %d spot(s), left to themselves); "
+             "every petal keeps off the others", ", ".join(map(str, near.tolist())), reach,
+             int(np.sum(held[patches])), int(np.sum(held)))
+    return patches
 
 
 def _pairs(pairs) -> str:
