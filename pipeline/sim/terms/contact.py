@@ -11,10 +11,9 @@ collision detection (:meth:`Contact.max_step`), so no iterate ever comes closer 
 - A petal keeps off itself too (ipctk leaves out primitives that share a vertex),
   everywhere but where its own primitives start within the barrier's reach of each
   other (:func:`_own_contact`: a rim's hairpin turn, a sliver; those few vertices are
-  left to themselves, the rest of the petal keeps off itself; with the whole petal left
-  to itself, the lotus's petal 2 folded through itself in one frame, and an OpenSCAD
-  flower's every petal, each with a rim vertex 0.03 edges from its rim, folded through
-  itself in its bud). Where a petal passes through
+  left to themselves, the rest of the petal keeps off itself; with contact between
+  petals only for all, the lotus's petal 2 folded through itself in one frame). Where a
+  petal passes through
   itself or another at the start, contact is between petals only. The exact
   intersection test of the report (:func:`frame_intersections`) checks
   self-intersections.
@@ -342,10 +341,7 @@ def _own_contact(mesh, X, petal, reach: float) -> np.ndarray | None:
         return petal
     edges, faces = mesh.edges, mesh.faces
     root = np.arange(len(petal), dtype=np.int64)
-    ring: dict[int, set] = {}
-    for a, b in np.asarray(edges):
-        ring.setdefault(int(a), set()).add(int(b))
-        ring.setdefault(int(b), set()).add(int(a))
+    ring: dict[int, set] = {}  # (each vertex's neighbours, once a petal is near itself)
 
     def find(i: int) -> int:
         while root[i] != i:
@@ -365,6 +361,10 @@ def _own_contact(mesh, X, petal, reach: float) -> np.ndarray | None:
             # with their rings: a triangle that has a vertex outside the patch still stops
             # the patch's vertices at the gap (ipctk keeps a pair if any two of its
             # vertices may collide)
+            if not ring:
+                for a, b in np.asarray(edges):
+                    ring.setdefault(int(a), set()).add(int(b))
+                    ring.setdefault(int(b), set()).add(int(a))
             ids = sorted(set(ids).union(*(ring[i] for i in ids)))
             first = find(ids[0])
             for i in ids[1:]:
