@@ -139,7 +139,7 @@ def flowers(points: np.ndarray, label: np.ndarray, link: float = LINK,
         d = np.linalg.norm(base[pairs[:, 0]] - base[pairs[:, 1]], axis=1)
         pairs = pairs[d < link * np.minimum(scale[pairs[:, 0]], scale[pairs[:, 1]])]
     pairs = np.asarray(pairs, dtype=np.int64).reshape(-1, 2)
-    hubs = [(int(g[0]), int(q)) for g in joined or [] for q in g[1:]]
+    hubs = [(int(hub[0]), int(q)) for hub in joined or [] for q in hub[1:]]
     if hubs:
         pairs = np.vstack([pairs, np.asarray(hubs, dtype=np.int64)])
     g = sp.coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(count, count))

@@ -327,12 +327,12 @@ def _own_contact(mesh, X, petal, reach: float) -> np.ndarray | None:
     """Where the barrier can keep each petal off itself from the start ``X``: everywhere
     but among the primitives of one petal that share no vertex and are within the
     barrier's ``reach`` of each other (they would feel it at rest: a hairpin turn of a
-    rim, a flap, a sliver). Those primitives' vertices are joined in a patch (the vertices
-    of one patch never collide), grown until no two primitives of a petal in different
-    patches are within reach; every other vertex is a patch of its own, so the rest of
-    the petal keeps off itself. Returns the patches (``(V,)`` int32), or None where no
-    vertex is joined. Where a petal passes through itself or another at ``X``, contact
-    is between petals only (every petal one patch). Logged."""
+    rim, a flap, a sliver). Those primitives' vertices, with their rings, are joined in
+    patches (the vertices of one patch never collide; the filter only takes pairs away, so
+    none within reach is left between patches); every other vertex is a patch of its own,
+    so the rest of the petal keeps off itself. Returns the patches (``(V,)`` int32), or
+    None where no vertex is joined. Where a petal passes through itself or another at
+    ``X``, contact is between petals only (every petal one patch). Logged."""
     ipctk = one_thread()
     log = logging.getLogger("bloom")
     if ipctk.has_intersections(mesh, X):
@@ -349,36 +349,31 @@ def _own_contact(mesh, X, petal, reach: float) -> np.ndarray | None:
             i = int(root[i])
         return i
 
-    patches = None
-    while True:
-        found = ipctk.NormalCollisions()
-        found.build(mesh, X, reach)
-        joined = False
-        for k in range(len(found)):
-            ids = [int(i) for i in found[k].vertex_ids(edges, faces) if i >= 0]
-            if len({int(petal[i]) for i in ids}) != 1:
-                continue  # (between petals: the start's check, Contact.check_start)
-            # with their rings: a triangle that has a vertex outside the patch still stops
-            # the patch's vertices at the gap (ipctk keeps a pair if any two of its
-            # vertices may collide)
-            if not ring:
-                for a, b in np.asarray(edges):
-                    ring.setdefault(int(a), set()).add(int(b))
-                    ring.setdefault(int(b), set()).add(int(a))
-            ids = sorted(set(ids).union(*(ring[i] for i in ids)))
-            first = find(ids[0])
-            for i in ids[1:]:
-                other = find(i)
-                if other != first:
-                    root[max(first, other)] = min(first, other)
-                    first = min(first, other)
-                    joined = True
-        if not joined:
-            break
-        patches = np.ascontiguousarray([find(i) for i in range(len(root))], dtype=np.int32)
-        mesh.can_collide = ipctk.make_vertex_patches_filter(patches)  # (and look again)
-    if patches is None:
+    found = ipctk.NormalCollisions()
+    found.build(mesh, X, reach)
+    joined = False
+    for k in range(len(found)):
+        ids = [int(i) for i in found[k].vertex_ids(edges, faces) if i >= 0]
+        if len({int(petal[i]) for i in ids}) != 1:
+            continue  # (between petals: the start's check, Contact.check_start)
+        # with their rings: a triangle that has a vertex outside the patch still stops
+        # the patch's vertices at the gap (ipctk keeps a pair if any two of its vertices
+        # may collide)
+        if not ring:
+            for a, b in np.asarray(edges):
+                ring.setdefault(int(a), set()).add(int(b))
+                ring.setdefault(int(b), set()).add(int(a))
+        ids = sorted(set(ids).union(*(ring[i] for i in ids)))
+        first = find(ids[0])
+        for i in ids[1:]:
+            other = find(i)
+            if other != first:
+                root[max(first, other)] = min(first, other)
+                first = min(first, other)
+                joined = True
+    if not joined:
         return None
+    patches = np.ascontiguousarray([find(i) for i in range(len(root))], dtype=np.int32)
     held = np.bincount(patches, minlength=len(patches)) > 1
     near = np.unique(np.asarray(petal)[held[patches]])
     log.info("contact: petal(s) %s keep off themselves but where their own triangles start "
