@@ -6,6 +6,7 @@ imports (seconds). A worker dies with the process that forked it: a run killed o
 
 from __future__ import annotations
 
+import contextlib
 import multiprocessing
 import os
 import signal
@@ -32,6 +33,12 @@ def can_fork() -> bool:
 
 
 def _die_with_parent(initializer) -> None:
+    # a signal to stop (a farm's SIGTERM to the job's processes, Ctrl-C to the terminal's)
+    # ends a worker at once: the parent's handler, inherited at the fork, would turn it
+    # into an exception the pool hands back as a task's result, and the worker would go
+    # on to its next task
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
     try:  # Linux: the kernel kills the worker when its parent goes (prctl PR_SET_PDEATHSIG)
         import ctypes
 
@@ -44,15 +51,27 @@ def _die_with_parent(initializer) -> None:
         initializer()
 
 
+@contextlib.contextmanager
 def pool(workers: int, initializer=None):
     """A :class:`~concurrent.futures.ProcessPoolExecutor` of ``workers`` forked
-    processes that die with this one, each started by ``initializer()`` if given."""
+    processes that die with this one, each started by ``initializer()`` if given, for a
+    ``with`` block. Left by an exception (a SIGTERM or Ctrl-C in this process, an error),
+    the tasks not started are cancelled and the workers killed, not waited for: a killed
+    ``bloom simulate`` of a bed of roses went on blooming its flowers for 20 minutes."""
     from concurrent.futures import ProcessPoolExecutor
 
     global _PARENT
     _PARENT = os.getpid()
-    return ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("fork"),
-                               initializer=_die_with_parent, initargs=(initializer,))
+    executor = ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("fork"),
+                                   initializer=_die_with_parent, initargs=(initializer,))
+    try:
+        yield executor
+    except BaseException:
+        executor.shutdown(wait=False, cancel_futures=True)
+        for child in multiprocessing.active_children():
+            child.kill()
+        raise
+    executor.shutdown(wait=True)
 
 
 def each(fn, count: int, workers: int):

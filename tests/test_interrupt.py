@@ -4,6 +4,7 @@ import signal
 import subprocess
 import sys
 import time
+from pathlib import Path
 
 import h5py
 import numpy as np
@@ -151,3 +152,49 @@ def test_a_killed_simulate_of_many_flowers_resumes_to_the_same_arrays(tmp_path):
         mesh=_bush_obj(tmp_path), checkpoint=".sim.h5.checkpoint-flower1")
     _same_run(whole, out)
 
+
+
+def test_a_killed_simulate_of_flowers_side_by_side_stops_its_workers(tmp_path):
+    """Three flowers bloomed side by side in two worker processes, and SIGTERM to the
+    command's own process only (a farm killing the job's main process): it stops, says
+    so, leaves no artifact, and no worker goes on blooming. (The workers had the
+    command's handler, which made the signal a task's exception: the pool went on to the
+    next flower, and the command waited for all of them; a bed of roses went on for 20
+    minutes.)"""
+    from tests.test_flowers import _bush_obj
+
+    def run(*args):
+        return subprocess.run([*BLOOM, *map(str, args)], cwd=ROOT, capture_output=True, text=True)
+
+    mesh = _bush_obj(tmp_path)
+    assert run("remesh", mesh, "--out", tmp_path / "r.h5").returncode == 0
+    assert run("axis", tmp_path / "r.h5", "--out", tmp_path / "a.h5").returncode == 0
+    assert run("growth", tmp_path / "a.h5", "--out", tmp_path / "g.h5").returncode == 0
+    out = tmp_path / "sim.h5"
+    sets = ["simulate.integrator=semi-implicit", "simulate.steps=50000000",
+            "simulate.frames=1000", "simulate.workers=2", "growth.start=bud"]
+    proc = subprocess.Popen([*BLOOM, "simulate", str(tmp_path / "g.h5"), "--out", str(out),
+                             "--no-progress", *[a for kv in sets for a in ("--set", kv)]],
+                            cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    said = ""
+    while "side by side" not in said and proc.poll() is None:
+        said = proc.stderr.readline()
+    assert "side by side" in said, said
+    time.sleep(2.0)  # (the workers stepping)
+    proc.send_signal(signal.SIGTERM)
+    try:
+        _, err = proc.communicate(timeout=240)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        _, err = proc.communicate()
+        pytest.fail(f"bloom simulate did not stop within 240 s of SIGTERM; stderr: {err[-2000:]}")
+    assert proc.returncode != 0 and "interrupted" in err and not out.exists()
+    time.sleep(1.0)
+    left = []
+    for cmdline in Path("/proc").glob("[0-9]*/cmdline"):
+        try:
+            if str(tmp_path / "g.h5") in cmdline.read_bytes().decode(errors="replace"):
+                left.append(cmdline.parent.name)
+        except OSError:  # (gone meanwhile)
+            pass
+    assert left == []
