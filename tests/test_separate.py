@@ -189,8 +189,9 @@ def test_sheets_crossed_through_their_middles_are_refused_naming_them():
 def test_a_pair_too_far_through_each_other_is_left_as_modelled_and_the_rest_separated():
     """The same crossed sheets, and a third sheet lying through the first near its edge
     (a shallow crossing). With ``leave`` the hopeless pair is put back as it was and left
-    through each other, one contact patch; the third is moved apart from the first. The
-    frames' check does not count the pair left, and still sees any other crossing."""
+    through each other, with no contact between the two; the third is moved apart from
+    the first. The frames' check does not count the pair left, and still sees any other
+    crossing."""
     pa, ta = sheet(-4, 4, -4, 4)
     pc, tc = sheet(-1, 1, -1, 1, 0.5)
     v = np.vstack([np.c_[pa, np.zeros(len(pa))], np.c_[np.zeros(len(pa)), pa[:, 0], pa[:, 1]],
@@ -202,24 +203,44 @@ def test_a_pair_too_far_through_each_other_is_left_as_modelled_and_the_rest_sepa
     assert out.left == [(0, 1)] and "would move" in out.reason
     assert out.crossed == [(0, 1), (0, 2)]
     assert np.array_equal(out.vertices[p == 1], v[p == 1])  # (back as it was)
-    assert np.array_equal(out.patch, np.where(p == 1, 0, p))
     assert frame_intersections([v], f) == [True]
     assert frame_intersections([out.vertices], f) == [True]  # (0 and 1 still cross)
-    assert frame_intersections([out.vertices], f, p, out.patch) == [False]
-    assert frame_intersections([v], f, p, out.patch) == [True]  # (0 and 2 crossed)
-    contact = Contact.build(out.vertices, f, out.patch, gap=GAP, stiffness=1.0)
+    assert frame_intersections([out.vertices], f, p, out.left) == [False]
+    assert frame_intersections([v], f, p, out.left) == [True]  # (0 and 2 crossed)
+    contact = Contact.build(out.vertices, f, p, gap=GAP, stiffness=1.0, left=out.left)
     assert min_distance(contact, out.vertices, 4 * GAP) >= GAP  # (the others kept apart)
+
+
+def test_pairs_left_as_modelled_are_left_pair_by_pair_not_as_a_chain():
+    """Sheet 1 through the middles of sheets 0 and 2, which lie parallel two units apart:
+    the pairs 0-1 and 1-2 cannot be parted and are left as modelled, but 0 and 2 (joined
+    only through sheet 1) neither cross nor touch, so they keep contact: sheet 0 moved up
+    through sheet 2 is stopped. (With the chain's petals one contact patch, as before,
+    it was not.)"""
+    pa, ta = sheet(-4, 4, -4, 4)
+    flat = np.c_[pa, np.zeros(len(pa))]
+    v = np.vstack([flat - [0.0, 0.0, 1.0], np.c_[np.zeros(len(pa)) + 0.05, pa[:, 0] + 0.1,
+                                                  pa[:, 1]], flat + [0.1, 0.0, 1.0]])
+    f = np.vstack([ta, ta + len(pa), ta + 2 * len(pa)])
+    p = np.repeat([0, 1, 2], len(pa))
+    out = separate(v, f, p, GAP, leave=True)
+    assert out.left == [(0, 1), (1, 2)] and sorted(out.stuck) == [(0, 1), (1, 2)]
+    assert frame_intersections([out.vertices], f, p, out.left) == [False]
+    contact = Contact.build(out.vertices, f, p, gap=GAP, stiffness=1.0, left=out.left)
+    up = out.vertices.copy()
+    up[p == 0, 2] += 3.0  # (up through sheet 2; and along sheet 1, left)
+    assert contact.max_step(out.vertices, up) < 2.0 / 3.0  # (sheet 2 is 2/3 of the way)
 
 
 def test_when_the_rounds_run_out_the_pairs_still_crossing_are_left_as_modelled():
     """The pinwheel given one round: the pairs still crossing are left, their petals put
-    back as modelled, and nothing crosses across contact patches."""
+    back as modelled, and no other pair crosses."""
     v, f, p = pinwheel()
     out = separate(v, f, p, GAP, max_iterations=1, leave=True)
     assert out.left and "after 1 rounds" in out.reason
     back = np.isin(p, [q for pair in out.left for q in pair])
     assert np.array_equal(out.vertices[back], v[back])
-    assert frame_intersections([out.vertices], f, p, out.patch) == [False]
+    assert frame_intersections([out.vertices], f, p, out.left) == [False]
 
 
 def test_separation_gives_up_on_counts_that_grow_not_on_counts_that_wander_down():
@@ -253,7 +274,7 @@ def test_a_petal_the_moves_would_fold_is_left_as_modelled(monkeypatch):
     assert "fold petal(s) 0" in out.reason
     assert any(0 in pair for pair in out.left)
     assert np.array_equal(out.vertices[p == 0], v[p == 0])  # (back as it was)
-    assert frame_intersections([out.vertices], f, p, out.patch) == [False]
+    assert frame_intersections([out.vertices], f, p, out.left) == [False]
 
 
 @pytest.mark.slow
@@ -322,8 +343,8 @@ def test_remesh_separate_false_keeps_them_crossed(tmp_path):
 def test_petals_remesh_cannot_separate_are_left_as_modelled_and_bloom(tmp_path):
     """Two petals at right angles, one through the other all along its midrib: remesh
     says so in one warning naming the file, the pair and its parts, and the key, leaves
-    them as modelled and records one contact patch for both; the chain runs on to a
-    bloom, whose verdict does not count the crossing it was given, and says so."""
+    them as modelled and records the pair (no contact between the two); the chain runs on
+    to a bloom, whose verdict does not count the crossing it was given, and says so."""
     pts, tri = procedural.flat_petal(procedural.Outline(), 0.08, np.random.default_rng(0))
     u, s = pts[:, 0], pts[:, 1]
     v = 10.0 * np.vstack([np.c_[u, s, 0.0 * u], np.c_[0.0 * u + 0.013, s + 0.02, u]])
@@ -339,7 +360,7 @@ def test_petals_remesh_cannot_separate_are_left_as_modelled_and_bloom(tmp_path):
     assert all(w in said[0] for w in (str(mesh), "0-1", "Blade.A", "Blade.B", "remesh.separate"))
     with h5py.File(files[0]) as h:
         assert json.loads(h.attrs["separation"])["left"] == [[0, 1]]
-        assert np.array_equal(h["mesh/patch"][()], np.zeros_like(h["mesh/petal"][()]))
+        assert h["mesh/left"][()].tolist() == [[0, 1]]
     for stage, src, dst in zip(("axis", "growth", "simulate"), files[:3], files[1:], strict=True):
         r = CliRunner().invoke(cli, [stage, str(src), "--out", str(dst), "--set",
                                      "simulate.frames=5"] + args)

@@ -53,10 +53,9 @@ def test_studio_model_through_remesh_axis_growth(tmp_path, name):
         kept = sum(r["area_in"] * r["area_kept"] for r in found.values()) / sum(
             r["area_in"] for r in found.values())
         assert kept >= area, found
-        # (pairs too far into each other to part are left as modelled, sharing a patch)
-        patch = h["mesh/patch"][()]
+        # (pairs too far into each other to part are left as modelled, recorded)
         left = json.loads(h.attrs["separation"])["left"]
-        assert (len(np.unique(patch)) < petals) == bool(left)
+        assert h["mesh/left"][()].tolist() == left
     for stage, src, dst in (("axis", "r.h5", "a.h5"), ("growth", "a.h5", "g.h5")):
         code, out = run(stage, tmp_path / src, "--config", scene, "--out", tmp_path / dst)
         assert code == 0 and "Traceback" not in out, out
@@ -149,13 +148,13 @@ def test_the_lotus_petals_buried_in_its_centre_are_cut_and_then_apart(tmp_path):
     with h5py.File(tmp_path / "r.h5") as h:
         record = json.loads(h.attrs["separation"])
         X, F, P = h["mesh/vertices"][()], h["mesh/faces"][()], h["mesh/petal"][()]
-        patch = h["mesh/patch"][()]
+        left = h["mesh/left"][()]
         rim = h["mesh/cut_rim"][()]
     cut = np.asarray(record["cut"])
     # the rims the cut made, where `bloom axis` holds each cut petal: on every cut petal
     assert np.array_equal(np.flatnonzero(np.bincount(P[rim], minlength=len(cut))),
                           np.flatnonzero(cut))
-    assert record["left"] == [] and np.array_equal(patch, P)
+    assert record["left"] == [] and left.shape == (0, 2)
     assert np.count_nonzero(cut) >= 10 and 0.0 < cut.max() <= 0.4
     assert crossed_pairs(X, F, P) == []
     # every petal one sheet joined across edges (petal 11 kept a two-face flap hanging by a

@@ -22,7 +22,7 @@ log = logging.getLogger("bloom")
 SHOWN = 12
 
 #: what the later stages need of remesh.h5, carried forward
-CARRIED = ("mesh/vertices", "mesh/faces", "mesh/petal", "mesh/patch", "mesh/part_names",
+CARRIED = ("mesh/vertices", "mesh/faces", "mesh/petal", "mesh/left", "mesh/part_names",
            "mesh/part", "mesh/thickness",
            "mesh/flower", "flower/petal_flower", "flower/centre", "input/asset", "bind")
 #: more petals than this: one summary line instead of a line per petal

@@ -18,7 +18,7 @@ from pipeline.sim.build import REST_STIFFNESS, rest_stiffness
 log = logging.getLogger("bloom")
 
 #: what the later stages need of axis.h5, carried forward
-CARRIED = ("mesh/vertices", "mesh/faces", "mesh/petal", "mesh/patch", "mesh/part_names",
+CARRIED = ("mesh/vertices", "mesh/faces", "mesh/petal", "mesh/left", "mesh/part_names",
            "mesh/part", "mesh/thickness",
            "mesh/flower", "flower/petal_flower", "flower/centre", "flower/axis", "axis/base", "axis/on_axis",
            "axis/tip", "axis/plane", "axis/x", "axis/s", "input/asset", "bind")

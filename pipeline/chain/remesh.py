@@ -66,8 +66,7 @@ def run(mesh: str | Path | None, out: str | Path, cfg: Config, *, overwrite: boo
     report = result.report
     with Steps("remesh", str(mesh_path)) as progress:
         separation = _separated(result, cfg, mesh_path, mesh_file, progress)
-    patch = separation.pop("patch", None)
-    patch = result.petal if patch is None else patch
+    left = np.asarray(separation.get("left", []), dtype=np.int64).reshape(-1, 2)
     asset, bindings = _bound_asset(mesh_path, mesh_file, result)
     _log_parts(result, mesh_path)
     log.info("%s: %d vertices, %d faces, %d petal(s); welded %d, dropped %d degenerate and "
@@ -104,10 +103,9 @@ def run(mesh: str | Path | None, out: str | Path, cfg: Config, *, overwrite: boo
         artifact.put(h5, "mesh/faces", result.faces.astype(np.int64),
                      "(F, 3) vertex indices, consistently oriented")
         artifact.put(h5, "mesh/petal", result.petal, "(V,) petal id (connected component)")
-        artifact.put(h5, "mesh/patch", np.asarray(patch, dtype=np.int64),
-                     "(V,) contact patch: the petal, or one shared by petals left through "
-                     "each other as modelled (remesh.separate could not move them apart; "
-                     "contact between them is off)")
+        artifact.put(h5, "mesh/left", left,
+                     "(K, 2) petal pairs left through each other as modelled (remesh.separate "
+                     "could not move them apart): no contact between the two of a pair")
         if result.cut_rim is not None:
             artifact.put(h5, "mesh/cut_rim", result.cut_rim.astype(bool),
                          "(V,) the rims a cut made (remesh.separate cut away the parts of "

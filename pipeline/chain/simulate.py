@@ -25,7 +25,6 @@ from pipeline.config import Config
 from pipeline.errors import BloomError
 from pipeline.flower import stagger
 from pipeline.flower.measure import Start, bloom_start, petals_within_reach
-from pipeline.mesh.separate import patch_groups
 from pipeline.review import report
 from pipeline.sim import checkpoint
 from pipeline.sim.build import Prepared
@@ -47,7 +46,7 @@ HOLD_BOWL = 0.35
 HOLD_KEYS = ("axis.base", "axis.base_fraction", "axis.base_region", "axis.base_band")
 
 #: what the later stages need of growth.h5, carried forward
-CARRIED = ("mesh/faces", "mesh/petal", "mesh/patch", "mesh/part_names", "mesh/part", "axis/base",
+CARRIED = ("mesh/faces", "mesh/petal", "mesh/left", "mesh/part_names", "mesh/part", "axis/base",
            "axis/on_axis", "axis/x", "axis/s", "axis/tip", "axis/plane", "growth/hinges",
            "input/asset", "bind", "flower/petal_flower")
 
@@ -131,9 +130,9 @@ def run(growth_h5: str | Path, out: str | Path, cfg: Config, *, overwrite: bool 
                                  diag.get("opening_angle_per_petal", np.zeros((len(positions), 0))),
                                  distance_to_model=attrs.get("distance_to_model"),
                                  bud_closed=attrs.get("bud_closed"),
-                                 petal_names=names, petal=petal, patch=prep.patch,
+                                 petal_names=names, petal=petal, left=prep.left,
                                  intersecting=frame_intersections(seen, prep.faces, petal,
-                                                                  prep.patch),
+                                                                  prep.left),
                                  held_flowers=result.held,
                                  stopped=attrs.get("bloom_stopped_at"))
         diag["intersecting"] = np.asarray(sound["intersecting"], dtype=bool)
@@ -273,10 +272,9 @@ def decide_effects(cfg: Config, prep: Prepared) -> list[str]:
             of = np.zeros(count, dtype=np.int64)
             of[prep.petal] = prep.flower
             pairs = [(a, b) for a, b in pairs if of[a] == of[b]]
-        if prep.patch is not None:  # (petals left through each other as modelled: no contact)
-            together = {(a, b) for g in patch_groups(prep.petal, prep.patch)
-                        for i, a in enumerate(g) for b in g[i + 1:]}
-            pairs = [pair for pair in pairs if pair not in together]
+        if prep.left is not None:  # (petals left through each other as modelled: no contact)
+            left = {(min(a, b), max(a, b)) for a, b in np.asarray(prep.left).tolist()}
+            pairs = [pair for pair in pairs if (min(pair), max(pair)) not in left]
         if pairs:
             names.append("collisions")
             log.info("effects.collisions.enabled = auto: on (%d pair(s) of %d petals can meet)",

@@ -33,10 +33,9 @@ def separate_sheets(sheets, *, gap: float, names: list[str], where: str, progres
     petal (:func:`pipeline.mesh.trim.buried`: the parts hidden inside the other petal and
     the centre; ``cut``, each petal's share of area, the mesh's faces and vertices go with
     them), and are moved apart again. What is still through another is left as modelled,
-    named in a warning: ``left``, and ``patch`` (V,) each vertex's contact patch (its
-    petal's, or one shared by petals left through each other: contact between them is
-    off). Raises :class:`BloomError` naming ``where`` (the input file), the parts and the
-    key when a move would fold a petal over itself."""
+    named in a warning: ``left``, the pairs (contact between the two of a pair is off;
+    each keeps it with every other petal). Raises :class:`BloomError` naming ``where``
+    (the input file), the parts and the key when a move would fold a petal over itself."""
     petal = sheets.petal
     part_of = np.zeros(int(petal.max()) + 1, dtype=np.int64)
     part_of[petal] = sheets.part
@@ -67,7 +66,7 @@ def separate_sheets(sheets, *, gap: float, names: list[str], where: str, progres
                 "each other)", where=where) from None
 
     done = first = moved_apart()
-    cut = _cut_buried(sheets, done.left) if done.left else None
+    cut = _cut_buried(sheets, done.stuck) if done.stuck else None
     if cut is not None:
         log.info("%s: cut away the parts of petals buried in other petals toward the centre "
                  "(too deep to move apart): %s (%s)", where, ", ".join(
@@ -76,9 +75,10 @@ def separate_sheets(sheets, *, gap: float, names: list[str], where: str, progres
         done = moved_apart()  # (the cut petals, from where they were modelled)
     petal = sheets.petal
     if done.left:
-        log.warning("%s: petals %s pass through each other too far to move apart (%s): they "
-                    "are left as modelled, and contact between them is off (the others keep "
-                    "it; %s)", where, pairs(done.left), done.reason, KEY)
+        log.warning("%s: petals %s pass through or touch each other too far to move apart "
+                    "(%s): they are left as modelled, with no contact between the two of a "
+                    "pair (each keeps it with every other petal; %s)", where,
+                    pairs(done.left), done.reason, KEY)
     moved = np.unique(petal[np.any(done.vertices != sheets.vertices, axis=1)])
     sheets.vertices = done.vertices
     changed = np.union1d(moved, [] if cut is None else np.flatnonzero(cut.lost)).astype(np.int64)
@@ -90,7 +90,7 @@ def separate_sheets(sheets, *, gap: float, names: list[str], where: str, progres
             "close_parts": pairs(first.close), "moved": done.moved,
             "moved_petals": [int(p) for p in moved], "largest": done.largest, "rms": done.rms,
             "rounds": done.iterations, "left": [list(p) for p in done.left],
-            "left_parts": pairs(done.left), "patch": done.patch,
+            "left_parts": pairs(done.left),
             "distance": done.distance if np.isfinite(done.distance) else None}
 
 

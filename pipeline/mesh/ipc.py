@@ -1,5 +1,5 @@
 """ipctk (the contact library: exact crossing tests, distances, the barrier) on one
-thread: :func:`ipctk`.
+thread: :func:`ipctk`; and which vertex pairs may collide: :class:`Filter`.
 
 Its broad phase finds candidates in threads, in an order the scheduling decides, and
 where several candidates give the same contact (a vertex nearest an edge that two faces
@@ -7,6 +7,8 @@ share) which one is kept follows that order: the rose bed's separation differed 
 from one run to the next. On one thread every list is the same every run."""
 
 from __future__ import annotations
+
+import numpy as np
 
 _SET = False  #: whether ipctk has been put on one thread
 
@@ -20,3 +22,50 @@ def ipctk():
         module.set_num_threads(1)
         _SET = True
     return module
+
+
+class Filter:
+    """Which vertex pairs of a collision mesh may collide: never two of one label (of
+    each array of ``labels``: a petal, a flower, a spot of a petal left to itself), nor a
+    vertex of petal ``a`` with one of petal ``b`` for a pair ``(a, b)`` of ``pairs``
+    (``petal``: (V,) each vertex's; petals left through each other as modelled).
+
+    ipctk filters vertex pairs by patches (two vertices of one patch never collide), and
+    its filters combine by ``&``. A pair is one patch of its two petals; the pairs are
+    coloured so that no petal is in two pairs of one colour (greedy: at most twice the
+    most pairs of one petal), and each colour is one patches filter: two petals are kept
+    apart exactly where they are not a pair, not where a chain of pairs joins them. The
+    arrays the filters read live with this object: keep it as long as the mesh."""
+
+    def __init__(self, *labels, petal=None, pairs=()):
+        self.arrays = [np.ascontiguousarray(a, dtype=np.int32) for a in labels]
+        pairs = sorted({(min(int(a), int(b)), max(int(a), int(b))) for a, b in pairs})
+        if pairs:
+            petal = np.asarray(petal, dtype=np.int64)
+            count = max(int(petal.max()) + 1, pairs[-1][1] + 1)
+            used: dict[int, set] = {}
+            colours: list[list] = []
+            for a, b in pairs:  # (greedy edge colouring: each colour a matching)
+                c = 0
+                while c in used.setdefault(a, set()) or c in used.setdefault(b, set()):
+                    c += 1
+                used[a].add(c)
+                used[b].add(c)
+                if c == len(colours):
+                    colours.append([])
+                colours[c].append((a, b))
+            for matching in colours:
+                label = np.arange(count, dtype=np.int64)
+                for a, b in matching:
+                    label[b] = a
+                self.arrays.append(np.ascontiguousarray(label[petal], dtype=np.int32))
+        module = ipctk()
+        self.filter = None
+        for a in self.arrays:
+            f = module.make_vertex_patches_filter(a)
+            self.filter = f if self.filter is None else self.filter & f
+
+    def apply(self, mesh) -> None:
+        """Give the mesh this filter (none: every pair may collide)."""
+        if self.filter is not None:
+            mesh.can_collide = self.filter

@@ -4,7 +4,10 @@ For each pair of petals that cross, the side most of their overlap lies on (by a
 decides which way each goes; the vertices on the wrong side, and those joined to a
 crossing, are pushed across, shared between the two petals, by one smooth least-squares
 move per round; rounds go on until ipctk's exact test finds no crossing and no pair is
-nearer than the gap. The module is long because those steps (finding the crossings and
+nearer than the gap. Pairs too far into each other are put back as modelled; in the
+rounds, chains of such pairs join their petals in one group the test leaves alone, and
+at the end the pairs of a group that cross or touch are those left (the others keep
+contact). The module is long because those steps (finding the crossings and
 the sides, the pushes, the smooth move, the rounds and the refusal that names the pairs)
 share per-pair records and are only meaningful together."""
 
@@ -18,6 +21,7 @@ from scipy.sparse.csgraph import connected_components, dijkstra
 from scipy.sparse.linalg import splu
 from scipy.spatial import cKDTree
 
+from pipeline.mesh.ipc import Filter
 from pipeline.mesh.ipc import ipctk as one_thread
 from pipeline.mesh.nearest import Triangles
 from pipeline.mesh.topology import by_label, face_normals, unique_edges, vertex_normals
@@ -62,13 +66,15 @@ class Separation:
     iterations: int = 0  #: rounds of push and check
     distance: float = np.inf  #: smallest distance between two petals after (inf: none near)
     length: np.ndarray = None  #: (P,) the length of each petal the moves are measured in
-    #: petal pairs left through each other (``leave=True``): too far into each other to
-    #: move apart within the bounds; each was put back as it was, and the two are one
-    #: patch of :attr:`patch` (contact between them is off)
+    #: petal pairs left through each other as modelled, or touching (``leave=True``):
+    #: too far into each other to move apart within the bounds, their petals put back as
+    #: they were; contact between the two of a pair is off, each keeps it with every
+    #: other petal
     left: list = field(default_factory=list)
     reason: str = ""  #: why the first of ``left`` could not be separated
-    patch: np.ndarray = None  #: (V,) the contact patch of each vertex: its petal's, or the
-    #: smallest petal of a group left through each other
+    #: the pairs the rounds gave up on (their petals put back; ``left`` holds the pairs of
+    #: the petals chained by these that cross or touch at the end)
+    stuck: list = field(default_factory=list)
 
 
 class SeparationError(ValueError):
@@ -94,8 +100,8 @@ def separate(vertices: np.ndarray, faces: np.ndarray, petal: np.ndarray, gap: fl
     max_move : float, the bound on any vertex's move, as a fraction of its petal's length
     max_iterations : int, the bound on the rounds of push and check
     leave : bool, where pairs cannot be moved apart within the bounds, put both petals
-        back as they were and leave them through each other (``Separation.left``; their
-        vertices one contact patch), and separate the others, instead of raising
+        back as they were and leave them through each other (``Separation.left``), and
+        separate the others, instead of raising
 
     Returns
     -------
@@ -144,7 +150,7 @@ def separate(vertices: np.ndarray, faces: np.ndarray, petal: np.ndarray, gap: fl
     F = np.ascontiguousarray(faces, dtype=np.int64)
     petal = np.ascontiguousarray(petal, dtype=np.int64)
     if len(X0) == 0 or len(F) == 0:
-        return Separation(X0, length=np.zeros(0), patch=petal.copy())
+        return Separation(X0, length=np.zeros(0))
     count = int(petal.max()) + 1
     length = _petal_lengths(X0, petal, count)
     E = np.asarray(ipctk.edges(np.asfortranarray(F, dtype=np.int32)), dtype=np.int64)
@@ -163,7 +169,7 @@ def separate(vertices: np.ndarray, faces: np.ndarray, petal: np.ndarray, gap: fl
         pushes see those pairs again). Returns the patches."""
         back = np.isin(petal, [q for pair in pairs for q in pair])
         X[back] = X0[back]
-        joined = np.ascontiguousarray(_patches(petal, count, left), dtype=np.int32)
+        joined = np.ascontiguousarray(joined_labels(petal, count, left), dtype=np.int32)
         mesh.can_collide = ipctk.make_vertex_patches_filter(joined)
         return joined
 
@@ -199,7 +205,7 @@ def separate(vertices: np.ndarray, faces: np.ndarray, petal: np.ndarray, gap: fl
             close0 = sorted({(a, b) for a, b, _, _ in close} - set(crossed0))
             if not crossed0 and not close0:
                 return Separation(X0, moved=0, distance=_min_distance(mesh, X0, gap),
-                                  length=length, patch=petal.copy())
+                                  length=length)
         if not len(crossing) and not close:
             break
         stalled = _stalled(counts)
@@ -239,11 +245,14 @@ def separate(vertices: np.ndarray, faces: np.ndarray, petal: np.ndarray, gap: fl
         leave_all(sorted(set(pairs) - set(left)))
         reason = reason or why
     move = np.linalg.norm(X - X0, axis=1) / length[petal]
-    left = sorted(set(left))
+    stuck, keep = sorted(set(left)), None
+    if left:  # (pair by pair: what crosses or touches at the end, in the rounds' groups)
+        left = _left_pairs(mesh, X, F, E, petal, joined_labels(petal, count, left), gap)
+        keep = Filter(petal, petal=petal, pairs=left)  # (lives as long as the mesh)
+        keep.apply(mesh)
     return Separation(X, crossed0, close0, int(np.count_nonzero(np.any(X != X0, axis=1))),
                       float(move.max()), float(np.sqrt(np.mean(move ** 2))), it,
-                      _min_distance(mesh, X, gap), length, left, reason,
-                      _patches(petal, count, left))
+                      _min_distance(mesh, X, gap), length, left, reason, stuck)
 
 
 def _stalled(counts: list[int]) -> int:
@@ -272,22 +281,34 @@ def _culprits(X0, petal, over, pairs) -> list[tuple[int, int]]:
     return sorted(out)
 
 
-def patch_groups(petal, patch) -> list[list[int]]:
-    """The petals that share a contact patch (left through each other as modelled), a
-    list per patch of two petals or more, each ascending; [] when every petal is its own
-    patch. ``petal`` and ``patch``: (V,) each vertex's (remesh.h5's ``mesh/petal`` and
-    ``mesh/patch``)."""
-    petal, patch = np.asarray(petal), np.asarray(patch)
-    of = np.zeros(int(petal.max()) + 1 if len(petal) else 0, dtype=np.int64)
-    of[petal] = patch
-    groups = [np.flatnonzero(of == q).tolist() for q in np.unique(of)]
-    return [g for g in groups if len(g) > 1]
+def _left_pairs(mesh, X, F, E, petal, group, gap) -> list[tuple[int, int]]:
+    """The pairs of petals of one group (``group`` (V,): each vertex's; petals joined by
+    chains of pairs left as modelled in the rounds) that pass through each other at ``X``
+    or are nearer than ``gap``: those left as modelled, with no contact between the two.
+    The rest of a group's pairs keep contact: the first rose of the rose bed is one group
+    (63 pairs left in the rounds chain its 50 petals), and of its 1,225 pairs 255 cross at
+    the end and 11 more are nearer than the gap.
+    ``mesh``: the collision mesh, given every petal pair (its filter is set here)."""
+    crossing = _pair_list(crossings(X, F, E, petal), E, F, petal)
+    keep = Filter(petal, petal=petal, pairs=crossing)  # (lives until the search is done)
+    keep.apply(mesh)
+    found = one_thread().NormalCollisions()
+    found.build(mesh, np.asfortranarray(X), gap)
+    edges, faces = mesh.edges, mesh.faces
+    near = set()
+    for k in range(len(found)):  # (found[k] refers into found: let go of it first)
+        ids = {int(petal[i]) for i in found[k].vertex_ids(edges, faces) if i >= 0}
+        if len(ids) == 2:
+            near.add(tuple(sorted(ids)))
+    same = np.zeros(int(petal.max()) + 1, dtype=np.int64)
+    same[petal] = group
+    return sorted(p for p in set(crossing) | near if same[p[0]] == same[p[1]])
 
 
-def _patches(petal, count: int, pairs) -> np.ndarray:
-    """``(V,)`` each vertex's patch: its petal, or, for petals joined by ``pairs``, the
-    smallest petal of their group."""
-    if not pairs:
+def joined_labels(petal, count: int, pairs) -> np.ndarray:
+    """``(V,)`` each vertex's label: its petal, or, for petals joined by ``pairs`` (and
+    chains of them; ``count`` petals), the smallest petal of their group."""
+    if len(pairs) == 0:
         return np.asarray(petal, dtype=np.int64).copy()
     a, b = np.asarray(pairs, dtype=np.int64).T
     graph = sp.coo_matrix((np.ones(len(a)), (a, b)), shape=(count, count))
@@ -299,9 +320,10 @@ def _patches(petal, count: int, pairs) -> np.ndarray:
 
 # --- finding what to move -------------------------------------------------------------------
 
-def crossings(X, F, E, petal) -> np.ndarray:
+def crossings(X, F, E, petal, left=()) -> np.ndarray:
     """(k, 2) the (edge, face) pairs of different petals where the edge passes through the
-    face (ipctk's exact test, the one ``has_intersections`` makes), sorted."""
+    face (ipctk's exact test, the one ``has_intersections`` makes), sorted; none of two
+    petals of a pair of ``left`` (pairs ``(a, b)``, left through each other)."""
     ipctk = one_thread()
 
     Xf = np.asfortranarray(X)
@@ -312,6 +334,8 @@ def crossings(X, F, E, petal) -> np.ndarray:
         return np.zeros((0, 2), dtype=np.int64)
     ids = np.array([(c.edge_id, c.face_id) for c in found], dtype=np.int64)
     ids = ids[petal[E[ids[:, 0], 0]] != petal[F[ids[:, 1], 0]]]
+    if len(left):
+        ids = ids[~_among(petal[E[ids[:, 0], 0]], petal[F[ids[:, 1], 0]], left)]
     # (a cheap first look: the edge's ends on either side of the face's plane, or on it)
     tri = X[F[ids[:, 1]]]
     n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
@@ -325,16 +349,23 @@ def crossings(X, F, E, petal) -> np.ndarray:
     return out[np.lexsort((out[:, 1], out[:, 0]))]
 
 
-def crossed_pairs(X, F, patch) -> list[tuple[int, int]]:
-    """The pairs of patches (``patch`` (V,): each vertex's) with an edge of one through a
-    triangle of the other (ipctk's exact test), sorted: one pass over the mesh (a BVH),
-    not a test per pair."""
-    ipctk = one_thread()
+def _among(a, b, pairs) -> np.ndarray:
+    """Whether each ``(a[i], b[i])`` (either order) is one of ``pairs``."""
+    pairs = np.asarray(pairs, dtype=np.int64).reshape(-1, 2)
+    n = int(max(np.max(a, initial=0), np.max(b, initial=0), pairs.max(initial=0))) + 1
+    keys = np.minimum(pairs[:, 0], pairs[:, 1]) * n + np.maximum(pairs[:, 0], pairs[:, 1])
+    return np.isin(np.minimum(a, b) * n + np.maximum(a, b), keys)
 
+
+def crossed_pairs(X, F, petal, left=()) -> list[tuple[int, int]]:
+    """The pairs of petals (``petal`` (V,): each vertex's; or of any labels) with an edge
+    of one through a triangle of the other (ipctk's exact test), sorted, but the pairs of
+    ``left``: one pass over the mesh (a BVH), not a test per pair."""
+    ipctk = one_thread()
     F = np.ascontiguousarray(F, dtype=np.int64)
     E = np.asarray(ipctk.edges(np.asfortranarray(F, dtype=np.int32)), dtype=np.int64)
-    patch = np.ascontiguousarray(patch, dtype=np.int64)
-    return _pair_list(crossings(np.asarray(X, dtype=np.float64), F, E, patch), E, F, patch)
+    petal = np.ascontiguousarray(petal, dtype=np.int64)
+    return _pair_list(crossings(np.asarray(X, dtype=np.float64), F, E, petal, left), E, F, petal)
 
 
 def _folded(X, F, petal) -> list[int]:

@@ -19,7 +19,6 @@ from pipeline.flower import measure
 from pipeline.io import binding, userasset
 from pipeline.mesh import topology
 from pipeline.mesh.remesh import boundary_loops
-from pipeline.mesh.separate import patch_groups
 from pipeline.sim.explicit.pushback import build_face_grid, edges_through_faces
 from pipeline.sim.terms.contact import frame_intersections
 
@@ -65,7 +64,7 @@ def crossings(X, faces, petal) -> int:
 
 def soundness(positions: np.ndarray, faces: np.ndarray, opening_per_petal: np.ndarray, *,
               distance_to_model: float | None = None, petal_names: list[str] | None = None,
-              intersecting: list[bool] | None = None, petal=None, patch=None,
+              intersecting: list[bool] | None = None, petal=None, left=None,
               bud_closed: float | None = None, held_flowers=None,
               stopped: float | None = None) -> dict:
     """Whether a bloom is sound, from its arrays.
@@ -82,9 +81,9 @@ def soundness(positions: np.ndarray, faces: np.ndarray, opening_per_petal: np.nd
         frames as the user gets them: a file of staggered flowers has more than T); else
         checked here on ``positions``, exactly
         (:func:`pipeline.sim.contact.frame_intersections`).
-    petal, patch : (V,) each vertex's petal and contact patch (sim.h5's ``mesh/petal``
-        and ``mesh/patch``), or None: petals that share a patch were left through each
-        other as modelled, and their crossings are not counted (``left``: those pairs).
+    petal, left : (V,) each vertex's petal and (K, 2) the petal pairs left through each
+        other as modelled (sim.h5's ``mesh/petal`` and ``mesh/left``), or None: those
+        pairs' crossings are not counted (``left`` of the result: the pairs, named).
     bud_closed : an open start's bud in a flower: how much less its petals lean from
         their flower's axis than the model's (sim.h5's ``bud_closed``, degrees, the median
         over petals; negative: most hang open the other way, and the bloom closes them),
@@ -104,9 +103,9 @@ def soundness(positions: np.ndarray, faces: np.ndarray, opening_per_petal: np.nd
     """
     opening = np.asarray(opening_per_petal, dtype=np.float64).reshape(len(positions), -1)
     if intersecting is None:
-        intersecting = frame_intersections(positions, faces, petal, patch)
-    groups = patch_groups(petal, patch) if petal is not None and patch is not None else []
-    left = [f"{a}-{b}" for g in groups for i, a in enumerate(g) for b in g[i + 1:]]
+        intersecting = frame_intersections(positions, faces, petal, left)
+    left = [] if left is None else [f"{a}-{b}" for a, b in
+                                     sorted(tuple(sorted(p)) for p in np.asarray(left).tolist())]
     final = opening[-1]
     names = list(petal_names) if petal_names is not None else [f"petal {p}" for p in
                                                                  range(len(final))]
@@ -253,9 +252,9 @@ def compute(sim) -> dict:
         crossing.append(crossings(frame, faces, petal) if petals > 1 else 0)
     curvature = np.asarray(curvature)
     # ipctk's exact test, self-contact included (simulate ran it and kept the answer)
-    patch = sim["mesh/patch"] if "mesh/patch" in sim else None
+    left = sim["mesh/left"] if "mesh/left" in sim else None
     intersecting = (sim["diagnostics/intersecting"].tolist() if "diagnostics/intersecting" in sim
-                    else frame_intersections(X, faces, petal, patch))
+                    else frame_intersections(X, faces, petal, left))
     diag = {k: sim[f"diagnostics/{k}"] for k in ("opening_angle_per_petal", "kinetic_energy")}
     distance = sim.attrs.get("distance_to_model")
     closed = sim.attrs.get("bud_closed")
@@ -265,7 +264,7 @@ def compute(sim) -> dict:
                       distance_to_model=None if distance is None else float(distance),
                       bud_closed=None if closed is None else float(closed),
                       petal_names=_names(sim, petal, faces), intersecting=intersecting,
-                      petal=petal, patch=patch)
+                      petal=petal, left=left)
     report = {
         "scene": sim.config().get("scene", {}).get("name", "") or sim.path.parent.name,
         "effects": [e for e in str(sim.attrs.get("effects", "")).split(",") if e],

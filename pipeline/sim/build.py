@@ -54,9 +54,9 @@ class Prepared:
     rest_angle: np.ndarray  #: (H,) dihedral angles of the rest state
     #: (V,) a thick petal's mid-surface thickness (mesh units; 0 for sheets), or None
     thickness: np.ndarray | None = None
-    #: (V,) each vertex's contact patch (its petal, or one shared by petals left through
-    #: each other as modelled: no contact between them), or None: its petal
-    patch: np.ndarray | None = None
+    #: (K, 2) petal pairs left through each other as modelled (remesh could not move them
+    #: apart): no contact between the two of a pair; None: none
+    left: np.ndarray | None = None
     #: (V,) each vertex's flower in a file of many (remesh's ``flower/petal_flower``), or
     #: None: one flower
     flower: np.ndarray | None = None
@@ -85,7 +85,7 @@ class Prepared:
                    src["growth/alpha"], src["growth/stiffness"], src["growth/hinges"],
                    src["growth/rest_angle"],
                    src["mesh/thickness"] if "mesh/thickness" in src else None,
-                   src["mesh/patch"] if "mesh/patch" in src else None,
+                   np.asarray(src["mesh/left"]) if "mesh/left" in src else None,
                    np.asarray(src["flower/petal_flower"])[np.asarray(src["mesh/petal"])]
                    if "flower/petal_flower" in src else None,
                    np.asarray(src["flower/axis"]) if "flower/axis" in src else None,
@@ -164,7 +164,15 @@ class Prepared:
             np.asarray(self.x)[idx], new[np.asarray(self.tip)[petals]],
             np.asarray(self.plane)[petals], axis, edges, np.asarray(self.alpha)[on_edge],
             np.asarray(self.stiffness)[on_edge], hinges, np.asarray(self.rest_angle)[on_hinge],
-            part(self.thickness), part(self.patch), **together), idx
+            part(self.thickness), self._left_among(renumber), **together), idx
+
+    def _left_among(self, renumber) -> np.ndarray | None:
+        """:attr:`left`'s pairs of petals both kept, in their new numbers (``renumber``
+        (P,): each petal's, -1 where it is not kept)."""
+        if self.left is None:
+            return None
+        pairs = renumber[np.asarray(self.left, dtype=np.int64).reshape(-1, 2)]
+        return pairs[np.all(pairs >= 0, axis=1)]
 
     def refined(self, levels: int, rule: dict, *, axes: dict | None = None) -> Prepared:
         """The same petals cut ``levels`` times finer (:func:`pipeline.mesh.subdivide.
@@ -186,7 +194,7 @@ class Prepared:
 
         v, f = np.asarray(self.vertices, dtype=np.float64), np.asarray(self.faces)
         fields = {"petal": self.petal, "base": self.base, "on_axis": self.on_axis, "s": self.s,
-                  "x": self.x, "thickness": self.thickness, "patch": self.patch,
+                  "x": self.x, "thickness": self.thickness,
                   "flower": self.flower}
         fields = {k: None if a is None else np.asarray(a) for k, a in fields.items()}
         for _ in range(levels):
@@ -199,7 +207,7 @@ class Prepared:
                     new = a[i] & a[j]
                 elif k in ("s", "x", "thickness"):
                     new = 0.5 * (a[i] + a[j])
-                else:  # (petal, patch, flower: an edge's ends share them)
+                else:  # (petal, flower: an edge's ends share them)
                     new = a[i]
                 fields[k] = np.concatenate([a, new])
         tip, plane = np.asarray(self.tip), np.asarray(self.plane)
@@ -299,7 +307,7 @@ class Prepared:
         if max_edge is None:
             max_edge = self.max_grown_edge()
         return fx.build(names, vertices=positions, faces=self.faces, petal=self.petal,
-                        patch=self.patch, flower=self.flower if apart else None,
+                        left=self.left, flower=self.flower if apart else None,
                         pinned=self.base, on_axis=self.on_axis, plane=self.plane, s=self.s,
                         rest_angle=self.rest_angle if rest_angle is None else rest_angle,
                         flower_axis=self.flower_axis, max_edge=max_edge, params=params,

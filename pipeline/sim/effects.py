@@ -24,7 +24,6 @@ from dataclasses import dataclass, field, fields, replace
 import numpy as np
 
 from pipeline.config import Config, load_config
-from pipeline.mesh.separate import patch_groups
 from pipeline.sim.explicit.pushback import Collisions
 from pipeline.sim.terms.center_plane import CenterPlane, project_out_normals
 from pipeline.sim.terms.connections import Connections
@@ -219,11 +218,11 @@ class Effects:
 
 
 def build(names, *, vertices, faces, petal, pinned, on_axis, plane, s, rest_angle,
-          flower_axis, max_edge: float, params: Params, patch=None, flower=None,
+          flower_axis, max_edge: float, params: Params, left=None, flower=None,
           pushback: bool = True, contact_faces=None) -> Effects:
     """Build the enabled effects (``names``) from the mesh and their parameters.
-    ``patch`` (V,): contact patches (petals left through each other as modelled share one,
-    and do not collide); None: each petal its own. ``flower`` (V,): each vertex's flower
+    ``left`` (K, 2): petal pairs left through each other as modelled (no contact between
+    the two of a pair), or None. ``flower`` (V,): each vertex's flower
     in a file of many (each flower blooms as a problem of its own, with contact among its
     own petals only); None: one flower. ``pushback``: the collisions' arrays for the
     push-back of the dynamic integrators (False: the quasi-static solver's contact only).
@@ -241,13 +240,11 @@ def build(names, *, vertices, faces, petal, pinned, on_axis, plane, s, rest_angl
         c = params.collisions
         fx.collisions = Collisions.build(vertices, faces if contact_faces is None
                                          else contact_faces,
-                                         petal if patch is None else patch,
-                                         offset=c.offset,
+                                         petal, offset=c.offset,
                                          max_edge=max_edge, thickness=c.thickness,
-                                         pushback=pushback)
+                                         pushback=pushback, left=left)
         if contact_faces is not None:
             fx.collisions.in_contact = int(np.max(contact_faces)) + 1
-        fx.collisions.joined = patch is not None and bool(patch_groups(petal, patch))
         if flower is not None and len(flower) and int(np.max(flower)) > 0:
             fx.collisions.vertex_flower = np.asarray(flower, dtype=np.int64)
     if "connections" in names:

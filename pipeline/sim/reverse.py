@@ -317,12 +317,12 @@ def contact_free(lift, positions, effects):
         np.flatnonzero(flower == f) for f in range(int(flower.max()) + 1)]
     cuts = []
     for f, idx in enumerate(groups):
-        faces, petal = c.faces, c.vertex_petal
+        faces, petal = c.faces, c.petal
         if flower is not None:  # (the flower's own faces, on its own vertices)
             faces = np.searchsorted(idx, faces[flower[faces[:, 0]] == f])
             petal = petal[idx]
         contact = Contact.build(X[idx], faces, petal, gap=c.thickness, stiffness=1.0,
-                                own=not c.joined, count=None if c.in_contact is None
+                                left=c.left, count=None if c.in_contact is None
                                 else int(np.sum(idx < c.in_contact)))
         fraction = contact.max_step(X[idx], X[idx] + out[idx])
         if fraction < 1.0:

@@ -31,7 +31,6 @@ import h5py
 import numpy as np
 
 from pipeline.chain import SIMULATION, argv
-from pipeline.mesh.separate import patch_groups
 from pipeline.review.report import CLOSES_FIRST, NOT_OPEN, closing_dip
 
 #: an open model's last frame is within this fraction of a petal length of the model (RMS)
@@ -115,10 +114,10 @@ def judge(row: Row, h) -> None:
     failed = []
     if crossed.any():
         failed.append("petals through each other")
-    if "mesh/patch" in h:  # (pairs remesh could not part: left through each other)
-        left = sum(len(g) - 1 for g in patch_groups(petal, h["mesh/patch"][()]))
+    if "mesh/left" in h:  # (pairs remesh could not part: left through each other)
+        left = len(h["mesh/left"])
         if left:
-            failed.append(f"{left} petal(s) left through another as modelled")
+            failed.append(f"{left} pair(s) of petals left through each other as modelled")
     if row.start == "open":
         if not row.distance <= ON_MODEL:
             failed.append(f"ends {row.distance:.3g} petal lengths from the model")

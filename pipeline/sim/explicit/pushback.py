@@ -10,6 +10,8 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
+from pipeline.mesh.separate import joined_labels
+
 
 @njit(cache=True, inline="always")
 def _cell_hash(ix, iy, iz, size):
@@ -337,9 +339,13 @@ class Collisions:
     #: gap the quasi-static solver's contact barrier keeps between petals (mesh units);
     #: the push-back above does not use it
     thickness: float
-    #: ``vertex_petal`` holds contact patches that join petals (left through each other
-    #: as modelled): the barrier then keeps no petal off itself (see the contact's build)
-    joined: bool = False
+    #: (K, 2) petal pairs left through each other as modelled (no contact between the
+    #: two), or None. The push-back keeps its sides per label, so for it
+    #: ``vertex_petal`` and ``face_petal`` join the petals of such pairs, and of chains of
+    #: them, in one label; the quasi-static solver's barrier reads :attr:`petal` and the
+    #: pairs themselves (:class:`pipeline.sim.terms.contact.Contact`)
+    left: np.ndarray | None = None
+    petal: np.ndarray | None = None  #: (V,) each vertex's petal
     #: ``(V,)`` each vertex's flower in a file of many, or None (one flower): flowers bloom
     #: as problems apart (each from its own bud, and staggered in time by the scene, so
     #: their petals are never in one equilibrium), contact kept within each flower
@@ -352,7 +358,7 @@ class Collisions:
     @classmethod
     def build(cls, vertices, faces, petal, *, offset: float, max_edge: float,
               thickness: float, margin: float = 0.2, slack: float = 0.1,
-              pushback: bool = True) -> Collisions:
+              pushback: bool = True, left=None) -> Collisions:
         """Which side of another petal a vertex belongs on is the side it is on when it
         comes near that petal (within the margin, over or under one of its faces): the
         kernel records it then. For vertices near another petal in the bud that is the
@@ -362,10 +368,13 @@ class Collisions:
 
         ``pushback``: allocate the push-back's ``(V, P)`` arrays (``side``, ``near``); the
         quasi-static solver's contact does not read them (False: empty), and at a branch's
-        50,000 vertices and 5,000 petals they would take 2 GB."""
+        50,000 vertices and 5,000 petals they would take 2 GB. ``left``: :attr:`left`."""
         v = np.asarray(vertices, dtype=np.float64)
         f = np.ascontiguousarray(faces, dtype=np.int64)
-        petal = np.ascontiguousarray(petal, dtype=np.int64)
+        own = np.ascontiguousarray(petal, dtype=np.int64)
+        left = None if left is None or not len(left) else np.asarray(left, dtype=np.int64)
+        petal = own if left is None else joined_labels(own, max(int(own.max()), int(left.max())) + 1,
+                                                       left)
         count = int(petal.max()) + 1
         size = 4 * len(f) + 1
         cell = max_edge + 2.0 * (margin + offset + slack)
@@ -376,7 +385,7 @@ class Collisions:
                    np.zeros(27 * len(f), dtype=np.int64), v.copy(),
                    np.zeros(len(v) + 1, dtype=np.int64), np.zeros(64 * len(v), dtype=np.int64),
                    np.zeros(count, dtype=np.int64), np.zeros(count),
-                   np.zeros((rows, cols), dtype=np.int8), float(thickness))
+                   np.zeros((rows, cols), dtype=np.int8), float(thickness), left=left, petal=own)
 
     def near_pairs(self, X, reach: float) -> int:
         """List the near pairs at ``X`` (as the kernel does when it rebuilds)."""
@@ -386,3 +395,4 @@ class Collisions:
         return lost + near_pairs(X, self.faces, self.face_petal, self.vertex_petal, free,
                                          reach, cell, self.start, self.count, self.items,
                                          self.pair_start, self.pair_faces)
+

@@ -132,11 +132,11 @@ def split(model: Model, effects: Effects, positions=None) -> list[Piece]:
             cell, offset, margin, slack = (float(x) for x in k.params)
             faces = k.faces[label[k.faces[:, 0]] == c]
             fx.collisions = Collisions.build(
-                positions[idx], local[faces], k.vertex_petal[idx],  # (the whole's labels:
+                positions[idx], local[faces], k.petal[idx],  # (the whole's numbers:
                 # a refusal of the cluster's start names the petals as the log does)
                 offset=offset, max_edge=cell - 2.0 * (margin + offset + slack),
-                thickness=k.thickness, margin=margin, slack=slack, pushback=False)
-            fx.collisions.joined = k.joined
+                thickness=k.thickness, margin=margin, slack=slack, pushback=False,
+                left=k.left)
             if k.in_contact is not None:  # (the cluster's vertices in contact come first)
                 fx.collisions.in_contact = int(np.sum(idx < k.in_contact))
         zeros = np.zeros((len(idx), 3))

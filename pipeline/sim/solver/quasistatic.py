@@ -221,9 +221,9 @@ class QuasiStatic:
             stiffness = float(model.edge_stiffness.max())
             if getattr(model, "shell", None) is not None:  # (in petal units: contact_stiffness)
                 stiffness = contact_stiffness(model.shell)
-            self.newton.contact = Contact.build(positions, c.faces, c.vertex_petal,
+            self.newton.contact = Contact.build(positions, c.faces, c.petal,
                                                 gap=c.thickness, stiffness=stiffness,
-                                                own=not c.joined, count=c.in_contact)
+                                                left=c.left, count=c.in_contact)
             if getattr(model, "shell", None) is not None:  # (its gap in units of the petal)
                 self.newton.contact.key = "effects.collisions.gap"
                 self.newton.contact.unit = model.shell.size

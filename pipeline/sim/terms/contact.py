@@ -13,10 +13,14 @@ collision detection (:meth:`Contact.max_step`), so no iterate ever comes closer 
   other (:func:`_own_contact`: a rim's hairpin turn, a sliver; those few vertices are
   left to themselves, the rest of the petal keeps off itself; with contact between
   petals only for all, the lotus's petal 2 folded through itself in one frame). Where a
-  petal passes through
-  itself or another at the start, contact is between petals only. The exact
-  intersection test of the report (:func:`frame_intersections`) checks
+  petal passes through itself or another at the start, contact is between petals only.
+  The exact intersection test of the report (:func:`frame_intersections`) checks
   self-intersections.
+- Two petals that remesh left through each other as modelled (``left``) have no contact
+  between them; each keeps it with every other petal (the pairs are left out of ipctk's
+  filter one by one, :class:`pipeline.mesh.ipc.Filter`, not joined in groups: on the
+  rose bed, groups joined by chains of such pairs took in whole roses, and their petals
+  passed through each other in 931 pairs more than modelled).
 - ``gap`` is the key ``effects.collisions.thickness``; the band over which the barrier
   acts is as wide again, so petals feel each other from ``2 gap`` on.
 - ``kappa`` makes the barrier as stiff, at the middle of its band, as the stiffest
@@ -44,8 +48,9 @@ from dataclasses import dataclass, field
 import numpy as np
 import scipy.sparse as sp
 
+from pipeline.mesh.ipc import Filter
 from pipeline.mesh.ipc import ipctk as one_thread
-from pipeline.mesh.separate import crossed_pairs, patch_groups
+from pipeline.mesh.separate import crossed_pairs
 from pipeline.sim.terms.term import Term
 
 
@@ -110,6 +115,10 @@ class Contact(Term):
     #: the vertex patches of the collision filter (two vertices of one patch never
     #: collide), or None (every petal keeps off itself too): :func:`_own_contact`
     _patches: np.ndarray | None = field(repr=False, default=None)
+    #: petal pairs left through each other as modelled (``(K, 2)``; no contact between the
+    #: two of a pair), or None
+    left: np.ndarray | None = field(repr=False, default=None)
+    _filter: object = field(repr=False, default=None)  #: the mesh's (its arrays live here)
     #: the contact's vertices are the first ``count`` (a mesh cut finer for the solve
     #: keeps its contact on the coarse mesh's triangles, whose vertices come first), or
     #: None: all
@@ -117,24 +126,29 @@ class Contact(Term):
 
     @classmethod
     def build(cls, positions, faces, petal, *, gap: float, stiffness: float,
-              own: bool = True, count: int | None = None) -> Contact:
+              left=None, count: int | None = None) -> Contact:
         """``stiffness``: what the barrier's curvature is at the middle of its band.
-        ``own``: a petal keeps off itself too (its triangles that share no vertex), where
-        the start allows it (:func:`_own_contact`); False: between petals only (``petal``
-        then holds patches that join petals left through each other). ``count``: only
-        the first ``count`` vertices are in contact (``faces`` on them), or None: all."""
+        A petal keeps off the others and off itself (its triangles that share no vertex),
+        where the start allows it (:func:`_own_contact`). ``left`` ``(K, 2)``: petal
+        pairs left through each other as modelled, with no contact between the two (each
+        keeps it with every other petal), or None. ``count``: only the first ``count``
+        vertices are in contact (``faces`` on them), or None: all."""
         ipctk = one_thread()
         X = np.asfortranarray(np.asarray(positions)[:count], dtype=np.float64)
         F = np.asfortranarray(faces, dtype=np.int32)
         mesh = ipctk.CollisionMesh(X, ipctk.edges(F), F)
         petal = np.ascontiguousarray(np.asarray(petal)[:count], dtype=np.int32)
-        patches = petal if not own else _own_contact(mesh, X, petal, 2.0 * gap)
-        if patches is not None:  # (the filter reads the array: it lives with the contact)
-            mesh.can_collide = ipctk.make_vertex_patches_filter(patches)
+        left = None if left is None or not len(left) else np.asarray(left, dtype=np.int64)
+        pairs = () if left is None else left.tolist()
+        apart = Filter(petal=petal, pairs=pairs)  # (every pair but those left)
+        apart.apply(mesh)
+        patches = _own_contact(mesh, X, petal, 2.0 * gap)
+        keep = Filter(*(() if patches is None else (patches,)), petal=petal, pairs=pairs)
+        keep.apply(mesh)
         band = gap
         kappa = stiffness / barrier_curvature(gap + 0.5 * band, gap, band)
         contact = cls(mesh, petal, float(gap), float(band), float(kappa), count=count)
-        contact._patches = patches
+        contact._patches, contact.left, contact._filter = patches, left, keep
         contact.potential = ipctk.BarrierPotential(contact.band, contact.kappa)
         contact.ccd = ipctk.AdditiveCCD()
         return contact
@@ -183,8 +197,10 @@ class Contact(Term):
 
     def intersecting_pairs(self, X) -> list[tuple[int, int]]:
         """Petal pairs that intersect at X (an edge of one through a triangle of the
-        other: one pass over the mesh, :func:`pipeline.mesh.separate.crossed_pairs`)."""
-        return crossed_pairs(self._mine(X), self.mesh.faces, self.petal)
+        other: one pass over the mesh, :func:`pipeline.mesh.separate.crossed_pairs`), but
+        those left through each other."""
+        return crossed_pairs(self._mine(X), self.mesh.faces, self.petal,
+                             () if self.left is None else self.left)
 
     def close_pairs(self, X, distance: float) -> list[tuple[int, int, float]]:
         """Petal pairs closer than ``distance`` at X, with their smallest distance."""
@@ -332,7 +348,8 @@ def _own_contact(mesh, X, petal, reach: float) -> np.ndarray | None:
     none within reach is left between patches); every other vertex is a patch of its own,
     so the rest of the petal keeps off itself. Returns the patches (``(V,)`` int32), or
     None where no vertex is joined. Where a petal passes through itself or another at
-    ``X``, contact is between petals only (every petal one patch). Logged."""
+    ``X`` (but for pairs the mesh's filter leaves out: petals left through each other as
+    modelled), contact is between petals only (every petal one patch). Logged."""
     ipctk = one_thread()
     log = logging.getLogger("bloom")
     if ipctk.has_intersections(mesh, X):
@@ -406,36 +423,33 @@ def crossings_between(frames, faces, group) -> list[bool]:
     return out
 
 
-def frame_intersections(frames, faces, petal=None, patch=None) -> list[bool]:
+def frame_intersections(frames, faces, petal=None, left=None) -> list[bool]:
     """For each frame ``(V, 3)`` of ``frames``, whether any two triangles of the mesh
     intersect (an exact edge-through-triangle test by ipctk; petals against each other
     and each against itself).
 
-    ``petal`` and ``patch`` ``(V,)``: petals that share a contact patch (left through
-    each other as modelled: remesh could not move them apart) may pass through each
-    other, and through themselves; the others are checked against every petal and
-    against themselves."""
+    ``petal`` ``(V,)`` and ``left`` ``(K, 2)``: the two petals of a pair of ``left`` (left
+    through each other as modelled: remesh could not move them apart) may pass through
+    each other; every other pair of petals, and each petal against itself, is checked."""
     ipctk = one_thread()
     F = np.asfortranarray(faces, dtype=np.int32)
     E = ipctk.edges(F)
-    groups = patch_groups(petal, patch) if petal is not None and patch is not None else []
+    pairs = [] if petal is None or left is None else np.asarray(left).reshape(-1, 2).tolist()
     out = []
-    mesh = between = None
+    mesh = between = keep = None
     alone = []
     for X in frames:
         X = np.asfortranarray(X, dtype=np.float64)
         if mesh is None:
             mesh = ipctk.CollisionMesh(X, E, F)
-            if groups:
+            if pairs:
                 between = ipctk.CollisionMesh(X, E, F)
-                patch32 = np.ascontiguousarray(patch, dtype=np.int32)
-                between.can_collide = ipctk.make_vertex_patches_filter(patch32)
                 petal = np.asarray(petal)
+                keep = Filter(petal, petal=petal, pairs=pairs)  # (lives as long as the mesh)
+                keep.apply(between)
                 face_petal = petal[np.asarray(faces)[:, 0]]
-                grouped = {q for g in groups for q in g}
-                single = [q for q in np.unique(petal).tolist() if q not in grouped]
-                for p in single:  # (each on its own vertices: memory linear in the mesh;
-                    # with the arrays it refers to: they must live)
+                for p in np.unique(petal).tolist():  # (each on its own vertices: memory
+                    # linear in the mesh; with the arrays it refers to: they must live)
                     mine = F[face_petal == p]
                     if len(mine):
                         verts = np.unique(mine)
@@ -444,7 +458,7 @@ def frame_intersections(frames, faces, petal=None, patch=None) -> list[bool]:
                         alone.append((verts, f, e, ipctk.CollisionMesh(
                             np.asfortranarray(X[verts]), e, f)))
         hit = bool(ipctk.has_intersections(mesh, X))
-        if hit and between is not None:  # (only between patches, and within a lone petal)
+        if hit and between is not None:  # (only between petals not left so, and within one)
             hit = bool(ipctk.has_intersections(between, X)) or any(
                 ipctk.has_intersections(m, np.asfortranarray(X[verts]))
                 for verts, _, _, m in alone)
