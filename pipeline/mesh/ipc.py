@@ -42,7 +42,7 @@ class Filter:
         pairs = sorted({(min(int(a), int(b)), max(int(a), int(b))) for a, b in pairs})
         if pairs:
             petal = np.asarray(petal, dtype=np.int64)
-            count = max(int(petal.max()) + 1, pairs[-1][1] + 1)
+            count = max(int(petal.max()), max(b for _, b in pairs)) + 1
             used: dict[int, set] = {}
             colours: list[list] = []
             for a, b in pairs:  # (greedy edge colouring: each colour a matching)
