@@ -191,6 +191,26 @@ def test_scene_flower_picks_one_flower(tmp_path, pick, flower):
         assert {names[i] for i in np.unique(h["mesh/part"][()])} == {f"Flower.{flower:03d}"}
 
 
+def test_a_flower_picked_from_a_part_of_several_binds_only_its_own_points(tmp_path):
+    """The three lilies in one part (as a rose bed's one petal mesh), flower 1 picked: the
+    user's points of that flower are bound to its sheets, the other flowers' stay where
+    they are (bound to the picked flower's petals, the rose bed's other roses swung
+    across the picture with them as it bloomed)."""
+    from pipeline.io.binding import read_bindings
+
+    v, f, petal, _ = bush(petals=5, vertices=600)
+    mesh = write_parts(tmp_path / "bed.obj", [("Petals", v, f)])
+    r = CliRunner().invoke(cli, ["remesh", str(mesh), "--out", str(tmp_path / "r.h5"),
+                                 "--set", "scene.flower=1"])
+    assert r.exit_code == 0, r.output
+    with h5py.File(tmp_path / "r.h5") as h:
+        assert h.attrs["petal_count"] == 5 and h.attrs["flower_picked"] == 1
+        b = read_bindings(h)[0]
+    mine = (petal >= 5) & (petal < 10)  # (flower 1's points, in the file's order)
+    assert len(b.face) == len(v)
+    assert np.all(b.face[mine] >= 0) and np.all(b.face[~mine] < 0)
+
+
 @pytest.mark.parametrize("pick, words", [("3", "0 to 2"), ("Nothing*", "no petal part"),
                                          ("Flower.*", "3 flowers")])
 def test_a_bad_scene_flower_is_one_line_naming_the_key(tmp_path, pick, words):

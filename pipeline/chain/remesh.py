@@ -236,7 +236,7 @@ def _bound_asset(mesh_path, mesh_file, result):
                     mesh_path, len(asset.parts), len(names))
         return None, {}
     bindings = binding.bind_parts(asset, result.scale, result.vertices, result.faces, result.part,
-                                  result.kept_parts)
+                                  result.kept_parts, result.unpicked)
     for i, b in sorted(bindings.items())[:LINES]:
         bound = b.face >= 0
         stay = int((~bound).sum())

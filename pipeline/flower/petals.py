@@ -82,6 +82,10 @@ class Petals:
     thickness: np.ndarray = None  #: (V,) mid-surface thickness in output units (0: a sheet)
     parts: list = field(default_factory=list)  #: per input part: {name, kind, reason, role}
     kept_parts: dict = field(default_factory=dict)  #: input index -> (vertices, faces), not petals
+    #: input index -> (vertices, faces) of the petal sheets ``scene.flower`` left out (the
+    #: other flowers of a part that holds several; input units): their pieces of the
+    #: user's mesh stay where they are
+    unpicked: dict = field(default_factory=dict)
     flower: np.ndarray = None  #: (V,) the flower each vertex's petal belongs to
     petal_flower: np.ndarray = None  #: (P,) the flower of each petal
     flower_centre: np.ndarray = None  #: (K, 3) where each flower's petal bases gather (output units)
@@ -639,10 +643,14 @@ def prepare_parts(mesh_file, *, where: str, target_edge: float = 0.0, petal_vert
                       np.concatenate([np.full(len(sv), k) for k, (sv, _, _, _) in enumerate(sheets)]),
                       joined=hubs)
     picked = _pick_flower(flower, grouped, [i for _, _, i, _ in sheets], names, where)
+    unpicked: dict = {}
     if picked is not None:
         notes.append(f"scene.flower = {flower!r}: flower {picked} of {grouped.count} "
                      f"({int(np.sum(grouped.flower == picked))} petals)")
         keep = np.flatnonzero(grouped.flower == picked)
+        for k in np.flatnonzero(grouped.flower != picked).tolist():
+            sv, sf, i, _ = sheets[k]
+            unpicked.setdefault(i, []).append((sv, sf))
         sheets = [sheets[k] for k in keep]
         sheet_flower = np.zeros(len(sheets), dtype=np.int64)
         centres = grouped.centre[[picked]]
@@ -662,6 +670,9 @@ def prepare_parts(mesh_file, *, where: str, target_edge: float = 0.0, petal_vert
     result.kept_parts = {i: (np.asarray(p.vertices), np.asarray(p.faces))
                          for i, p in enumerate(parts) if info[i]["role"] != "petal"}
     result.kept_parts.update({i: pf for i, pf in rest.items() if len(pf[1])})
+    result.unpicked = {i: (np.vstack([v for v, _ in got]), np.vstack(
+        [f + o for (_, f), o in zip(got, np.cumsum([0] + [len(v) for v, _ in got]), strict=False)]))
+        for i, got in unpicked.items()}
     result.petal_flower = np.asarray(sheet_flower, dtype=np.int64)[result.kept_sheets]
     result.flower = result.petal_flower[result.petal]
     result.flower_centre = np.asarray(centres) * result.scale

@@ -106,7 +106,8 @@ BIND_GROUP = "bind"
 
 
 def bind_parts(asset, scale: float, vertices: np.ndarray, faces: np.ndarray,
-               vertex_part: np.ndarray, kept: dict | None = None) -> dict[int, Binding]:
+               vertex_part: np.ndarray, kept: dict | None = None,
+               unpicked: dict | None = None) -> dict[int, Binding]:
     """Bind each part of ``asset`` (:class:`pipeline.io.userasset.Asset`, input units) that
     has sheet vertices (``vertex_part``: the input part of each sheet vertex) to its own
     sheet triangles (mesh units: the input times ``scale``). Parts without a sheet (not
@@ -114,7 +115,11 @@ def bind_parts(asset, scale: float, vertices: np.ndarray, faces: np.ndarray,
     that are no petal (``kept``: part -> ``(vertices, faces)`` of those pieces, input
     units, as remesh keeps them): a piece of the part's mesh whose points are mostly
     theirs stays (``face`` -1), where bound to the nearest petal it would follow it
-    through the bloom (a tulip's leaves, crumpling with its petals)."""
+    through the bloom (a tulip's leaves, crumpling with its petals); and the pieces nearer
+    the petal sheets ``scene.flower`` left out than the sheet they are bound to
+    (``unpicked``: part -> ``(vertices, faces)``, input units; the other roses of a rose
+    bed's one petal mesh, which bound to the picked rose swung with it across the
+    picture)."""
     F = np.asarray(faces, dtype=np.int64)
     face_part = np.asarray(vertex_part)[F[:, 0]] if len(F) else np.zeros(0, dtype=np.int64)
     face_piece = components(F, len(vertices))[F[:, 0]] if len(F) else np.zeros(0, dtype=np.int64)
@@ -129,6 +134,8 @@ def bind_parts(asset, scale: float, vertices: np.ndarray, faces: np.ndarray,
             piece = components(np.asarray(part.triangles(), dtype=np.int64).reshape(-1, 3),
                                len(points))
             stays = _not_petals(points / scale, piece, (kept or {}).get(i))
+            if (unpicked or {}).get(i) is not None:
+                stays |= _nearer_unpicked(points, piece, b, unpicked[i], scale)
             _keep_to_own_petal(b, points, piece, vertices, F, allowed, face_piece,
                                normals, stays)
             b.face[stays], b.bary[stays], b.offset[stays] = -1, 0.0, points[stays]
@@ -151,6 +158,19 @@ def _not_petals(points: np.ndarray, piece: np.ndarray, kept) -> np.ndarray:
     dist, _ = cKDTree(kept_v).query(points, distance_upper_bound=1e-9 * span)
     theirs = np.isfinite(dist)
     share = np.bincount(piece, weights=theirs) / np.maximum(np.bincount(piece), 1)
+    return share[piece] > 0.5
+
+
+def _nearer_unpicked(points, piece, b: Binding, unpicked, scale: float) -> np.ndarray:
+    """``(n,) bool``: the points of the pieces (``piece (n,)``) whose points are mostly
+    nearer the left-out sheets ``unpicked`` (input units) than to the sheet point ``b``
+    binds them to (``points`` in mesh units)."""
+    V = np.asarray(unpicked[0], dtype=np.float64) * scale
+    F = np.asarray(unpicked[1], dtype=np.int64)
+    face, bary = closest_points(points, V, F)
+    other = np.linalg.norm(points - np.einsum("ij,ijk->ik", bary, V[F[face]]), axis=1)
+    nearer = other < np.linalg.norm(b.offset, axis=1)
+    share = np.bincount(piece, weights=nearer) / np.maximum(np.bincount(piece), 1)
     return share[piece] > 0.5
 
 
