@@ -406,4 +406,3 @@ def test_petals_left_through_each_other_pair_by_pair_keep_contact_with_the_rest(
     for i, j in rng.integers(len(v), size=(500, 2)):
         a, b = sorted((petal[i], petal[j]))
         assert keep.filter(int(i), int(j)) == (a != b and (a, b) not in {(0, 1), (1, 2)})
-
