@@ -15,6 +15,24 @@ from tests.conftest import ROOT
 BLOOM = [sys.executable, "-c", "from stages.cli import main; main()"]
 
 
+def _signalled(proc, logged: str, after: float, sig) -> str:
+    """Send ``sig`` to ``proc`` ``after`` seconds past the stderr line holding ``logged``;
+    its stderr once it stopped (the test fails if it has not within 240 s)."""
+    said = ""
+    while logged not in said and proc.poll() is None:
+        said = proc.stderr.readline()
+    assert logged in said, said
+    time.sleep(after)
+    proc.send_signal(sig)
+    try:
+        _, err = proc.communicate(timeout=240)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        _, err = proc.communicate()
+        pytest.fail(f"bloom simulate did not stop within 240 s of the signal; stderr: {err[-2000:]}")
+    return err
+
+
 @pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT])
 def test_killed_simulate_keeps_the_previous_artifact(tmp_path, sig):
     mesh = tmp_path / "p.obj"
@@ -43,20 +61,10 @@ def test_killed_simulate_keeps_the_previous_artifact(tmp_path, sig):
                             # SIGINT ignored, and Python then installs no KeyboardInterrupt
                             # for it (the signal module's docs): give the child Ctrl-C's default
                             preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
-    started = ""  # "... steps of h ..." is logged once the model is built, just before stepping
-    while "steps of h" not in started and proc.poll() is None:
-        started = proc.stderr.readline()
-    assert "steps of h" in started, started
-    time.sleep(0.5)  # well inside the run
-    proc.send_signal(sig)
-    try:
-        # the signal is handled between compiled chunks (or after a cold compile of the
-        # kernels, which can take a minute on a loaded 2-core machine)
-        _, err = proc.communicate(timeout=240)
-    except subprocess.TimeoutExpired:
-        proc.kill()
-        _, err = proc.communicate()
-        pytest.fail(f"bloom simulate did not stop within 240 s of the signal; stderr: {err[-2000:]}")
+    # "... steps of h ..." is logged once the model is built, just before stepping; the
+    # signal is handled between compiled chunks (or after a cold compile of the kernels,
+    # which can take a minute on a loaded 2-core machine)
+    err = _signalled(proc, "steps of h", 0.5, sig)
     assert proc.returncode != 0
     assert "interrupted" in err and "Traceback" not in err
     assert out.read_bytes() == before
@@ -176,18 +184,7 @@ def test_a_killed_simulate_of_flowers_side_by_side_stops_its_workers(tmp_path):
     proc = subprocess.Popen([*BLOOM, "simulate", str(tmp_path / "g.h5"), "--out", str(out),
                              "--no-progress", *[a for kv in sets for a in ("--set", kv)]],
                             cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    said = ""
-    while "side by side" not in said and proc.poll() is None:
-        said = proc.stderr.readline()
-    assert "side by side" in said, said
-    time.sleep(2.0)  # (the workers stepping)
-    proc.send_signal(signal.SIGTERM)
-    try:
-        _, err = proc.communicate(timeout=240)
-    except subprocess.TimeoutExpired:
-        proc.kill()
-        _, err = proc.communicate()
-        pytest.fail(f"bloom simulate did not stop within 240 s of SIGTERM; stderr: {err[-2000:]}")
+    err = _signalled(proc, "side by side", 2.0, signal.SIGTERM)  # (the workers stepping)
     assert proc.returncode != 0 and "interrupted" in err and not out.exists()
     time.sleep(1.0)
     left = []

@@ -670,9 +670,7 @@ def prepare_parts(mesh_file, *, where: str, target_edge: float = 0.0, petal_vert
     result.kept_parts = {i: (np.asarray(p.vertices), np.asarray(p.faces))
                          for i, p in enumerate(parts) if info[i]["role"] != "petal"}
     result.kept_parts.update({i: pf for i, pf in rest.items() if len(pf[1])})
-    result.unpicked = {i: (np.vstack([v for v, _ in got]), np.vstack(
-        [f + o for (_, f), o in zip(got, np.cumsum([0] + [len(v) for v, _ in got]), strict=False)]))
-        for i, got in unpicked.items()}
+    result.unpicked = {i: topology.stack(got)[:2] for i, got in unpicked.items()}
     result.petal_flower = np.asarray(sheet_flower, dtype=np.int64)[result.kept_sheets]
     result.flower = result.petal_flower[result.petal]
     result.flower_centre = np.asarray(centres) * result.scale

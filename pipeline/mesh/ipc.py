@@ -59,11 +59,22 @@ class Filter:
                 for a, b in matching:
                     label[b] = a
                 self.arrays.append(np.ascontiguousarray(label[petal], dtype=np.int32))
+        self._combine()
+
+    def _combine(self) -> None:
         module = ipctk()
         self.filter = None
         for a in self.arrays:
             f = module.make_vertex_patches_filter(a)
             self.filter = f if self.filter is None else self.filter & f
+
+    def also(self, *labels) -> Filter:
+        """This filter, and never two vertices of one label of ``labels`` either (the
+        pairs' arrays shared, not coloured again)."""
+        out = Filter(*labels)
+        out.arrays += self.arrays
+        out._combine()
+        return out
 
     def apply(self, mesh) -> None:
         """Give the mesh this filter (none: every pair may collide)."""

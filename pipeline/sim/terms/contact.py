@@ -143,7 +143,7 @@ class Contact(Term):
         apart = Filter(petal=petal, pairs=pairs)  # (every pair but those left)
         apart.apply(mesh)
         patches = _own_contact(mesh, X, petal, 2.0 * gap)
-        keep = Filter(*(() if patches is None else (patches,)), petal=petal, pairs=pairs)
+        keep = apart if patches is None else apart.also(patches)
         keep.apply(mesh)
         band = gap
         kappa = stiffness / barrier_curvature(gap + 0.5 * band, gap, band)
