@@ -217,3 +217,32 @@ def test_a_coarse_bud_blooms_as_its_fine_mesh_does_when_solved_finer(tmp_path):
         want = fine["diagnostics/opening_angle"][-1]
         off = abs(coarse["diagnostics/opening_angle"][-1] - want)
         assert off < 2.5 and off < 0.5 * abs(plain["diagnostics/opening_angle"][-1] - want)
+
+
+def test_a_bloom_that_stops_cut_finer_is_solved_again_as_it_is(tmp_path, monkeypatch):
+    """Where the solve cut finer finds no equilibrium part way (contact pushes on the
+    user's own vertices only, and the fine triangles around one can collapse: a bud
+    remeshed to 200 vertices a petal stopped at A = 0.35 so), the bloom is solved again
+    on the mesh as it is: the same frames as a run asked for that (simulate.petal_vertices
+    = 0), and no record of a finer solve."""
+    import dataclasses
+
+    from pipeline.chain import problem as chain_problem
+
+    real = chain_problem._problem
+    asked = []
+
+    def stops_when_fine(prep, job, ckpt, label=""):
+        run = real(prep, job, ckpt, label)
+        asked.append(len(prep.vertices))
+        return dataclasses.replace(run, stopped=(0.35, 0)) if prep.contact_faces is not None \
+            else run
+
+    plain, _ = _bloom(tmp_path, "plain", 50, "simulate.petal_vertices=0")
+    monkeypatch.setattr(chain_problem, "_problem", stops_when_fine)
+    again, rest = _bloom(tmp_path, "again", 50)
+    with plain, again:
+        n = len(rest["vertices"])
+        assert asked == [asked[0], n] and asked[0] > 12 * n  # cut finer, then as it is
+        assert "solved_on_vertices" not in again.attrs
+        assert np.array_equal(again["frames/positions"][:], plain["frames/positions"][:])

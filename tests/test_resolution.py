@@ -98,3 +98,14 @@ def test_an_unknown_model_is_one_line_and_no_run(tmp_path):
                                  "--models", "shell,springs", "--out", str(tmp_path / "r")])
     assert r.exit_code != 0 and "--models" in r.output and "'springs'" in r.output
     assert "Traceback" not in r.output and not (tmp_path / "r").exists()
+
+
+def test_a_run_that_is_not_sound_says_so_in_the_table():
+    """A run whose bloom stopped (a bud remeshed to 200 vertices a petal once stopped at
+    A = 0.35 and read as 21.6 deg of opening, 41 deg off, among figures of 1 deg) is
+    marked in the table, and its row records it."""
+    rows = [{"model": "shell", "run": f"regular {n}", "reference": n == 800, "sound": ok,
+             "vertices": 6 * n, "opening": 60.0, "opening_difference": 0.5,
+             "shape_difference": 0.01} for n, ok in ((200, False), (800, True))]
+    lines = study.table(rows)
+    assert "regular 200 (unsound)" in lines[2] and "unsound" not in lines[3]

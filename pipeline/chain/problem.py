@@ -143,7 +143,26 @@ def problem(prep: Prepared, job: Job, ckpt: Path, label: str = "") -> Bloom:
              "vertices for %d), its frames those of its own vertices",
              cfg["simulate.petal_vertices"], label or "the bloom", levels, len(fine.vertices),
              len(prep.vertices))
-    return _problem(fine, job, ckpt, label).coarse(prep, fine)
+    try:
+        run = _problem(fine, job, ckpt, label)
+    except BloomError as exc:
+        run, fault = None, f"was refused ({exc.args[0] if exc.args else exc})"
+    else:
+        if run.stopped is None:
+            return run.coarse(prep, fine)
+        fault = f"stops at A = {run.stopped[0]:.4g} (petal {run.stopped[1]})"
+    # Contact keeps the user's own triangles apart, and on the finer mesh it pushes on
+    # their vertices only: where petals press hard, a few fine triangles around such a
+    # vertex take the whole push and collapse (a bud remeshed to 200 vertices a petal
+    # stopped at A = 0.35 so, where its own mesh blooms to the end)
+    log.warning("%s cut finer %s: solved again on the mesh as it is", label or "the bloom",
+                fault)
+    again = _problem(prep, job, ckpt.with_name(ckpt.name + "-as-is"), label)
+    if run is None or again.stopped is None or again.stopped[0] >= run.stopped[0]:
+        return again
+    log.warning("%s as it is stops earlier (A = %.4g): the bloom cut finer is kept",
+                label or "the bloom", again.stopped[0])
+    return run.coarse(prep, fine)
 
 
 def _problem(prep: Prepared, job: Job, ckpt: Path, label: str = "") -> Bloom:

@@ -180,7 +180,8 @@ def load(folder: Path) -> dict:
         P = h["frames/positions"][:] / h.attrs["scale"]  # (input units: comparable)
         return dict(P=P, s=h["axis/s"][:], x=h["axis/x"][:], faces=h["mesh/faces"][:],
                     petal=h["mesh/petal"][:], base=h["axis/base"][:], tip=h["axis/tip"][:],
-                    opening=h["diagnostics/opening_angle"][:])
+                    opening=h["diagnostics/opening_angle"][:],
+                    summary=str(h.attrs.get("summary", "")))
 
 
 def _matched(run: dict, ref: dict, frame: int) -> np.ndarray:
@@ -234,6 +235,7 @@ def measure(runs: dict[str, dict], reference: str) -> list[dict]:
     for name, r in runs.items():
         frames = min(len(r["opening"]), len(ref["opening"]))
         rows.append({"run": name, "reference": name == reference,
+                     "sound": r.get("summary", "sound").startswith("sound"),
                      "vertices": int(r["P"].shape[1]),
                      "opening": float(r["opening"][-1]),
                      "opening_difference": float(np.abs(r["opening"][:frames]
@@ -272,8 +274,10 @@ def resolution(out_dir, config, *, counts=COUNTS, overrides=(), kinds=("regular"
                             "remesh.max_petal_vertices=0"]  # (its own triangles, at any count)
                 run_scene(config, folder, overrides=(*overrides, *chosen, *sets))
                 runs[f"{kind} {n}"] = load(folder)
-                echo(f"{name}, {kind} {n}: {runs[f'{kind} {n}']['P'].shape[1]} vertices, "
-                     f"opening {runs[f'{kind} {n}']['opening'][-1]:.2f} deg")
+                run = runs[f"{kind} {n}"]
+                echo(f"{name}, {kind} {n}: {run['P'].shape[1]} vertices, opening "
+                     f"{run['opening'][-1]:.2f} deg" + ("" if run["summary"].startswith("sound")
+                                                        else f"; {run['summary']}"))
         rows += [{"model": name, **r} for r in measure(runs, f"regular {max(counts)}")]
     with open(out / "resolution.csv", "w", newline="") as f:
         writer = csv.DictWriter(f, fieldnames=list(rows[0]))
@@ -340,6 +344,6 @@ def table(rows: list[dict]) -> list[str]:
     for r in rows:
         diff = ("(reference) | (reference)" if r["reference"] else
                 f"{r['opening_difference']:.2f} deg | {100 * r['shape_difference']:.2f}%")
-        lines.append(f"| {r['model']} | {r['run']} | {r['vertices']} | {r['opening']:.2f} deg | "
-                     f"{diff} |")
+        lines.append(f"| {r['model']} | {r['run']}{'' if r.get('sound', True) else ' (unsound)'} "
+                     f"| {r['vertices']} | {r['opening']:.2f} deg | {diff} |")
     return lines
