@@ -879,11 +879,33 @@ def _remesh_half(h: float):
     return redo
 
 
+#: the most times a petal is cut finer before a remesh finer than it (:func:`_smooth_finer`)
+SMOOTH_CUTS = 3
+
+
+def _smooth_finer(pts, lf, h):
+    """A petal to be remeshed finer than it is (edge ``h`` under its own), cut finer first
+    (:func:`pipeline.mesh.subdivide.subdivide`: each new vertex on the smooth surface
+    through the old, the outline on its curve) until its mean edge is at most ``h``: the
+    remesher projects its vertices onto the input's triangles, so a coarse petal's new
+    vertices would lie on its flat facets. (A six-petal bud of 50 vertices a petal on an
+    irregular mesh, remeshed to about 100: its surface 0.8% of the petal's size inside the
+    true one, on the chords, and the bloom 2.3% off its finest run's shape.)"""
+    from pipeline.mesh.subdivide import subdivide
+
+    for _ in range(SMOOTH_CUTS):
+        if clean.mean_edge_length(pts, lf) <= h:
+            break
+        pts, lf, _ = subdivide(pts, lf)
+    return pts, lf
+
+
 def _remeshed(pts, lf, h):
     """A sheet remeshed at edge ``h`` and improved towards the quality bound. If it
     misses the bound, remeshed once more from there, kept if that meets it: the
     improvement can clip a needle off the rim (:func:`remesh.improve`), whose short base
     is then a rim edge that the remesh's boundary pass collapses."""
+    src, src_f = pts, lf
     try:
         pts, lf, _ = remesh.isotropic(pts, lf, h)
     except ValueError:  # a sheet the remesher cannot take (its rim touches itself): as it is
@@ -893,11 +915,41 @@ def _remeshed(pts, lf, h):
         try:
             again, again_f, _ = remesh.isotropic(pts, lf, h)
         except ValueError:
-            return pts, lf
+            return _onto(src, src_f, pts, lf)
         again, again_f, _, _ = remesh.improve(again, again_f)
         if remesh.meets_bound(again, again_f):
-            return again, again_f
-    return pts, lf
+            return _onto(src, src_f, again, again_f)
+    return _onto(src, src_f, pts, lf)
+
+
+def _onto(src, src_f, v, f):
+    """The remeshed sheet ``v, f`` put back onto the sheet ``src, src_f`` it was made from,
+    where that keeps the quality bound (else as it is): each inner vertex at its closest
+    point on ``src``'s triangles, each rim vertex at its closest point on ``src``'s rim.
+    The improvement moves vertices in the remeshed sheet's own tangent planes, and a
+    second remesh projects onto the first's triangles: a petal remeshed to 50 vertices
+    from a fine one lay up to 1.5% of its size off its surface, 0.4% on average, all on
+    the chords' side."""
+    from pipeline.mesh.nearest import closest_points
+
+    src = np.asarray(src, dtype=np.float64)
+    rim = topology.boundary_vertices(f, len(v))
+    out = np.array(v, dtype=np.float64)
+    inner = np.flatnonzero(~rim)
+    if len(inner):
+        face, bary = closest_points(out[inner], src, src_f)
+        out[inner] = np.einsum("ij,ijk->ik", bary, src[np.asarray(src_f)[face]])
+    edges, _, uses = topology.unique_edges(np.asarray(src_f))
+    a, b = src[edges[uses == 1, 0]], src[edges[uses == 1, 1]]
+    ab = b - a
+    for i in np.flatnonzero(rim):
+        t = np.clip(np.einsum("ij,ij->i", out[i] - a, ab) / np.maximum(
+            np.einsum("ij,ij->i", ab, ab), 1e-300), 0.0, 1.0)
+        near = a + t[:, None] * ab
+        out[i] = near[np.argmin(np.einsum("ij,ij->i", near - out[i], near - out[i]))]
+    if remesh.meets_bound(out, f) or not remesh.meets_bound(v, f):
+        return out, f
+    return v, f
 
 
 def _shortfall(pts, lf) -> str:
@@ -947,6 +999,9 @@ def _petal(pts, lf, plane, h, symmetrize, what, scale):
     Returns ``(vertices, faces, h, notes, mirrored)``; ``h`` is the remesh target used
     (0: the input's own triangles were kept)."""
     own = clean.mean_edge_length(pts, lf)
+    if 0.0 < h < own:
+        pts, lf = _smooth_finer(pts, lf, h)
+        own = clean.mean_edge_length(pts, lf)
     if not symmetrize:
         if h:
             pts, lf = _remeshed(pts, lf, h)

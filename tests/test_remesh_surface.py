@@ -1,0 +1,57 @@
+"""A petal remeshed stays on its surface: coarser, its vertices on the input's triangles
+(not where the improvement's moves and a second remesh left them); finer, its new
+vertices on the smooth surface through the input's, not on its flat facets."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from pipeline.flower import petals
+from pipeline.mesh import clean, procedural, remesh
+from pipeline.mesh.nearest import closest_points
+
+
+def _petal(vertices: int):
+    """One petal of the procedural bud at about ``vertices`` vertices (mean edge 1)."""
+    v, f, p = procedural.bud(1, vertices, 0)
+    scale = clean.mean_edge_length(v, f)
+    return v / scale, f, scale
+
+
+def _offsets(points, vertices, faces) -> np.ndarray:
+    face, bary = closest_points(points, vertices, faces)
+    near = np.einsum("ij,ijk->ik", bary, vertices[faces[face]])
+    return np.linalg.norm(points - near, axis=1)
+
+
+def test_a_petal_remeshed_coarser_keeps_its_vertices_on_its_surface():
+    """Remeshed from 3,000 vertices to about 50 (the improvement, then a second remesh
+    from the first's triangles): every vertex on the input's triangles, to rounding.
+    Before, up to 1.5% of the petal's size off, 0.4% on average."""
+    v, f, _ = _petal(3000)
+    size = np.sqrt(np.linalg.norm(np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]]),
+                                  axis=1).sum() / 2)
+    h = remesh.target_for_vertices(v, f, 50)
+    out, out_f = petals._remeshed(v, f, h)
+    assert 30 <= len(out) <= 120 and remesh.meets_bound(out, out_f)
+    assert _offsets(out, v, f).max() < 1e-9 * size
+
+
+def test_a_petal_remeshed_finer_than_it_is_lies_on_its_smooth_surface():
+    """A petal of about 40 vertices whose vertices lie on a smooth petal (the procedural one at
+    3,000 vertices, remeshed coarser), remeshed to about 150 (the remesh stage's floor
+    for a coarse model, or remesh.petal_vertices): its vertices nearer that surface than
+    the coarse petal's facets put them, by half at least (before, its new vertices lay on
+    the facets, the chords' sagitta inside the surface)."""
+    fine, ff, _ = _petal(3000)
+    coarse, cf = petals._remeshed(fine, ff, remesh.target_for_vertices(fine, ff, 25))
+    scale = clean.mean_edge_length(coarse, cf)
+    coarse, fine = coarse / scale, fine / scale
+    h = remesh.target_for_vertices(coarse, cf, 150)
+    smooth, smooth_f, *_ = petals._petal(coarse, cf, np.array([1.0, 0, 0, 0]), h, False,
+                                         "petal", 1.0)
+    faceted, faceted_f = petals._remeshed(coarse, cf, h)
+    assert len(smooth) > 2 * len(coarse) and len(faceted) > 2 * len(coarse)
+    on_smooth = _offsets(smooth, fine, ff).mean()
+    on_facets = _offsets(faceted, fine, ff).mean()
+    assert on_smooth < 0.5 * on_facets, (on_smooth, on_facets)
