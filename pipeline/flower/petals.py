@@ -879,6 +879,9 @@ def _remesh_half(h: float):
     return redo
 
 
+#: a symmetrized petal remeshed more than this many times coarser than its own edges is
+#: first remeshed to half the target (:func:`_petal`)
+COARSER = 4.0
 #: the most times a petal is cut finer before a remesh finer than it (:func:`_smooth_finer`)
 SMOOTH_CUTS = 3
 
@@ -1001,6 +1004,13 @@ def _petal(pts, lf, plane, h, symmetrize, what, scale):
     own = clean.mean_edge_length(pts, lf)
     if 0.0 < h < own:
         pts, lf = _smooth_finer(pts, lf, h)
+        own = clean.mean_edge_length(pts, lf)
+    elif symmetrize and h > COARSER * own:
+        # much coarser than the input: the cut along the center plane would keep the
+        # input's spacing along the seam, and the mirrored half's remesh its short edges
+        # there (a bud of 5,000 vertices a petal remeshed to 50: every mirrored petal
+        # refused for edges under a quarter of the mean, and left unsymmetrized)
+        pts, lf = _remeshed(pts, lf, 0.5 * h)
         own = clean.mean_edge_length(pts, lf)
     if not symmetrize:
         if h:
