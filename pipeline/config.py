@@ -260,9 +260,10 @@ SCHEMA: dict[str, Any] = {
                               "through the old, the axes and growth found again on it), and "
                               "its frames are those of its own vertices, contact keeping its "
                               "own triangles apart; a bud of 50 vertices per petal then "
-                              "blooms within about 1 deg of one of 800, a lone petal of 300 "
-                              "within 0.6 deg of one of 4,800 (quasi-static only; 0: the "
-                              "mesh as it is)", low=0),
+                              "blooms within about 1-1.6 deg of one of 800, a lone petal of "
+                              "300 within 0.6 deg of one of 4,800; where that solve stops "
+                              "part way, the mesh as it is (quasi-static only; 0: the mesh "
+                              "as it is)", low=0),
         "max_vertices": Key(int, 6000, "shell: a mesh is cut finer for the solve "
                             "(simulate.petal_vertices) only while the solve keeps to this many "
                             "vertices (each flower of a file of many its own)", low=0),
