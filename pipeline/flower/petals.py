@@ -884,6 +884,11 @@ def _remesh_half(h: float):
 COARSER = 4.0
 #: the most times a petal is cut finer before a remesh finer than it (:func:`_smooth_finer`)
 SMOOTH_CUTS = 3
+#: a petal of fewer vertices is a low-poly model whose facets are its shape, remeshed
+#: finer on them: the smooth surface through a handful of vertices is a guess (the daisy
+#: bush's rays, 8 vertices each, lifted so, bloomed from a bud that hangs open the other
+#: way)
+SMOOTH_FROM = 30
 
 
 def _smooth_finer(pts, lf, h):
@@ -1002,7 +1007,7 @@ def _petal(pts, lf, plane, h, symmetrize, what, scale):
     Returns ``(vertices, faces, h, notes, mirrored)``; ``h`` is the remesh target used
     (0: the input's own triangles were kept)."""
     own = clean.mean_edge_length(pts, lf)
-    if 0.0 < h < own:
+    if 0.0 < h < own and len(pts) >= SMOOTH_FROM:
         pts, lf = _smooth_finer(pts, lf, h)
         own = clean.mean_edge_length(pts, lf)
     elif symmetrize and h > COARSER * own:
