@@ -76,9 +76,9 @@ def test_a_fine_symmetric_petal_remeshed_much_coarser_is_mirrored():
 
 def test_a_low_poly_petal_is_remeshed_finer_on_its_own_facets():
     """A petal of a handful of vertices (the daisy bush's rays have 8) is a low-poly
-    model whose facets are its shape: remeshed finer, its vertices stay on those facets
-    (the smooth surface through so few vertices is a guess: lifted onto it, the bush's
-    daisies bloomed from a bud hanging open the other way)."""
+    model whose facets are its shape: remeshed finer, its vertices stay near those facets,
+    not on the smooth surface through so few vertices, which is a guess (lifted onto it,
+    the bush's daisies bloomed from a bud hanging open the other way)."""
     fine, ff, _ = _petal(3000)
     coarse, cf = petals._remeshed(fine, ff, remesh.target_for_vertices(fine, ff, 8))
     assert len(coarse) < petals.SMOOTH_FROM
@@ -86,6 +86,6 @@ def test_a_low_poly_petal_is_remeshed_finer_on_its_own_facets():
     h = remesh.target_for_vertices(coarse, cf, 100)
     out, out_f, *_ = petals._petal(coarse, cf, np.array([1.0, 0, 0, 0]), h, False, "ray", 1.0)
     assert len(out) > 3 * len(coarse)
-    size = np.sqrt(np.linalg.norm(np.cross(coarse[cf[:, 1]] - coarse[cf[:, 0]],
-                                           coarse[cf[:, 2]] - coarse[cf[:, 0]]), axis=1).sum() / 2)
-    assert _offsets(out, coarse, cf).max() < 1e-9 * size
+    lifted, lifted_f = petals._smooth_finer(coarse, cf, h)  # (what it is not remeshed from)
+    on_facets = _offsets(out, coarse, cf).mean()
+    assert on_facets < 0.25 * _offsets(lifted, coarse, cf).mean(), on_facets
