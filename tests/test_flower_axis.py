@@ -127,10 +127,10 @@ def test_a_wrong_axis_still_gives_sound_axes(bud):
         sound(find_axes(v, f, p, flower_axis=wrong), p)
 
 
-def test_a_flat_open_flower_is_oriented_by_scene_up():
-    """Petals radiating in z = 0, a little cupped across (else z = 0 would be their mirror
-    plane): tips and bases at one height, so the center planes' line has no orientation
-    from the petals; up gives it."""
+def radiating(count: int, height):
+    """``count`` quad-grid petals (8 rows of 5, widening outward) radiating in the xy plane
+    from radius 2, petal ``k`` lifted by ``height(k, xy)`` (xy: its own flat grid, x along
+    it): ``(vertices, faces, petal)``."""
     rows, cols = 8, 5
     pts = np.array([[r + 2.0, (c - (cols - 1) / 2) * (0.4 + 0.1 * r)] for r in range(rows)
                     for c in range(cols)])
@@ -138,13 +138,20 @@ def test_a_flat_open_flower_is_oriented_by_scene_up():
              for r in range(rows - 1) for c in range(cols - 1)]
     tri = np.array([t for a, b, c, d in quads for t in ((a, b, c), (a, c, d))])
     vs, fs, ps = [], [], []
-    for k in range(5):
-        a = 2 * np.pi * k / 5
+    for k in range(count):
+        a = 2 * np.pi * k / count
         rot = np.array([[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]])
-        vs.append(np.c_[pts @ rot.T, 0.05 * pts[:, 1] ** 2])
+        vs.append(np.c_[pts @ rot.T, height(k, pts)])
         fs.append(tri + k * len(pts))
         ps.append(np.full(len(pts), k))
-    v, f, p = np.vstack(vs), np.vstack(fs), np.concatenate(ps)
+    return np.vstack(vs), np.vstack(fs), np.concatenate(ps)
+
+
+def test_a_flat_open_flower_is_oriented_by_scene_up():
+    """Petals radiating in z = 0, a little cupped across (else z = 0 would be their mirror
+    plane): tips and bases at one height, so the center planes' line has no orientation
+    from the petals; up gives it."""
+    v, f, p = radiating(5, lambda k, xy: 0.05 * xy[:, 1] ** 2)
     for up in ([0.0, 0.0, 1.0], [0.0, 0.0, -1.0]):
         axes = sound(find_axes(v, f, p, up=np.array(up)), p)
         assert np.allclose(axes.flower_axis[3:], up, atol=1e-9)
@@ -159,21 +166,8 @@ def test_every_petal_of_a_flower_has_x_positive_the_same_way_around_its_axis():
     the same way around the flower's axis (counterclockwise seen from the tips), so x
     is positive on the same side of every petal, and the imperfection that picks a side
     pushes them alike. The cup's rule flipped the plane of every second petal."""
-    rows, cols = 8, 5
-    pts = np.array([[r + 2.0, (c - (cols - 1) / 2) * (0.4 + 0.1 * r)] for r in range(rows)
-                    for c in range(cols)])
-    quads = [(r * cols + c, r * cols + c + 1, (r + 1) * cols + c + 1, (r + 1) * cols + c)
-             for r in range(rows - 1) for c in range(cols - 1)]
-    tri = np.array([t for a, b, c, d in quads for t in ((a, b, c), (a, c, d))])
-    vs, fs, ps = [], [], []
-    for k in range(6):
-        a = 2 * np.pi * k / 6
-        rot = np.array([[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]])
-        cup = 0.05 if k % 2 == 0 else -0.05
-        vs.append(np.c_[pts @ rot.T, cup * pts[:, 1] ** 2 + 0.02 * pts[:, 0] ** 2])
-        fs.append(tri + k * len(pts))
-        ps.append(np.full(len(pts), k))
-    v, f, p = np.vstack(vs), np.vstack(fs), np.concatenate(ps)
+    v, f, p = radiating(6, lambda k, xy: (0.05 if k % 2 == 0 else -0.05) * xy[:, 1] ** 2
+                        + 0.02 * xy[:, 0] ** 2)
     axes = sound(find_axes(v, f, p), p)
     line = axes.flower_axis
     for k in range(6):
