@@ -252,7 +252,8 @@ def test_an_open_petal_whose_lifted_bud_blooms_elsewhere_is_searched_again(tmp_p
     """ericrius1's petal, default config: the bud the closing lift picked once bloomed
     forward onto another equilibrium, 0.27 petal lengths from the model, and the run
     called that sound. A bloom off its model (over report.OFF_MODEL) searches again
-    along the model's own path (no lift) and keeps the bloom that ends nearer the model.
+    along the model's own path (no lift) and keeps the bloom that ends nearer the model
+    (then, still over the bound, along it with the lift faded: reverse.lift_faded).
     (Since the band is clamped to the nearest row, this petal's lifted bud blooms back
     onto its model, 5.6e-9 petal lengths away: the bound is lowered under that here so
     that the second search runs; and the petal, of 159 vertices, is solved as it is, as
@@ -270,9 +271,38 @@ def test_an_open_petal_whose_lifted_bud_blooms_elsewhere_is_searched_again(tmp_p
     kept = re.search(r"without the lift the bloom ends (\S+) petal lengths from the model: "
                      r"(kept|the first one kept)", r.output)
     assert kept, r.output
+    faded = re.search(r"with the lift faded the bloom ends \S+ petal lengths from the model"
+                      r"[^:]*: kept", r.output)  # (the third search, still over the bound)
     with h5py.File(tmp_path / "s.h5") as h:
-        assert h.attrs["bud_path"] == ("own" if kept[2] == "kept" else "lifted")
+        assert h.attrs["bud_path"] == ("faded" if faded else
+                                       "own" if kept[2] == "kept" else "lifted")
         assert h.attrs["distance_to_model"] < 1e-3
         assert h.attrs["bud_distance"] > 0.5
         assert h["diagnostics/opening_angle_per_petal"][-1, 0] > 20.0
     assert not list(tmp_path.glob(".*checkpoint*"))
+
+
+@needs_shared
+@pytest.mark.slow
+def test_a_daisy_whose_blooms_end_off_it_both_ways_blooms_back_along_its_faded_path(tmp_path):
+    """The first daisy of the daisy bush, picked (scene.flower = 0), default config: its
+    lifted bud's rays jam edge on and bloom forward onto another equilibrium (0.148
+    petal lengths off), its own path's bud hangs open the other way, and the bloom from
+    that bud ended 0.129 off, unsound. Along its own path with the lift faded into the
+    rest state (reverse.lift_faded) it blooms from a closed bud back onto the model."""
+    scene = tmp_path / "scene.toml"
+    scene.write_text(f'[scene]\nmesh = "{EXTERNAL / "mitagki_daisybush.glb"}"\nflower = "0"\n')
+    src: list = []
+    for stage, dst in (("remesh", "r.h5"), ("axis", "a.h5"), ("growth", "g.h5"),
+                       ("simulate", "s.h5")):
+        r = CliRunner().invoke(cli, [stage, *src, "--config", str(scene), "--out",
+                                     str(tmp_path / dst)])
+        assert r.exit_code == 0, r.output
+        src = [str(tmp_path / dst)]
+    assert "searching again along the model's own path with the closing lift" in r.output
+    with h5py.File(tmp_path / "s.h5") as h:
+        assert h.attrs["bud_path"] == "faded"
+        assert h.attrs["distance_to_model"] < 1e-6
+        assert h.attrs["summary"].startswith("sound")
+        assert h["diagnostics/opening_angle_per_petal"][-1].min() > 5.0
+        assert h.attrs["bud_closed"] > 0.0

@@ -490,3 +490,63 @@ def test_an_open_shell_with_its_bud_shape_is_at_rest_on_the_model_and_its_bud_is
     assert np.abs(model.shell.face_bloom_form).max() > 0.0
     lifted = reverse.rest_at(model, v + 0.01)
     assert lifted.shell.bud is shape and np.abs(lifted.shell.face_bloom_form).max() > 0.0
+
+
+def test_the_lift_faded_into_the_rest_state_picks_the_branch_and_keeps_the_model_at_rest():
+    """The closing lift grown into the open shell's rest state at the bud, fading out over
+    the bloom (reverse.lift_faded): at A = 1 the mesh is still at rest; at A = 0 the rest
+    lengths are the lifted mesh's, undone by the growth; and the model's own path from the
+    flat petal (which forks: up or down) closes toward the lift's side, either way."""
+    from pipeline.sim.build import Prepared
+    from pipeline.sim.terms.shell import ShellTerm
+
+    v, f, petal = procedural.open_flower(1, 150, 0, procedural.OpenShape(lean=90.0, recurve=90.0,
+                                                                trough=1e3))
+    v = v / clean.mean_edge_length(v, f)
+    axes = find_axes(v, f, petal)
+    growth = assign_growth(v, f, axes.x, "0.2*x**2")
+    opened = Prepared.of(v, f, petal, axes, growth).shell_model(27.3, 0.013, 1 / 3)
+    model = reverse.open_model(opened, 1.0, v)
+    size = 0.05 * reverse.petal_lengths(v, petal, axes.base).mean()
+    length = reverse.petal_lengths(v, petal, axes.base)[0]
+    for sign in (1.0, -1.0):
+        lift = reverse.closing_lift(v, axes.s, axes.x, axes.base, [0.0, 0.0, sign], size)
+        faded = reverse.lift_faded(model, v, lift)
+        g = ShellTerm(faded).at(1.0).gradient(v)
+        g[faded.pinned] = 0.0
+        at_bud = ShellTerm(faded).at(0.0).gradient(v)
+        at_bud[faded.pinned] = 0.0
+        assert np.abs(g).max() <= 1e-9 * np.abs(at_bud).max()
+        up = np.empty(model.edge_count)
+        edge_lengths(np.ascontiguousarray(v + lift), model.edge_indices, up)
+        np.testing.assert_allclose(faded.edge_rest_length, up / (1.0 + model.edge_growth),
+                                   rtol=1e-12)
+        bud, _ = reverse.find_bud(faded, v, Effects(), stages=20, tolerance=1e-6)
+        tip = bud[int(axes.tip[0]), 2] - v[axes.base, 2].mean()
+        assert sign * tip > 0.05 * length, (sign, tip)
+
+
+def test_a_bloom_off_the_model_along_both_paths_is_searched_with_the_lift_faded():
+    """The faded path's bloom is kept where it ends nearer the model from a bud more closed
+    than the model; not where its bud hangs open the other way or it ends farther, nor
+    where it finds no bud (the bloom before kept, each logged)."""
+    from types import SimpleNamespace
+
+    from pipeline.chain.problem import _faded
+    from pipeline.errors import BloomError
+
+    before = SimpleNamespace(distance=0.033, bud="lifted bud")
+
+    def bloom_ending(distance):
+        def bloom(path):
+            assert path == "faded"
+            if distance is None:
+                raise BloomError("no equilibrium")
+            return SimpleNamespace(distance=distance, bud="faded bud")
+        return bloom
+
+    for distance, closed, kept in ((0.0, 8.1, "faded bud"), (0.0, None, "faded bud"),
+                                   (0.0, -30.0, "lifted bud"), (0.05, 8.1, "lifted bud"),
+                                   (None, 8.1, "lifted bud")):
+        run = _faded(before, bloom_ending(distance), lambda bud, c=closed: c)
+        assert run.bud == kept, (distance, closed)

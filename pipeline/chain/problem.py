@@ -101,6 +101,12 @@ def unlink_checkpoints(ckpt: Path) -> None:
         path.unlink(missing_ok=True)
 
 
+#: an open start's checkpoint for each path to the bud (:data:`~pipeline.sim.reverse.PATHS`):
+#: its name's suffix, and what its fingerprint adds to the inputs
+CHECKPOINTS = {"lifted": "", "own": "-unlifted", "faded": "-faded"}
+SEARCHES = {"lifted": {}, "own": {"bud search": "own path"},
+            "faded": {"bud search": "own path, the lift faded"}}
+
 #: the most times a mesh is cut finer for the solve (each time four times the faces)
 MAX_LEVELS = 3
 
@@ -167,8 +173,9 @@ def problem(prep: Prepared, job: Job, ckpt: Path, label: str = "") -> Bloom:
 
 def _problem(prep: Prepared, job: Job, ckpt: Path, label: str = "") -> Bloom:
     """One problem's bloom on ``prep`` as it is: the model and effects built, the bud
-    found for an open start (and searched again without the lift where the bloom ends
-    off the model), integrated; the solver's failures as one line naming the key
+    found for an open start (and searched again along the model's own path where the
+    bloom ends off the model: without the lift, then with it faded, :data:`~pipeline.sim.
+    reverse.PATHS`), integrated; the solver's failures as one line naming the key
     (:class:`BloomError`)."""
     cfg, start, where, progress = job.cfg, job.start, job.where, job.progress
     sim = cfg.section("simulate")
@@ -212,16 +219,16 @@ def _problem(prep: Prepared, job: Job, ckpt: Path, label: str = "") -> Bloom:
         frames_ = prep.frames(bud).opening_toward(model_positions)
         return float(np.mean(np.abs(frames_.opening_angles(model_positions))))
 
-    def bloom(lifted: bool) -> Bloom:
-        """The run from the bud (an open start: found with the closing lift or
-        without, :func:`~pipeline.sim.reverse.open_start`), resumed from its checkpoint
-        if asked (each search its own)."""
+    def bloom(path: str) -> Bloom:
+        """The run from the bud (an open start: found along ``path``, :func:`~pipeline.
+        sim.reverse.open_start`), resumed from its checkpoint if asked (each path its
+        own)."""
         v0, model, rest_angle, params, bud_info = v, bud_model, bud_angle, bud_params, {}
         if model_positions is not None:
             v0, model, rest_angle, params, bud_info = open_start(
                 cfg, model, model_positions, rest_angle, params, build_effects, petal,
                 base, prep.s, prep.x, prep.flower_axis, where, faces=prep.faces,
-                plane=prep.plane, lifted=lifted, closed_by=closed_by)
+                plane=prep.plane, path=path, closed_by=closed_by)
         petals = prep.frames(v0)
         if model_positions is not None:  # the model is the open flower: it says which way is out
             petals = petals.opening_toward(model_positions)
@@ -248,15 +255,14 @@ def _problem(prep: Prepared, job: Job, ckpt: Path, label: str = "") -> Bloom:
         effects = build_effects(v0, apart)
         state = State.at_rest(model, v0, control)
         effects.constrain(state.forces)
-        path = ckpt if lifted else ckpt.with_name(ckpt.name + "-unlifted")
-        key = checkpoint.fingerprint(cfg.to_json(),
-                                     inputs if lifted else {**inputs, "bud search": "own path"})
-        resumed = (checkpoint.load(path, key, state, effects, integrator, model) if job.resume
+        saved = ckpt.with_name(ckpt.name + CHECKPOINTS[path])
+        key = checkpoint.fingerprint(cfg.to_json(), {**inputs, **SEARCHES[path]})
+        resumed = (checkpoint.load(saved, key, state, effects, integrator, model) if job.resume
                    else None)
         resumed_step = state.step
         if resumed is not None:
-            log.info("resuming from step %d (%s)", state.step, path)
-        saver = Saver(path, key, effects, integrator, sim["checkpoint_seconds"])
+            log.info("resuming from step %d (%s)", state.step, saved)
+        saver = Saver(saved, key, effects, integrator, sim["checkpoint_seconds"])
         log.info("%d vertices (%d fixed), %d springs, %d hinges; %d steps of h = %g, %d "
                  "frames; effects: %s", model.vertex_count, int(model.pinned.sum()),
                  model.edge_count, model.hinge_count, steps, h, frames,
@@ -273,7 +279,7 @@ def _problem(prep: Prepared, job: Job, ckpt: Path, label: str = "") -> Bloom:
                                       progress=bar.update, resume=resumed,
                                       checkpoint=saver)
             except (Diverged, NotConverged, ValueError, RuntimeError) as exc:
-                path.unlink(missing_ok=True)  # a failed run's checkpoint would fail again
+                saved.unlink(missing_ok=True)  # a failed run's checkpoint would fail again
                 quasi = isinstance(exc, NotConverged) and sim["integrator"] == "quasi-static"
                 if quasi and model_positions is None and len(exc.recording.time) > 1:
                     rec, stopped = _stopped(exc, petal, h)
@@ -293,7 +299,8 @@ def _problem(prep: Prepared, job: Job, ckpt: Path, label: str = "") -> Bloom:
                     frames=frames, h=h, progress=bar.update,
                     petals_at=lambda bud: prep.frames(bud).opening_toward(model_positions))
             bud = np.asarray(rec_.positions[0])
-            info = {**bud_info, "bud_path": "own", "bloom_path": "retraced",
+            info = {**bud_info, "bud_path": "faded" if path == "faded" else "own",
+                    "bloom_path": "retraced",
                     "bud_distance": distance_to_model(bud, model_positions, petal, base)}
             if back is not None:  # (the bud is the path's last equilibrium, short of A = 0)
                 info["bud_growth"] = back[0]
@@ -329,7 +336,7 @@ def _problem(prep: Prepared, job: Job, ckpt: Path, label: str = "") -> Bloom:
                                       petal, base))
         return Bloom(v0, bud_info, effects, rec, wall, resumed, resumed_step, distance, stopped)
 
-    run_ = bloom(lifted=True)
+    run_ = bloom("lifted")
     if (run_.distance is not None and run_.distance > report.OFF_MODEL
             and sim["integrator"] == "quasi-static" and run_.bud_info["bud_path"] == "lifted"):
         # the forward path from the bud the lift picked lands on another equilibrium:
@@ -338,7 +345,7 @@ def _problem(prep: Prepared, job: Job, ckpt: Path, label: str = "") -> Bloom:
                     "its bud is on another branch; searching again along the model's own "
                     "path (no closing lift)", run_.distance, report.OFF_MODEL)
         try:
-            other = bloom(lifted=False)
+            other = bloom("own")
         except BloomError as exc:
             log.warning("no bud without the lift: %s", exc)
         else:
@@ -359,7 +366,38 @@ def _problem(prep: Prepared, job: Job, ckpt: Path, label: str = "") -> Bloom:
                          "kept" if better else "the first one kept")
                 if better:
                     run_ = other
+        if run_.distance > report.OFF_MODEL and shell:
+            run_ = _faded(run_, bloom, lambda bud: prep.bud_closed(bud, model_positions))
     return run_
+
+
+def _faded(run: Bloom, bloom, bud_closed) -> Bloom:
+    """An open start whose bloom ends off the model from the lifted bud and from the
+    model's own path's: searched again along the model's own path with the closing lift
+    grown into its rest state (``bloom("faded")``, :func:`~pipeline.sim.reverse.
+    lift_faded`), kept where it ends nearer the model from a bud more closed than the
+    model (``bud_closed(bud)`` > 0, or None). The daisy bush's sixteen rays, lifted, jam
+    edge on as they close and slip past each other as they open; along their own path
+    they hang open the other way. Logged."""
+    log.warning("the bloom ends %.3g petal lengths (RMS) from the model (over %g): "
+                "searching again along the model's own path with the closing lift grown "
+                "into its rest state at the bud (fading out over the bloom)", run.distance,
+                report.OFF_MODEL)
+    try:
+        other = bloom("faded")
+    except BloomError as exc:
+        log.warning("no bud with the lift faded: %s", exc)
+        return run
+    closed = bud_closed(other.bud)
+    if other.distance < run.distance and (closed is None or closed > 0.0):
+        log.info("with the lift faded the bloom ends %.3g petal lengths from the model%s: "
+                 "kept", other.distance, "" if closed is None else
+                 f", from a bud {closed:.1f} deg more closed than the model")
+        return other
+    log.warning("with the lift faded the bloom ends %.3g petal lengths from the model%s: "
+                "the one %.3g from it kept", other.distance, "" if closed is None else
+                f", from a bud {closed:.1f} deg more closed than the model", run.distance)
+    return run
 
 
 def _closes_first(dip: float, forward: tuple, retraced, bud_closed) -> tuple:

@@ -16,6 +16,11 @@ integrator and schedule. Its last frame lands on the model up to the solver's to
 and recorded (:func:`distance_to_model`). Where that run finds no equilibrium, the bloom
 is the path back played forward (:func:`retrace`).
 
+The path to the bud is one of :data:`PATHS`: *lifted* (from the model nudged toward
+closing, whose rest state the path keeps), *own* (the model's own), or *faded* (the model's
+own, with that nudge grown into its rest state at the bud and fading out over the bloom,
+:func:`lift_faded`).
+
 The module is long because the open start is one search: the bud's model, the lift that
 picks the branch, the search and its retries, and the path back share the model's rest
 state and the figures the artifact records.
@@ -43,6 +48,8 @@ from pipeline.sim.terms.shell_kernels import rest_dets
 
 log = logging.getLogger("bloom")
 
+#: growth.start = open: the paths to the bud (:func:`open_start`)
+PATHS = ("lifted", "own", "faded")
 #: growth.start = open: the nudge toward closing that picks the bud's branch, in petal
 #: lengths at the tip (see :func:`find_bud`)
 LIFT = 0.05
@@ -222,6 +229,27 @@ def rest_at(model: Model, positions, beta: float = 0.0) -> Model:
                                hinge_rest_cos=cos0, hinge_rest_sin=sin0, shell=shell)
 
 
+def lift_faded(model: Model, positions, lift, beta: float = 0.0) -> Model:
+    """The open shell ``model`` (:func:`open_model`'s, at the mesh ``positions``) with the
+    closing ``lift`` grown into its rest state at the bud, fading out over the bloom: at
+    A = 0 its rest lengths and curvature are those of ``positions + lift`` (its growth
+    ratios and bud shape undone from them as from the mesh), at A = 1 still the mesh's
+    own, and in between the kernels' linear growth. The model's own path from the mesh
+    then feels the lift from the first step on and closes on the branch the lift picks,
+    and a bloom that retraces that path ends on the mesh itself (a lifted path's rest
+    state is the lifted mesh's all the way: the bud it reaches may lie on no path back to
+    the mesh). Raises ValueError where a face would have no rest area."""
+    X = np.ascontiguousarray(positions, dtype=np.float64)
+    up = np.ascontiguousarray(X + lift)
+    full, lifted = np.empty(model.edge_count), np.empty(model.edge_count)
+    edge_lengths(X, model.edge_indices, full)
+    edge_lengths(up, model.edge_indices, lifted)
+    rest = lifted / (1.0 + model.edge_growth)
+    growth = np.ascontiguousarray(full / rest - 1.0)
+    shell = model.shell.rest_on(X, rest, growth, beta, lifted=up)
+    return dataclasses.replace(model, edge_rest_length=rest, edge_growth=growth, shell=shell)
+
+
 def find_bud(model: Model, open_positions, effects, *, stages: int, tolerance: float,
              lift=None, settle_effects=None, petal=None, beta: float = 0.0):
     """The equilibrium at A = 0 reached from the model (at A = 1) along the path of
@@ -372,18 +400,19 @@ CLOSE_TRIES = 2
 
 
 def _find_bud_closing(cfg, close, model, positions, rest_angle, params, build_effects, petal,
-                      base, s, x, flower_axis, faces, plane, lifted=True, bud_shape=None):
+                      base, s, x, flower_axis, faces, plane, path="lifted", bud_shape=None):
     """:func:`open_start`'s bud search at ``close`` (``growth.close``): the bud, the solver,
     and the model, rest angles and effect parameters that grow from it back to the mesh.
-    ``lifted``: the path starts from the model nudged toward closing (else from the model
-    itself, along its own path). ``bud_shape``: a shell's (:func:`bud_shape_of`)."""
+    ``path`` (:data:`PATHS`): from the model nudged toward closing, along the model's own
+    path, or along it with the nudge grown into the rest state (a shell's).
+    ``bud_shape``: a shell's (:func:`bud_shape_of`)."""
     beta = 0.0
     if cfg["effects.curl.enabled"] is True:
         params = params.but(curl={"beta": close * params.curl.beta})
         rest_angle = open_rest_angle(rest_angle, params.curl.beta)
         beta = params.curl.beta
     model = open_model(model, close, positions, beta, petal, bud_shape)
-    if not lifted:
+    if path == "own":
         bud, solver = find_bud(model, positions, build_effects(positions),
                                stages=cfg["simulate.stages"], tolerance=cfg["simulate.tolerance"],
                                petal=np.asarray(petal), beta=beta)
@@ -402,6 +431,12 @@ def _find_bud_closing(cfg, close, model, positions, rest_angle, params, build_ef
     else:
         lift = closing_lift(positions, s, x, base, up, size)
     at_model = build_effects(positions)  # (the settle's; contact_free only reads it)
+    if path == "faded":  # (the path starts on the model itself: the lift is a rest state)
+        model = lift_faded(model, positions, lift, beta)
+        bud, solver = find_bud(model, positions, at_model, stages=cfg["simulate.stages"],
+                               tolerance=cfg["simulate.tolerance"], petal=np.asarray(petal),
+                               beta=beta)
+        return bud, solver, model, rest_angle, params
     lift = contact_free(lift, positions, at_model)
     bud, solver = find_bud(model, positions, build_effects(positions + lift),
                            stages=cfg["simulate.stages"], tolerance=cfg["simulate.tolerance"],
@@ -421,19 +456,20 @@ def bud_shape_of(cfg, model: Model, positions, petal, s, flower_axis) -> BudShap
 
 def open_start(cfg, model: Model, positions, rest_angle, params: Params, build_effects, petal,
                base, s, x, flower_axis, where: str, *, faces=None, plane=None,
-               lifted: bool = True, closed_by=None):
+               path: str = "lifted", closed_by=None):
     """``growth.start = "open"``: the model at A = 1, the bud at A = 0. Returns the bud's
     positions, the model, rest angles and effect parameters that grow from it back to
     the mesh, and figures for the artifact (``bud_seconds``, ``bud_newton_iterations``,
     ``bud_distance``, ``bud_close``: the growth.close it closed by, halved where the
-    full one found no equilibrium; ``bud_path``: lifted or own, the path it took; with
-    the lift, no bud down to the last halving tries the model's own path).
+    full one found no equilibrium; ``bud_path``: the path it took, :data:`PATHS`; from
+    the lifted model, no bud down to the last halving tries the model's own path).
     ``build_effects(positions)`` builds the scene's effects at ``positions``. With
     ``faces`` and ``plane`` (each petal's center plane) a lift that
-    would fold a triangle is mended (:func:`unfolded_lift`). ``lifted``: the path to the
-    bud starts from the model nudged toward closing (:func:`closing_lift`: it picks the
-    branch where a flat petal could close either way), else from the model itself (its
-    own path: the one a bloom from that bud retraces, where it has no fork).
+    would fold a triangle is mended (:func:`unfolded_lift`). ``path``: the path to the
+    bud starts from the model nudged toward closing (lifted: :func:`closing_lift` picks
+    the branch where a flat petal could close either way), or from the model itself
+    (own: the path a bloom from that bud retraces, where it has no fork; faded: the same
+    with the nudge grown into its rest state, :func:`lift_faded`).
     ``closed_by(bud)``: how much more closed a bud is than the model (degrees); with
     growth.close at its default, a bud under :data:`CLOSED` is searched again closing
     twice as far (up to :data:`MOST_CLOSE` times). Raises :class:`BloomError` naming the
@@ -445,16 +481,17 @@ def open_start(cfg, model: Model, positions, rest_angle, params: Params, build_e
         try:
             found = _find_bud_closing(cfg, close, model, positions, rest_angle, params,
                                       build_effects, petal, base, s, x, flower_axis, faces,
-                                      plane, lifted, shape)
+                                      plane, path, shape)
             break
         except NotConverged as exc:
-            if attempt == CLOSE_TRIES and lifted:  # the model's own path, before refusing
+            if attempt == CLOSE_TRIES and path == "lifted":  # the model's own path, before
+                # refusing
                 log.warning("growth.start = open: with the closing lift the path to the bud "
                             "found no equilibrium down to growth.close = %g; searching along "
                             "the model's own path", close)
                 return open_start(cfg, model, positions, rest_angle, params, build_effects,
                                   petal, base, s, x, flower_axis, where, faces=faces,
-                                  plane=plane, lifted=False, closed_by=closed_by)
+                                  plane=plane, path="own", closed_by=closed_by)
             if attempt == CLOSE_TRIES:
                 tried = (f" (tried closing down to growth.close = {close:g})"
                          if CLOSE_TRIES else "")
@@ -479,7 +516,7 @@ def open_start(cfg, model: Model, positions, rest_angle, params: Params, build_e
             try:
                 again = _find_bud_closing(cfg, 2.0 * close, model, positions, rest_angle,
                                           params, build_effects, petal, base, s, x,
-                                          flower_axis, faces, plane, lifted, shape)
+                                          flower_axis, faces, plane, path, shape)
             except (NotConverged, ContactError, ValueError) as exc:
                 log.info("growth.start = open: no bud at growth.close = %g (%s); the one at "
                          "%g kept", 2.0 * close, str(exc).split(";")[0], close)
@@ -498,7 +535,7 @@ def open_start(cfg, model: Model, positions, rest_angle, params: Params, build_e
     log.info("growth.start = open: found the bud in %.2f s (%d Newton iterations); it is %.3g "
              "petal lengths (RMS) from the model", seconds, solver.iterations, moved)
     info = {"bud_seconds": seconds, "bud_newton_iterations": solver.iterations,
-            "bud_distance": moved, "bud_close": close, "bud_path": "lifted" if lifted else "own"}
+            "bud_distance": moved, "bud_close": close, "bud_path": path}
     sh = getattr(model, "shell", None)
     if sh is not None and sh.bud is not None:
         X = np.asarray(positions, dtype=np.float64)

@@ -220,7 +220,7 @@ class ShellData:
         return form
 
     def rest_on(self, positions, rest0, growth, beta: float = 0.0,
-                bud: BudShape | None = None) -> ShellData:
+                bud: BudShape | None = None, lifted=None) -> ShellData:
         """This shell with ``positions`` as its rest shape at full growth (A = 1; an open
         start's model, :mod:`pipeline.sim.reverse`): the rest curvature at growth 0 is
         ``positions``' own second fundamental form divided by what growth and curl
@@ -228,7 +228,11 @@ class ShellData:
         ``1 - beta``), so that at A = 1 it is ``positions``' own. ``rest0``, ``growth``:
         the model's edges' rest lengths at growth 0 and growth ratios. ``bud``: the bud's
         shape (given, or kept from an earlier ``rest_on``): the part of ``positions``'
-        curvature the bud has not (:func:`bloom_form`) grows in with A."""
+        curvature the bud has not (:func:`bloom_form`) grows in with A. ``lifted`` (V, 3),
+        if given: the bud's rest curvature is measured there instead (the bud shape's
+        part taken from it as from ``positions``'), and becomes ``positions``' own as A
+        goes to 1 (an open start's closing lift grown into the rest shape,
+        :func:`pipeline.sim.reverse.lift_faded`)."""
         X = self._with_anchors(positions)
         form = self.form_at(positions)
         crease = self.face_crease.copy()  # (a crease's angle stays as growth goes: curl's only)
@@ -246,6 +250,8 @@ class ShellData:
         bud = self.bud if bud is None else bud
         added = (np.zeros_like(form) if bud is None
                  else bloom_form(X, self.face_indices, form, bud, self.size))
+        if lifted is not None:  # (what the lift adds to the bud's curvature fades out too)
+            added = added + form - self.form_at(lifted)
         return dataclasses.replace(self, face_rest_form=form * k[:, None], face_rest_det=det0,
                                    face_crease=crease, face_bloom_form=added * k[:, None],
                                    bud=bud)
