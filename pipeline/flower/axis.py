@@ -390,7 +390,8 @@ def find_axes(vertices: np.ndarray, faces: np.ndarray, petal: np.ndarray, *,
               surface: bool = False, planes: np.ndarray | None = None, flower_axis=None,
               up: np.ndarray | None = None, flower: np.ndarray | None = None,
               progress=None, hold_bad: bool = False,
-              held_rim: np.ndarray | None = None) -> PetalAxes:
+              held_rim: np.ndarray | None = None,
+              corners: np.ndarray | None = None) -> PetalAxes:
     """Axes of every petal of a cleaned mesh (see the module docstring).
 
     ``base_mode``: auto, narrow, wide, or a direction (+x ... -z) the base end lies
@@ -410,7 +411,9 @@ def find_axes(vertices: np.ndarray, faces: np.ndarray, petal: np.ndarray, *,
     refused: a file of many flowers, where one blossom must not stop the others.
     ``held_rim``: (V,) the rims remesh cut (``mesh/cut_rim``: a petal's part buried in the
     centre cut away): such a petal's base is there, where it leaves the centre, not at
-    the end of whatever the cut left of its old base end.
+    the end of whatever the cut left of its old base end. ``corners``: (V,) the outline's
+    corners, where known (a mesh cut finer keeps its coarse mesh's:
+    :func:`pipeline.mesh.subdivide.outline_corners`), else found by their turn.
 
     Raises :class:`BadPetal` (a petal with no sound axis) or :class:`WeakBase`.
     """
@@ -549,7 +552,8 @@ def find_axes(vertices: np.ndarray, faces: np.ndarray, petal: np.ndarray, *,
                 continue
             span = proj.max() - proj.min()
             bnd = boundary[idx]
-            end = base_edge(pts, local_faces, bnd, proj, base_fraction * span) \
+            end = base_edge(pts, local_faces, bnd, proj, base_fraction * span,
+                            None if corners is None else corners[idx]) \
                 if surface or base_region == "edge" else None
             if cut is not None:
                 end = cut & bnd

@@ -90,17 +90,18 @@ def tip_distance(dist, side, faces, fallback: float) -> float:
     return best if best > 0.0 else fallback
 
 
-def base_edge(pts, faces, rim, proj, reach) -> np.ndarray:
+def base_edge(pts, faces, rim, proj, reach, corner=None) -> np.ndarray:
     """``(n,) bool`` the petal's base edge: the stretch of rim through its vertex
     nearest the base end (least ``proj``) up to the corners (turns of :data:`OUTLINE_CORNER`
-    or more) on either side, none farther than ``reach`` along the petal. A petal whose
-    base has no such corners (a pointed or rounded base): the rim within 1% of ``reach``
-    of the end, and at least that vertex."""
+    or more, or ``corner`` (n,) where given) on either side, none farther than ``reach``
+    along the petal. A petal whose base has no such corners (a pointed or rounded base):
+    the rim within 1% of ``reach`` of the end, and at least that vertex."""
     out = np.zeros(len(pts), dtype=bool)
     if not rim.any():
         return out
     start = int(np.flatnonzero(rim)[np.argmin(proj[rim])])
-    corner = corner_vertices(pts, faces, OUTLINE_CORNER)
+    corner = (corner_vertices(pts, faces, OUTLINE_CORNER) if corner is None
+              else np.asarray(corner, bool))
     for loop in boundary_loops(faces):
         at = np.flatnonzero(loop == start)
         if len(at) == 0:

@@ -182,7 +182,7 @@ class Prepared:
 
         ``axes``: the axis stage's options (:func:`pipeline.chain.axis.axis_options`):
         each petal's base, axis, tip, ``s`` and ``x`` found again on the finer mesh (the
-        same center planes), as the axis stage would have found them there, unless a
+        same center planes and outline corners), as the axis stage would have found them there, unless a
         petal's base would then lie elsewhere (its old base vertices past
         :data:`REFINED_BASE` of its length: then, and without ``axes``, every new vertex
         has its edge's mean ``s``, ``x`` and thickness, and is fixed and on the axis where
@@ -190,15 +190,17 @@ class Prepared:
         mesh. The growth map is made again on the finer edges by the growth stage's own
         rule (``rule``: :func:`pipeline.flower.growth.growth_rule`). Contact stays on this
         mesh's triangles (:attr:`contact_faces`), whose vertices come first."""
-        from pipeline.mesh.subdivide import subdivide
+        from pipeline.mesh.subdivide import outline_corners, subdivide
 
         v, f = np.asarray(self.vertices, dtype=np.float64), np.asarray(self.faces)
+        corners = outline_corners(v, f)  # (kept at every level: see outline_corners)
         fields = {"petal": self.petal, "base": self.base, "on_axis": self.on_axis, "s": self.s,
                   "x": self.x, "thickness": self.thickness,
                   "flower": self.flower}
         fields = {k: None if a is None else np.asarray(a) for k, a in fields.items()}
         for _ in range(levels):
-            v, f, parent = subdivide(v, f)
+            v, f, parent = subdivide(v, f, corners)
+            corners = np.concatenate([corners, np.zeros(len(parent), dtype=bool)])
             i, j = parent[:, 0], parent[:, 1]
             for k, a in fields.items():
                 if a is None:
@@ -212,7 +214,7 @@ class Prepared:
                 fields[k] = np.concatenate([a, new])
         tip, plane = np.asarray(self.tip), np.asarray(self.plane)
         if axes is not None and levels > 0:
-            found = self._axes_again(v, f, fields, axes)
+            found = self._axes_again(v, f, fields, axes, corners)
             if found is not None:
                 fields.update(base=found.base, on_axis=found.on_axis, s=found.s, x=found.x)
                 tip, plane = found.tip, found.plane
@@ -225,7 +227,7 @@ class Prepared:
                                    if self.contact_faces is None else self.contact_faces,
                                    **fields)
 
-    def _axes_again(self, v, f, fields: dict, axes: dict):
+    def _axes_again(self, v, f, fields: dict, axes: dict, corners=None):
         """The axes found on the finer mesh ``v, f`` (:meth:`refined`), or None where they
         cannot be found or a petal's base would move (logged)."""
         petal = fields["petal"]
@@ -234,7 +236,8 @@ class Prepared:
             flower = np.zeros(len(self.tip), dtype=np.int64)
             flower[petal] = fields["flower"]
         try:
-            found = find_axes(v, f, petal, **axes, planes=np.asarray(self.plane), flower=flower)
+            found = find_axes(v, f, petal, **axes, planes=np.asarray(self.plane), flower=flower,
+                              corners=corners)
         except (BadPetal, WeakBase, ValueError) as exc:
             log.info("the axes on the finer mesh: %s; the old ones carried over", exc)
             return None
