@@ -424,7 +424,7 @@ def resample_boundary(vertices: np.ndarray, faces: np.ndarray, h: float,
     v = np.asarray(vertices, dtype=np.float64)
     f = np.asarray(faces, dtype=np.int64)
     pinned = np.zeros(len(v), dtype=bool) if fixed is None else np.asarray(fixed, dtype=bool)
-    fixed = corner_vertices(v, f) | pinned
+    fixed = corner_vertices(v, f, OUTLINE_CORNER) | pinned
     for _ in range(passes):
         v, f, fixed, split = _split_long(v, f, fixed, h)
         pinned = np.r_[pinned, np.zeros(len(v) - len(pinned), dtype=bool)]
