@@ -246,3 +246,42 @@ def test_a_bloom_that_stops_cut_finer_is_solved_again_as_it_is(tmp_path, monkeyp
         assert asked == [asked[0], n] and asked[0] > 12 * n  # cut finer, then as it is
         assert "solved_on_vertices" not in again.attrs
         assert np.array_equal(again["frames/positions"][:], plain["frames/positions"][:])
+
+
+def _cupped_petal():
+    """A coarse cupped petal (37 vertices, z = 0.3 x^2) whose base edge, bowed a little,
+    ends at two corners turning just over OUTLINE_CORNER: ``(vertices, faces, the two
+    corners)``."""
+    from scipy.spatial import Delaunay
+
+    a = np.radians(38.0)
+    right = np.array([(0.15, 0.02), (0.15 + 0.2 * np.cos(a), 0.02 + 0.2 * np.sin(a)),
+                      (0.42, 0.33), (0.47, 0.5), (0.45, 0.7), (0.38, 0.88), (0.25, 1.02)])
+    outline = np.vstack([(0.0, 0.0), right, (0.0, 1.1), right[::-1] * [-1, 1]])
+    gx, gy = np.meshgrid(np.linspace(-0.3, 0.3, 4), np.linspace(0.25, 0.9, 5))
+    pts = np.vstack([outline, np.c_[gx.ravel(), gy.ravel()]])
+    return np.c_[pts, 0.3 * pts[:, 0] ** 2], Delaunay(pts).simplices, [1, len(outline) - 1]
+
+
+def test_a_coarse_outline_cut_finer_twice_keeps_its_base_corners():
+    """Cut finer twice, the curve through a coarse rim rounds a base corner under
+    OUTLINE_CORNER, and the base edge found by the turn on the finer mesh shrank to one
+    vertex (a Poisson-disc bud's petals were clamped and measured from a point: 6.5 deg
+    less open); with the coarse mesh's corners kept (outline_corners) it still runs
+    between them."""
+    from pipeline.flower.coords import base_edge
+    from pipeline.mesh.remesh import OUTLINE_CORNER, corner_vertices
+    from pipeline.mesh.subdivide import outline_corners
+
+    v, f, ends = _cupped_petal()
+    corners = outline_corners(v, f)
+    assert corners[ends].all()
+    for _ in range(2):
+        v, f, parent = subdivide(v, f, corners)
+        corners = np.concatenate([corners, np.zeros(len(parent), dtype=bool)])
+    assert not corner_vertices(v, f, OUTLINE_CORNER)[ends].any()  # (rounded off)
+    rim = topology.boundary_vertices(f, len(v))
+    reach = 0.08 * np.ptp(v[:, 1])
+    assert base_edge(v, f, rim, v[:, 1], reach).sum() == 1
+    kept = base_edge(v, f, rim, v[:, 1], reach, corners)
+    assert kept[ends].all() and kept.sum() > 4
