@@ -304,10 +304,13 @@ SCHEMA: dict[str, Any] = {
             "thickness": Key(float, 0.01, "quasi-static: the gap the contact barrier keeps "
                              "between petals (mesh units, mean edge 1); the barrier acts from "
                              "twice this distance on", low=0.0, high=0.25, low_open=True),
-            "gap": Key(float, 0.00065, "simulate.model = shell: the gap the contact barrier "
+            "gap": Key(float, 0.002, "simulate.model = shell: the gap the contact barrier "
                        "keeps between petals, as a fraction of the petal size (sqrt of the mean "
                        "petal area; it replaces thickness, whose mesh units shrink as the mesh "
-                       "is refined); 0.00065 is 0.01 mean edges on the default petal",
+                       "is refined); 0.002 is 0.03 mean edges on the default petal, a fifth of "
+                       "a real petal's thickness (a barrier of far less reach than an edge "
+                       "catches on the facets it slides over: the opening jumps 0.4 deg from "
+                       "frame to frame where petals press)",
                        low=0.0, high=0.02, low_open=True),
             "offset": Key(float, 0.001, "a vertex that went through a petal is put back this far "
                           "on its side (mesh units; keep it below a step's motion, or the "
