@@ -270,8 +270,7 @@ def test_a_coarse_outline_cut_finer_twice_keeps_its_base_corners():
     less open); with the coarse mesh's corners kept (outline_corners) it still runs
     between them."""
     from pipeline.flower.coords import base_edge
-    from pipeline.mesh.remesh import OUTLINE_CORNER, corner_vertices
-    from pipeline.mesh.subdivide import outline_corners
+    from pipeline.mesh.remesh import OUTLINE_CORNER, corner_vertices, outline_corners
 
     v, f, ends = _cupped_petal()
     corners = outline_corners(v, f)

@@ -413,7 +413,7 @@ def find_axes(vertices: np.ndarray, faces: np.ndarray, petal: np.ndarray, *,
     centre cut away): such a petal's base is there, where it leaves the centre, not at
     the end of whatever the cut left of its old base end. ``corners``: (V,) the outline's
     corners, where known (a mesh cut finer keeps its coarse mesh's:
-    :func:`pipeline.mesh.subdivide.outline_corners`), else found by their turn.
+    :func:`pipeline.mesh.remesh.outline_corners`), else found by their turn.
 
     Raises :class:`BadPetal` (a petal with no sound axis) or :class:`WeakBase`.
     """

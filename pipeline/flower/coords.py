@@ -14,7 +14,7 @@ import numpy as np
 from scipy.sparse.csgraph import dijkstra
 
 from pipeline.mesh.geodesic import heat_distance, heat_distances, signed_heat_distances
-from pipeline.mesh.remesh import OUTLINE_CORNER, boundary_loops, corner_vertices
+from pipeline.mesh.remesh import boundary_loops, outline_corners
 from pipeline.mesh.topology import boundary_vertices
 
 #: the cross-section coordinate from the mean of Neumann and Dirichlet heat where the
@@ -100,8 +100,7 @@ def base_edge(pts, faces, rim, proj, reach, corner=None) -> np.ndarray:
     if not rim.any():
         return out
     start = int(np.flatnonzero(rim)[np.argmin(proj[rim])])
-    corner = (corner_vertices(pts, faces, OUTLINE_CORNER) if corner is None
-              else np.asarray(corner, bool))
+    corner = outline_corners(pts, faces) if corner is None else np.asarray(corner, bool)
     for loop in boundary_loops(faces):
         at = np.flatnonzero(loop == start)
         if len(at) == 0:

@@ -19,7 +19,7 @@ import numpy as np
 import trimesh
 
 from pipeline.mesh import topology
-from pipeline.mesh.remesh import OUTLINE_CORNER, corner_vertices
+from pipeline.mesh.remesh import outline_corners
 
 
 def subdivide(vertices: np.ndarray, faces: np.ndarray, corners: np.ndarray | None = None):
@@ -54,17 +54,6 @@ def subdivide(vertices: np.ndarray, faces: np.ndarray, corners: np.ndarray | Non
 #: how far into its face (a fraction of the face's height over the edge) an outline edge's
 #: new vertex may move off where the normals put it
 INTO_FACE = 0.25
-
-
-def outline_corners(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    """``(V,) bool``: the outline's corners (turns of
-    :data:`~pipeline.mesh.remesh.OUTLINE_CORNER` or more). A mesh cut finer keeps these
-    as its corners at every level (:meth:`pipeline.sim.build.Prepared.refined`): the
-    curve through a coarse rim rounds a corner a little at each cut, and a Poisson-disc
-    petal's base corner, turning 39.6 deg at 100 vertices, turned 29.2 after two cuts,
-    no corner by the turn; the axis stage's base edge, which ends at corners, shrank to
-    one vertex and the petal's clamp and ``s`` moved (6.5 deg less open)."""
-    return corner_vertices(vertices, faces, OUTLINE_CORNER)
 
 
 def _along_the_outline(v: np.ndarray, faces: np.ndarray, edges: np.ndarray,

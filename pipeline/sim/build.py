@@ -182,15 +182,16 @@ class Prepared:
 
         ``axes``: the axis stage's options (:func:`pipeline.chain.axis.axis_options`):
         each petal's base, axis, tip, ``s`` and ``x`` found again on the finer mesh (the
-        same center planes and outline corners), as the axis stage would have found them there, unless a
-        petal's base would then lie elsewhere (its old base vertices past
+        same center planes and outline corners), as the axis stage would have found them
+        there, unless a petal's base would then lie elsewhere (its old base vertices past
         :data:`REFINED_BASE` of its length: then, and without ``axes``, every new vertex
         has its edge's mean ``s``, ``x`` and thickness, and is fixed and on the axis where
         both ends are). A base held further (:attr:`held`) is held as far on the finer
         mesh. The growth map is made again on the finer edges by the growth stage's own
         rule (``rule``: :func:`pipeline.flower.growth.growth_rule`). Contact stays on this
         mesh's triangles (:attr:`contact_faces`), whose vertices come first."""
-        from pipeline.mesh.subdivide import outline_corners, subdivide
+        from pipeline.mesh.remesh import outline_corners
+        from pipeline.mesh.subdivide import subdivide
 
         v, f = np.asarray(self.vertices, dtype=np.float64), np.asarray(self.faces)
         corners = outline_corners(v, f)  # (kept at every level: see outline_corners)
