@@ -147,11 +147,11 @@ def test_an_open_flower_whose_inner_whorls_stand_is_open():
 
 
 def test_a_bud_whose_petals_do_not_open_blooms_again_held_further(monkeypatch, tmp_path):
-    """A bud's bloom with a petal under 5 deg is run again with each petal held up to
-    s = HOLD_BOWL, and that bloom is kept where more petals open; not when every petal
-    opened, not when the scene sets how petals are held, and the first bloom is kept
-    where holding opens no more. (The runs are stand-ins: which petals open is read
-    from the base each was given.)"""
+    """A bud's bloom with a petal under 5 deg, or under half the others' median opening,
+    is run again with each petal held up to s = HOLD_BOWL, and that bloom is kept where
+    fewer petals lag; not when every petal opened with the others, not when the scene
+    sets how petals are held, and the first bloom is kept where holding opens no more.
+    (The runs are stand-ins: which petals open is read from the base each was given.)"""
     from pipeline.chain import problem
     from pipeline.chain import simulate as chain
     from pipeline.flower.measure import Start
@@ -204,6 +204,17 @@ def test_a_bud_whose_petals_do_not_open_blooms_again_held_further(monkeypatch, t
     opened = types.SimpleNamespace(diag={"opening_angle_per_petal": np.array([[0.0] * 3,
                                                                               [20.0] * 3])})
     assert chain.hold_bowls(cfg, prep, job, ckpt, opened)[1] is opened and not runs
+
+    # a petal that opens, but under half as far as the others, lags: tried again too
+    lags = types.SimpleNamespace(diag={"opening_angle_per_petal": np.array(
+        [[0.0] * 3, [58.0, 60.0, 19.0]])}, wall=2.0)
+    monkeypatch.setattr(problem, "problem", bloom([50.0, 52.0, 48.0]))
+    kept, result, held = chain.hold_bowls(cfg, prep, job, ckpt, lags)
+    assert held == chain.HOLD_BOWL and len(runs) == 1
+    runs.clear()  # (one that opens under half the median but keeps within it: none)
+    even = types.SimpleNamespace(diag={"opening_angle_per_petal": np.array(
+        [[0.0] * 3, [58.0, 60.0, 31.0]])})
+    assert chain.hold_bowls(cfg, prep, job, ckpt, even)[1] is even and not runs
 
 
 def test_a_bud_that_closes_is_tried_again_held_and_kept_as_it_was(tmp_path):

@@ -42,6 +42,26 @@ def test_soundness_counts_intersecting_frames_and_flags_petals_that_did_not_open
     assert "\n" not in line
 
 
+def test_a_petal_lags_under_half_its_own_flowers_median_opening():
+    """Shut (under 5 deg) or under half the median of its flower's petals: the second
+    flower's 25 deg lags its 60s, the first flower's 25 deg is its median."""
+    opening = np.array([24.0, 25.0, 26.0, 4.0, 60.0, 62.0, 25.0, 61.0])
+    flower = np.array([0, 0, 0, 0, 1, 1, 1, 1])
+    assert report.lagging(opening, flower).tolist() == [False, False, False, True,
+                                                       False, False, True, False]
+    assert report.lagging(opening).tolist() == [False] * 3 + [True] + [False] * 4
+    assert not report.lagging(np.array([3.0 * report.NOT_OPEN])).any()  # (a lone petal)
+    X = np.stack([two_triangles(False)] * 2)  # report.json names it, apart from the shut
+    sound = report.soundness(X, FACES, np.array([[0.0, 0.0], [60.0, 15.0]]),
+                             petal_names=["a", "b"])
+    assert sound["lagging"] == [{"petal": 1, "name": "b", "opening": 15.0}]
+    assert sound["not_opened"] == [] and report.summary_line(sound).startswith("sound")
+    warned = []
+    report.warn_lagging(sound, warned.append)
+    assert warned == ["b lags the others: +15.0 deg at the end (under 0.5 of its flower's "
+                      "median)"]
+
+
 def test_summary_of_a_sound_open_bloom_gives_its_distance_to_the_model():
     X = np.stack([two_triangles(False)] * 2)
     line = report.summary(X, FACES, np.array([[0.0, 0.0], [5.0, 21.25]]),

@@ -48,6 +48,7 @@ def run(sim_h5: str | Path, out: str | Path, cfg=None, *, overwrite: bool = Fals
              "an intersection", data["opening_angle_final_mean"], data["boundary_wrinkles"][-1],
              data["crossings"][-1], data["intersecting_frames"], len(data["intersecting"]))
     report.warn_not_opened(data["not_opened"], lambda m: log.warning("warning: %s", m))
+    report.warn_lagging(data, lambda m: log.warning("warning: %s", m))
     log.info("%s", data["summary"])
     log.info("wrote %s and %s", out_path, png)
 

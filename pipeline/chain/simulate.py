@@ -33,9 +33,10 @@ from pipeline.sim.terms.contact import frame_intersections
 
 log = logging.getLogger("bloom")
 
-#: a bud blooming forward of which a petal does not open (under report.NOT_OPEN) is bloomed
-#: again with each petal held up to this s (every vertex within it fixed), where the scene
-#: leaves the base to the defaults, and the bloom where more petals open is kept: the
+#: a bud blooming forward of which a petal does not open (under report.NOT_OPEN) or lags
+#: the others (report.lagging) is bloomed again with each petal held up to this s (every
+#: vertex within it fixed), where the scene leaves the base to the defaults, and the bloom
+#: where fewer petals lag is kept (the lotus: 2 of 16 lag, none held): the
 #: closed tulip's bowl-shaped petals turn inward from the bowl's bottom under the rims'
 #: growth (-3.3 deg on average, the least -9.7); held up to 0.35 every petal opens, the
 #: least 14.5 deg (docs/performance.md). No measure of the model was found that tells
@@ -134,10 +135,13 @@ def run(growth_h5: str | Path, out: str | Path, cfg: Config, *, overwrite: bool 
                                  intersecting=frame_intersections(seen, prep.faces, petal,
                                                                   prep.left),
                                  held_flowers=result.held,
-                                 stopped=attrs.get("bloom_stopped_at"))
+                                 stopped=attrs.get("bloom_stopped_at"),
+                                 flower=src["flower/petal_flower"][:]
+                                 if "flower/petal_flower" in src else None)
         diag["intersecting"] = np.asarray(sound["intersecting"], dtype=bool)
         attrs["summary"] = report.summary_line(sound)
         report.warn_not_opened(sound["not_opened"], lambda m: log.warning("%s", m))
+        report.warn_lagging(sound, lambda m: log.warning("%s", m))
         (log.info if attrs["summary"].startswith("sound") else log.warning)("%s", attrs["summary"])
         with artifact.writing(out, stage="simulate", config_json=cfg.to_json(),
                               inputs=inputs, attrs=attrs, previous=src) as h5:
@@ -181,16 +185,17 @@ def run(growth_h5: str | Path, out: str | Path, cfg: Config, *, overwrite: bool 
 
 
 def hold_bowls(cfg: Config, prep: Prepared, job, ckpt: Path, result):
-    """A bud's bloom of which some petals did not open, tried again with each petal held
-    up to :data:`HOLD_BOWL` of its length (unless the scene sets how petals are held,
+    """A bud's bloom of which some petals did not open or lag the others
+    (:func:`~pipeline.review.report.lagging`), tried again with each petal held up to
+    :data:`HOLD_BOWL` of its length (unless the scene sets how petals are held,
     :data:`HOLD_KEYS`): ``(prep, result, held)``, the second bloom's (``held`` the s it
-    holds to) where more of its petals open, else the first's (``held`` None), its wall
+    holds to) where fewer of its petals lag, else the first's (``held`` None), its wall
     seconds those of both. Logged."""
     opening = result.diag.get("opening_angle_per_petal")
     if opening is None or any(key in cfg.given for key in HOLD_KEYS):
         return prep, result, None
-    def closed(opening) -> int:  # petals under report.NOT_OPEN at the last frame
-        return int(np.sum(np.asarray(opening)[-1] < report.NOT_OPEN))
+    def closed(opening) -> int:  # petals shut or lagging at the last frame
+        return int(np.sum(report.lagging(np.asarray(opening)[-1])))
 
     shut = closed(opening)
     if shut == 0:
@@ -198,10 +203,13 @@ def hold_bowls(cfg: Config, prep: Prepared, job, ckpt: Path, result):
     wider = prep.base | (np.asarray(prep.s) <= HOLD_BOWL)
     if np.array_equal(wider, prep.base):
         return prep, result, None
-    log.info("%d of %d petals did not open (under %g deg): blooming again with each held up "
-             "to s = %g (the bottom of a bowl-shaped petal can turn inward under the rims' "
-             "growth; axis.base_band sets it)", shut, np.asarray(opening).shape[1],
-             report.NOT_OPEN, HOLD_BOWL)
+    final = np.asarray(opening)[-1]
+    log.info("%d of %d petals did not open or lag the others (under %g deg, or under %g of "
+             "the median %.1f deg; the least %.1f): blooming again with each held up to "
+             "s = %g (the bottom of a bowl-shaped petal can turn inward under the rims' "
+             "growth, a petal be caught under its neighbour; axis.base_band sets it)", shut,
+             len(final), report.NOT_OPEN, report.LAGS, float(np.median(final)),
+             float(final.min()), HOLD_BOWL)
     held = dataclasses.replace(prep, base=wider, held=HOLD_BOWL)
     again_job = dataclasses.replace(job, inputs={**job.inputs, "base held to": HOLD_BOWL})
     try:
@@ -214,10 +222,10 @@ def hold_bowls(cfg: Config, prep: Prepared, job, ckpt: Path, result):
     still = closed(opened) if opened is not None else shut
     both = result.wall + again.wall  # (the seconds the stage spent: both blooms)
     if still < shut:
-        log.info("held up to s = %g: %d of them do not open (%d before): that bloom kept",
+        log.info("held up to s = %g: %d of them lag (%d before): that bloom kept",
                  HOLD_BOWL, still, shut)
         return held, dataclasses.replace(again, wall=both), HOLD_BOWL
-    log.info("held up to s = %g: %d do not open (%d before): the first bloom kept",
+    log.info("held up to s = %g: %d lag (%d before): the first bloom kept",
              HOLD_BOWL, still, shut)
     return prep, dataclasses.replace(result, wall=both), None
 

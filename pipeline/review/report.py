@@ -26,6 +26,11 @@ from pipeline.sim.terms.contact import frame_intersections
 NEEDS = ("mesh/petal", "growth/hinges", "axis/s", "axis/x", "diagnostics/opening_angle_per_petal")
 #: a petal whose opening at the last frame is under this (degrees) did not open
 NOT_OPEN = 5.0
+#: a petal of a flower of several that opens less than this share of the median opening
+#: of its flower's petals lags behind them: caught under a neighbour, or turned in at its
+#: bottom (the lotus's inner petals 7 and 10 opened 19.1 and 9.9 deg where the other
+#: fourteen opened 51-77; the default buds' least is 0.70 of their median)
+LAGS = 0.5
 #: an open start's last frame further than this from the model (RMS, in petal lengths)
 #: did not bloom back onto it
 OFF_MODEL = 0.01
@@ -43,6 +48,19 @@ def closing_dip(opening_per_petal) -> float:
     if not opening.size:
         return 0.0
     return float(max(0.0, -np.min(opening.reshape(len(opening), -1).mean(axis=1))))
+
+
+def lagging(opening, flower=None) -> np.ndarray:
+    """``(P,) bool``: the petals that did not open (under :data:`NOT_OPEN` degrees at the
+    end, ``opening (P,)``) or lag their flower's (under :data:`LAGS` of the median opening
+    of its petals; ``flower (P,)`` each petal's flower, None: one flower)."""
+    opening = np.asarray(opening, dtype=np.float64)
+    flower = np.zeros(len(opening), np.int64) if flower is None else np.asarray(flower)
+    behind = opening < NOT_OPEN
+    for k in np.unique(flower):
+        mine = flower == k
+        behind[mine] |= opening[mine] < LAGS * np.median(opening[mine])
+    return behind
 
 
 def crossings(X, faces, petal) -> int:
@@ -66,7 +84,7 @@ def soundness(positions: np.ndarray, faces: np.ndarray, opening_per_petal: np.nd
               distance_to_model: float | None = None, petal_names: list[str] | None = None,
               intersecting: list[bool] | None = None, petal=None, left=None,
               bud_closed: float | None = None, held_flowers=None,
-              stopped: float | None = None) -> dict:
+              stopped: float | None = None, flower=None) -> dict:
     """Whether a bloom is sound, from its arrays.
 
     Parameters
@@ -98,7 +116,10 @@ def soundness(positions: np.ndarray, faces: np.ndarray, opening_per_petal: np.nd
     dict with ``frames`` (the frames checked), ``intersecting`` (a bool each), ``intersecting_frames``,
     ``distance_to_model`` (float or None), ``opening_final_per_petal`` (P degrees),
     ``did_not_open`` (P bools: under :data:`NOT_OPEN` degrees at the last frame),
-    ``not_opened`` (one ``{"petal", "name", "opening"}`` per petal that did not open) and
+    ``not_opened`` (one ``{"petal", "name", "opening"}`` per petal that did not open),
+    ``lagging`` (the same for each petal that opened but lags its flower's, under
+    :data:`LAGS` of their median, ``flower (P,)`` each petal's flower: not a verdict, a
+    petal may be modelled to stay in) and
     ``closes_first`` (degrees: how far the mean opening falls below its start, 0 if never).
     """
     opening = np.asarray(opening_per_petal, dtype=np.float64).reshape(len(positions), -1)
@@ -110,6 +131,7 @@ def soundness(positions: np.ndarray, faces: np.ndarray, opening_per_petal: np.nd
     names = list(petal_names) if petal_names is not None else [f"petal {p}" for p in
                                                                  range(len(final))]
     closed = final < NOT_OPEN
+    behind = lagging(final, flower) & ~closed
     distance = None if distance_to_model is None else float(distance_to_model)
     dip = closing_dip(opening)
     return {
@@ -121,6 +143,8 @@ def soundness(positions: np.ndarray, faces: np.ndarray, opening_per_petal: np.nd
         "did_not_open": closed.tolist(),
         "not_opened": [{"petal": int(p), "name": names[p], "opening": float(final[p])}
                        for p in np.flatnonzero(closed)],
+        "lagging": [{"petal": int(p), "name": names[p], "opening": float(final[p])}
+                    for p in np.flatnonzero(behind)],
         "left": left,
         "bud_closed": None if bud_closed is None else float(bud_closed),
         "flowers_kept_as_modelled": [int(k) for k in (held_flowers if held_flowers is not None
@@ -144,6 +168,17 @@ def warn_not_opened(not_opened: list[dict], warn) -> None:
     if len(not_opened) > NAMED:
         warn(f"and {len(not_opened) - NAMED} more petals did not open (report.json's "
              "not_opened names each)")
+
+
+def warn_lagging(sound: dict, warn) -> None:
+    """A warning per petal that opened but lags its flower's (:func:`soundness`'s
+    ``lagging``), through ``warn(message)``, as :func:`warn_not_opened`."""
+    behind = sound.get("lagging") or []
+    for p in behind[:NAMED]:
+        warn(f"{p['name']} lags the others: {p['opening']:+.1f} deg at the end (under "
+             f"{LAGS:g} of its flower's median)")
+    if len(behind) > NAMED:
+        warn(f"and {len(behind) - NAMED} more petals lag (report.json's lagging names each)")
 
 
 def summary_line(sound: dict) -> str:
@@ -264,7 +299,9 @@ def compute(sim) -> dict:
                       distance_to_model=None if distance is None else float(distance),
                       bud_closed=None if closed is None else float(closed),
                       petal_names=_names(sim, petal, faces), intersecting=intersecting,
-                      petal=petal, left=left)
+                      petal=petal, left=left,
+                      flower=sim["flower/petal_flower"][:] if "flower/petal_flower" in sim
+                      else None)
     report = {
         "scene": sim.config().get("scene", {}).get("name", "") or sim.path.parent.name,
         "effects": [e for e in str(sim.attrs.get("effects", "")).split(",") if e],
