@@ -4,6 +4,7 @@ held further (simulate's second try)."""
 
 from __future__ import annotations
 
+import dataclasses
 import types
 
 import h5py
@@ -170,6 +171,8 @@ def test_a_bud_whose_petals_do_not_open_blooms_again_held_further(monkeypatch, t
         return run
 
     monkeypatch.setattr(problem.Result, "of", staticmethod(lambda run: run))
+    monkeypatch.setattr(chain, "frame_intersections",  # (a stand-in's frames say it)
+                        lambda frames, *a: [frames == "through itself"])
     first = bloom(None)(prep, None, None)
     runs.clear()
     cfg = load_config()
@@ -206,11 +209,16 @@ def test_a_bud_whose_petals_do_not_open_blooms_again_held_further(monkeypatch, t
     assert chain.hold_bowls(cfg, prep, job, ckpt, opened)[1] is opened and not runs
 
     # a petal that opens, but under half as far as the others, lags: tried again too
-    lags = types.SimpleNamespace(diag={"opening_angle_per_petal": np.array(
-        [[0.0] * 3, [58.0, 60.0, 19.0]])}, wall=2.0)
+    lags = dataclasses.replace(first, diag={"opening_angle_per_petal": np.array(
+        [[0.0] * 3, [58.0, 60.0, 19.0]])})
     monkeypatch.setattr(problem, "problem", bloom([50.0, 52.0, 48.0]))
     kept, result, held = chain.hold_bowls(cfg, prep, job, ckpt, lags)
     assert held == chain.HOLD_BOWL and len(runs) == 1
+    runs.clear()  # a held bloom with a frame through itself: the first one stands
+    monkeypatch.setattr(problem, "problem", lambda *a, **k: dataclasses.replace(
+        bloom([50.0, 52.0, 48.0])(*a, **k), positions="through itself"))
+    kept, result, held = chain.hold_bowls(cfg, prep, job, ckpt, lags)
+    assert held is None and kept is prep and result.diag is lags.diag
     runs.clear()  # (one that opens under half the median but keeps within it: none)
     even = types.SimpleNamespace(diag={"opening_angle_per_petal": np.array(
         [[0.0] * 3, [58.0, 60.0, 31.0]])})

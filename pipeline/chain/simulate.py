@@ -189,8 +189,8 @@ def hold_bowls(cfg: Config, prep: Prepared, job, ckpt: Path, result):
     (:func:`~pipeline.review.report.lagging`), tried again with each petal held up to
     :data:`HOLD_BOWL` of its length (unless the scene sets how petals are held,
     :data:`HOLD_KEYS`): ``(prep, result, held)``, the second bloom's (``held`` the s it
-    holds to) where fewer of its petals lag, else the first's (``held`` None), its wall
-    seconds those of both. Logged."""
+    holds to) where fewer of its petals lag and no more frames have an intersection, else
+    the first's (``held`` None), its wall seconds those of both. Logged."""
     opening = result.diag.get("opening_angle_per_petal")
     if opening is None or any(key in cfg.given for key in HOLD_KEYS):
         return prep, result, None
@@ -221,6 +221,16 @@ def hold_bowls(cfg: Config, prep: Prepared, job, ckpt: Path, result):
     opened = again.diag.get("opening_angle_per_petal")
     still = closed(opened) if opened is not None else shut
     both = result.wall + again.wall  # (the seconds the stage spent: both blooms)
+
+    def crossed(bloom) -> int:  # frames with an intersection (report.soundness's test)
+        return int(sum(frame_intersections(bloom.positions, prep.faces, prep.petal,
+                                           prep.left)))
+
+    worse = crossed(again) if still < shut else 0
+    if worse and worse > crossed(result):  # (an intersection is worse than a lagging petal)
+        log.info("held up to s = %g: %d of them lag (%d before), but %d frame(s) with an "
+                 "intersection: the first bloom kept", HOLD_BOWL, still, shut, worse)
+        return prep, dataclasses.replace(result, wall=both), None
     if still < shut:
         log.info("held up to s = %g: %d of them lag (%d before): that bloom kept",
                  HOLD_BOWL, still, shut)
