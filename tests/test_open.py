@@ -268,6 +268,40 @@ def test_a_bloom_that_closes_first_is_the_path_back_played_forward(tmp_path, mon
             assert h.attrs["summary"].startswith("sound")
 
 
+@pytest.mark.parametrize("bud_hangs_open", [False, True])
+def test_a_bloom_that_closes_first_is_stopped_there_and_goes_on_only_if_needed(
+        tmp_path, monkeypatch, bud_hangs_open):
+    """An open start's bloom from its bud is stopped at the frame at which it has closed
+    first (over report.CLOSES_FIRST) and the path back tried then: kept, the rest of the
+    bloom is never run; not kept (its bud hangs open the other way), the bloom goes on
+    from the frame it stopped at, and ends the same bits as one that was never stopped.
+    (The dip is a stand-in: 30 deg on the frames of a bloom not yet at its end.)"""
+    from pipeline.review import report
+    from pipeline.sim.build import Prepared
+
+    out = _open_flower_stages(tmp_path)
+    args = ["simulate", str(out["g"]), "--set", "growth.start=open", "--set",
+            "simulate.frames=9", "--set", "simulate.petal_vertices=0", "--out"]
+    whole = CliRunner().invoke(cli, args + [str(tmp_path / "whole.h5")])
+    assert whole.exit_code == 0 and "before it opens" not in whole.output, whole.output
+    real = report.closing_dip
+    monkeypatch.setattr(report, "closing_dip",
+                        lambda opening: 30.0 if 1 < len(opening) < 9 else real(opening))
+    if bud_hangs_open:
+        monkeypatch.setattr(Prepared, "bud_closed", lambda self, bud, model: -4.0)
+    r = CliRunner().invoke(cli, args + [str(out["s"])])
+    assert r.exit_code == 0, r.output
+    assert "closes 30.0 deg (mean over its petals) by frame 1 before it opens" in r.output
+    with h5py.File(out["s"]) as h, h5py.File(tmp_path / "whole.h5") as w:
+        if bud_hangs_open:
+            assert "the rest of the bloom from the bud, from frame 1" in r.output
+            assert "bloom_path" not in h.attrs
+            np.testing.assert_array_equal(h["frames/positions"][()], w["frames/positions"][()])
+        else:
+            assert "the rest of the bloom" not in r.output
+            assert h.attrs["bloom_path"] == "retraced"
+
+
 def test_closing_dip_is_the_mean_openings_fall_below_its_start():
     from pipeline.review.report import closing_dip
 

@@ -269,25 +269,49 @@ def _problem(prep: Prepared, job: Job, ckpt: Path, label: str = "") -> Bloom:
                  ", ".join(effects.names) or "none")
         if effects.connections is not None:
             log.info("%d connection springs between petals", len(effects.connections.pairs))
-        failed = stopped = None
         what = f"simulate {label}" if label else "simulate"
-        clock = time.perf_counter()
-        with Progress(steps, what, progress) as bar:
-            try:
-                rec, wall = integrate(model, state, control, integrator, steps=steps,
-                                      frames=frames, h=h, petals=petals, effects=effects,
-                                      progress=bar.update, resume=resumed,
-                                      checkpoint=saver)
-            except (Diverged, NotConverged, ValueError, RuntimeError) as exc:
-                saved.unlink(missing_ok=True)  # a failed run's checkpoint would fail again
-                quasi = isinstance(exc, NotConverged) and sim["integrator"] == "quasi-static"
-                if quasi and model_positions is None and len(exc.recording.time) > 1:
-                    rec, stopped = _stopped(exc, petal, h)
-                    wall = time.perf_counter() - clock
-                elif not (quasi and model_positions is not None):
-                    raise refusal(exc, sim, steps, petal, where) from None
-                else:
-                    failed = exc
+        # an open start's bloom that closes first is stopped there: the path back is tried
+        # before the rest of it (hallgeirl's flower spent 190 s on a bloom it threw away)
+        watch = model_positions is not None and sim["integrator"] == "quasi-static"
+
+        def forward(resume, watched: bool):
+            """The bloom from the bud, from ``resume`` (frames so far, or None): ``(rec,
+            wall, failed, stopped, closing)``, ``closing`` where it was stopped at the
+            frame at which it had closed over CLOSES_FIRST (``watched``; ``rec`` then the
+            frames so far, ``state`` and the integrator at that frame, to go on)."""
+            seen = {"rec": resume}
+
+            def saving(rec_, state_):
+                saver(rec_, state_)
+                seen["rec"] = rec_
+                if watched and report.closing_dip(rec_.diagnostics.get(
+                        "opening_angle_per_petal", ())) > report.CLOSES_FIRST:
+                    raise ClosesFirst
+
+            failed_ = stopped_ = None
+            clock = time.perf_counter()
+            with Progress(steps, what, progress) as bar:
+                try:
+                    rec_, wall_ = integrate(model, state, control, integrator, steps=steps,
+                                            frames=frames, h=h, petals=petals, effects=effects,
+                                            progress=bar.update, resume=resume,
+                                            checkpoint=saving)
+                except ClosesFirst:
+                    return seen["rec"], time.perf_counter() - clock, None, None, True
+                except (Diverged, NotConverged, ValueError, RuntimeError) as exc:
+                    saved.unlink(missing_ok=True)  # a failed run's checkpoint would fail again
+                    quasi = (isinstance(exc, NotConverged)
+                             and sim["integrator"] == "quasi-static")
+                    if quasi and model_positions is None and len(exc.recording.time) > 1:
+                        rec_, stopped_ = _stopped(exc, petal, h)
+                        wall_ = time.perf_counter() - clock
+                    elif not (quasi and model_positions is not None):
+                        raise refusal(exc, sim, steps, petal, where) from None
+                    else:
+                        rec_, wall_, failed_ = None, time.perf_counter() - clock, exc
+            return rec_, wall_, failed_, stopped_, False
+
+        rec, wall, failed, stopped, closing = forward(resumed, watch)
 
         def retraced():
             """The model's own path back to a bud, played forward (every frame an
@@ -310,22 +334,39 @@ def _problem(prep: Prepared, job: Job, ckpt: Path, label: str = "") -> Bloom:
                             back[0], int(petal[back[1]]))
             return rec_, wall_, bud, info, fx
 
-        if failed is not None:  # an open model: its own path, from the model to a bud
+        back = _once(retraced)
+
+        def failed_forward(failed_):  # an open model: its own path, from the model to a bud
             log.warning("the bloom from the bud found no equilibrium at A = %.4g (petal "
                         "%d): the path forward leaves the branch the bud is on; the bloom "
                         "is the model's own path to its bud, played forward (every frame "
-                        "an equilibrium at its growth)", failed.growth,
-                        int(petal[failed.vertex]))
+                        "an equilibrium at its growth)", failed_.growth,
+                        int(petal[failed_.vertex]))
             try:
-                rec, wall, v0, bud_info, effects = retraced()
+                return back()
             except (Diverged, NotConverged, ValueError, RuntimeError) as exc:
                 raise refusal(exc, sim, steps, petal, where) from None
+
+        def finish():
+            """The whole bloom from the bud (the rest of it, where it was stopped as it
+            closed first): ``(recording, wall, bud, bud_info, effects)``."""
+            if not closing:
+                return rec, wall, v0, bud_info, effects
+            log.info("the rest of the bloom from the bud, from frame %d", len(rec.time) - 1)
+            rest, more, failed_, _, _ = forward(rec, False)
+            if failed_ is not None:
+                found = failed_forward(failed_)
+                return (found[0], wall + more + found[1]) + found[2:]
+            return rest, wall + more, v0, bud_info, effects
+
+        if failed is not None:
+            rec, wall, v0, bud_info, effects = failed_forward(failed)
         elif (model_positions is not None and sim["integrator"] == "quasi-static"
               and "opening_angle_per_petal" in rec.diagnostics):
             dip = report.closing_dip(rec.diagnostics["opening_angle_per_petal"])
             if dip > report.CLOSES_FIRST:
                 rec, wall, v0, bud_info, effects = _closes_first(
-                    dip, (rec, wall, v0, bud_info, effects), retraced,
+                    dip, len(rec.time) - 1 if closing else None, wall, finish, back,
                     lambda bud: prep.bud_closed(bud, model_positions))
         if (model_positions is not None and getattr(integrator, "equilibria", False)
                 and "opening_angle_per_petal" in rec.diagnostics):  # (frames at rest)
@@ -400,34 +441,71 @@ def _faded(run: Bloom, bloom, bud_closed) -> Bloom:
     return run
 
 
-def _closes_first(dip: float, forward: tuple, retraced, bud_closed) -> tuple:
+class ClosesFirst(Exception):
+    """An open start's bloom from its bud stopped at the frame at which it has closed
+    over :data:`~pipeline.review.report.CLOSES_FIRST` (its path back is tried first)."""
+
+
+def _once(make):
+    """``make()``'s result (or its exception), made at the first call only."""
+    made = {}
+
+    def once():
+        if "value" not in made:
+            try:
+                made["value"] = (make(), None)
+            except Exception as exc:  # (kept, raised again at every call)
+                made["value"] = (None, exc)
+        value, exc = made["value"]
+        if exc is not None:
+            raise exc
+        return value
+    return once
+
+
+def _closes_first(dip: float, frame: int | None, wall: float, finish, retraced,
+                  bud_closed) -> tuple:
     """An open start's bloom from its bud that closes ``dip`` deg first (over
     :data:`~pipeline.review.report.CLOSES_FIRST`: its path left the bud's branch at once,
     hallgeirl's flower 38.7 deg): the model's own path back to a bud, played forward
     (``retraced()``), where it closes less first and its bud is more closed than the model
     (``bud_closed(bud)`` > 0 or None; a bud that hangs open the other way makes no bloom).
-    ``forward`` and the result: ``(recording, wall, bud, bud_info, effects)``, the wall
-    time of both runs where the path back is kept. Logged."""
-    log.warning("the bloom from the bud closes %.1f deg (mean over its petals) before it "
+    ``frame``: the frame the bloom was stopped at, as it had closed ``dip`` (None: it ran
+    to the end); ``wall`` its seconds so far; ``finish()`` the whole bloom from the bud (it
+    goes on from ``frame``), only where the path back is not kept by ``dip`` (then it is
+    weighed again against the whole bloom's dip: the same choice as when the bloom ran to
+    the end first). The result: ``(recording, wall, bud, bud_info, effects)``, the wall
+    time of every run made. Logged."""
+    log.warning("the bloom from the bud closes %.1f deg (mean over its petals) %sbefore it "
                 "opens (over %g): its path leaves the branch the bud is on; trying the "
-                "model's own path to its bud, played forward", dip, report.CLOSES_FIRST)
+                "model's own path to its bud, played forward", dip,
+                "" if frame is None else f"by frame {frame} ", report.CLOSES_FIRST)
     try:
         back = retraced()
     except (Diverged, NotConverged, ValueError, RuntimeError) as exc:
         log.warning("the path back found no bud (%s): the bloom from the bud kept",
                     str(exc).split(";")[0])
-        return forward
+        return finish()
     dip_back = report.closing_dip(back[0].diagnostics["opening_angle_per_petal"])
     closed = bud_closed(back[2])
-    if dip_back < dip and (closed is None or closed > 0.0):
-        log.info("the path back kept: it closes %.1f deg first%s", dip_back,
-                 "" if closed is None else f", its bud {closed:.1f} deg more closed than "
-                 "the model (its petals' lean from the axis)")
-        return (back[0], forward[1] + back[1]) + back[2:]
+    if closed is None or closed > 0.0:
+        if dip_back >= dip and frame is not None:  # (weighed against the whole bloom)
+            whole = finish()
+            wall, dip = whole[1], report.closing_dip(
+                whole[0].diagnostics["opening_angle_per_petal"])
+            if dip_back >= dip:
+                log.warning("the path back closes %.1f deg first: the bloom from the bud "
+                            "kept", dip_back)
+                return whole
+        if dip_back < dip:
+            log.info("the path back kept: it closes %.1f deg first%s", dip_back,
+                     "" if closed is None else f", its bud {closed:.1f} deg more closed "
+                     "than the model (its petals' lean from the axis)")
+            return (back[0], wall + back[1]) + back[2:]
     log.warning("the path back closes %.1f deg first%s: the bloom from the bud kept",
                 dip_back, "" if closed is None or closed > 0.0 else
                 f" and its bud hangs open the other way ({closed:.1f} deg)")
-    return forward
+    return finish()
 
 
 def _from_most_closed(rec, bud_info: dict, petals_at) -> tuple:

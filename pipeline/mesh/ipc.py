@@ -14,12 +14,17 @@ _SET = False  #: whether ipctk has been put on one thread
 
 
 def ipctk():
-    """The ipctk module, on one thread (set at the first call only: the call is not free)."""
+    """The ipctk module, on one thread (set at the first call only: the call is not free),
+    its own log to errors only: its CCD warns of every pair that starts within the gap
+    ("Initial distance ... returning toi=0!", nine lines for one of hallgeirl's bud
+    searches), where the step it gives (0) is what Bloom asked and acts on, logged in
+    its own words."""
     global _SET
     import ipctk as module
 
     if not _SET:
         module.set_num_threads(1)
+        module.set_logger_level(module.LoggerLevel.error)
         _SET = True
     return module
 
