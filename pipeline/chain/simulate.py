@@ -194,10 +194,10 @@ def hold_bowls(cfg: Config, prep: Prepared, job, ckpt: Path, result):
     opening = result.diag.get("opening_angle_per_petal")
     if opening is None or any(key in cfg.given for key in HOLD_KEYS):
         return prep, result, None
-    def closed(opening) -> int:  # petals shut or lagging at the last frame
+    def behind(opening) -> int:  # petals shut or lagging at the last frame
         return int(np.sum(report.lagging(np.asarray(opening)[-1])))
 
-    shut = closed(opening)
+    shut = behind(opening)
     if shut == 0:
         return prep, result, None
     wider = prep.base | (np.asarray(prep.s) <= HOLD_BOWL)
@@ -219,7 +219,7 @@ def hold_bowls(cfg: Config, prep: Prepared, job, ckpt: Path, result):
         log.info("held up to s = %g: no bloom (%s): the first bloom kept", HOLD_BOWL, exc)
         return prep, result, None
     opened = again.diag.get("opening_angle_per_petal")
-    still = closed(opened) if opened is not None else shut
+    still = behind(opened) if opened is not None else shut
     both = result.wall + again.wall  # (the seconds the stage spent: both blooms)
 
     def crossed(bloom) -> int:  # frames with an intersection (report.soundness's test)
