@@ -302,6 +302,36 @@ def test_a_bloom_that_closes_first_is_stopped_there_and_goes_on_only_if_needed(
             assert h.attrs["bloom_path"] == "retraced"
 
 
+def test_the_lifted_and_the_own_path_share_one_path_back(tmp_path, monkeypatch):
+    """The path back depends on the bud's model only, the same for the lifted and the own
+    path at one growth.close: where both blooms close first (and every path back is
+    refused: its bud hangs open the other way), it is run once for the two (the faded
+    path's is its own), and the own path's bloom decides on it as the lifted's did."""
+    from pipeline.chain import problem as chain
+    from pipeline.review import report
+    from pipeline.sim.build import Prepared
+
+    out = _open_flower_stages(tmp_path)
+    monkeypatch.setattr(chain, "integrate", _closes_first(chain.integrate, 30.0))
+    monkeypatch.setattr(Prepared, "bud_closed", lambda self, bud, model: -4.0)
+    monkeypatch.setattr(report, "OFF_MODEL", -1.0)  # (every bloom is searched again)
+    real, made = chain.retrace, []
+
+    def counted(model, *args, **kwargs):
+        made.append(model)
+        return real(model, *args, **kwargs)
+
+    monkeypatch.setattr(chain, "retrace", counted)
+    r = CliRunner().invoke(cli, ["simulate", str(out["g"]), "--out", str(out["s"]), "--set",
+                                 "growth.start=open", "--set", "simulate.frames=9", "--set",
+                                 "simulate.petal_vertices=0"])
+    assert r.exit_code == 0, r.output
+    refused = [line for line in r.output.splitlines() if "the path back closes" in line]
+    assert len(refused) == 3 and refused[0] == refused[1], refused  # (lifted, own; faded)
+    assert "searching again along the model's own" in r.output
+    assert r.output.count("not run again") == 1 and len(made) == 2
+
+
 def test_closing_dip_is_the_mean_openings_fall_below_its_start():
     from pipeline.review.report import closing_dip
 

@@ -32,7 +32,7 @@ from pipeline.sim.explicit.semi_implicit import Diverged
 from pipeline.sim.integrators import make_integrator
 from pipeline.sim.model import Control, State
 from pipeline.sim.reverse import distance_to_model, open_start, retrace
-from pipeline.sim.run import hold_first, hold_last
+from pipeline.sim.run import Recording, hold_first, hold_last
 from pipeline.sim.run import run as integrate
 from pipeline.sim.solver.newton import NotConverged
 
@@ -313,15 +313,28 @@ def _problem(prep: Prepared, job: Job, ckpt: Path, label: str = "") -> Bloom:
 
         rec, wall, failed, stopped, closing = forward(resumed, watch)
 
-        def retraced():
-            """The model's own path back to a bud, played forward (every frame an
-            equilibrium at its growth): ``(recording, wall, bud, bud_info, effects)``."""
+        def path_back():
+            """The model's own path back to a bud, played forward: ``(recording, wall,
+            stopped, effects)`` (:func:`~pipeline.sim.reverse.retrace`)."""
             fx = build_effects(model_positions, apart)
             with Progress(steps, f"{what} (the path back)", progress) as bar:
-                rec_, wall_, back = retrace(
+                made = retrace(
                     model, model_positions, control, fresh_integrator(), fx, steps=steps,
                     frames=frames, h=h, progress=bar.update,
                     petals_at=lambda bud: prep.frames(bud).opening_toward(model_positions))
+            return (*made, fx)
+
+        # the path back depends on the bud's model only, the same for the lifted and the
+        # own path at the same growth.close (not the faded's: its rest state differs): run
+        # once for both (each of the daisy bush's daisies ran it twice, 10-12 s each)
+        shared = paths_back.setdefault((bud_info.get("bud_close"), path == "faded"),
+                                       _Shared(path_back))
+
+        def retraced():
+            """The model's own path back to a bud, played forward (every frame an
+            equilibrium at its growth): ``(recording, wall, bud, bud_info, effects)``;
+            ``wall`` 0 where another path's bloom ran it."""
+            rec_, wall_, back, fx = shared()
             bud = np.asarray(rec_.positions[0])
             info = {**bud_info, "bud_path": "faded" if path == "faded" else "own",
                     "bloom_path": "retraced",
@@ -377,6 +390,7 @@ def _problem(prep: Prepared, job: Job, ckpt: Path, label: str = "") -> Bloom:
                                       petal, base))
         return Bloom(v0, bud_info, effects, rec, wall, resumed, resumed_step, distance, stopped)
 
+    paths_back: dict = {}  #: the path back of each bud model (:class:`_Shared`)
     run_ = bloom("lifted")
     if (run_.distance is not None and run_.distance > report.OFF_MODEL
             and sim["integrator"] == "quasi-static" and run_.bud_info["bud_path"] == "lifted"):
@@ -444,6 +458,26 @@ def _faded(run: Bloom, bloom, bud_closed) -> Bloom:
 class ClosesFirst(Exception):
     """An open start's bloom from its bud stopped at the frame at which it has closed
     over :data:`~pipeline.review.report.CLOSES_FIRST` (its path back is tried first)."""
+
+
+class _Shared:
+    """``make()``'s result (or its exception), made at the first call only; at a later
+    call, a copy of the recording (the first item) whose lists are its own, and 0 wall
+    seconds (the second item): the work was done once."""
+
+    def __init__(self, make):
+        self.once, self.calls = _once(make), 0
+
+    def __call__(self) -> tuple:
+        rec, wall, *rest = self.once()
+        self.calls += 1
+        if self.calls == 1:
+            return (rec, wall, *rest)
+        log.info("the path back: the same as the first bud search's (its bud's model is "
+                 "the same), not run again")
+        return (Recording(time=list(rec.time), positions=list(rec.positions),
+                          diagnostics={k: list(v) for k, v in rec.diagnostics.items()}),
+                0.0, *rest)
 
 
 def _once(make):
