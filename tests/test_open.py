@@ -332,6 +332,43 @@ def test_the_lifted_and_the_own_path_share_one_path_back(tmp_path, monkeypatch):
     assert r.output.count("not run again") == 1 and len(made) == 2
 
 
+@pytest.mark.parametrize("hangs_open", [False, True])
+def test_an_unlifted_open_start_is_its_own_path_followed_once(tmp_path, monkeypatch,
+                                                               hangs_open):
+    """Where contact cuts the closing lift to nothing (petals that start within the gap of
+    each other: hallgeirl's, four more of the external models), the lifted path is the
+    model's own: it is followed once, as the path back, and is the bloom, with no bud
+    search and no bloom from a bud (the same frames a closing-first bloom's path back
+    gives). Where that path is no bloom (its bud hangs open the other way) the bud is
+    searched for and bloomed from, as before."""
+    from pipeline.sim.build import Prepared
+
+    out = _open_flower_stages(tmp_path)
+    monkeypatch.setattr(reverse, "contact_free", lambda lift, *args: np.zeros_like(lift))
+    searched, real = [], reverse.find_bud
+    monkeypatch.setattr(reverse, "find_bud", lambda *a, **k: searched.append(1) or real(*a, **k))
+    if hangs_open:
+        monkeypatch.setattr(Prepared, "bud_closed", lambda self, bud, model: -4.0)
+    r = CliRunner().invoke(cli, ["simulate", str(out["g"]), "--out", str(out["s"]), "--set",
+                                 "growth.start=open", "--set", "simulate.frames=9", "--set",
+                                 "simulate.petal_vertices=0"])
+    assert r.exit_code == 0, r.output
+    assert "with the lift cut to nothing the path to the bud is the model's own" in r.output
+    with h5py.File(out["s"]) as h:
+        if hangs_open:
+            assert "its bud hangs open the other way (-4.0 deg); the bud searched" in r.output
+            assert searched and "bloom_path" not in h.attrs
+            assert h.attrs["bud_seconds"] > 0.0
+        else:
+            assert not searched and "the model's own path kept as the bloom" in r.output
+            assert h.attrs["bloom_path"] == "retraced" and h.attrs["bud_seconds"] == 0.0
+            X = h["frames/positions"][()]
+            np.testing.assert_array_equal(h["open/bud"][()], X[0])
+            assert h.attrs["distance_to_model"] < 1e-12
+            assert h["diagnostics/opening_angle"][-1] - h["diagnostics/opening_angle"][0] > 10.0
+            assert h.attrs["summary"].startswith("sound")
+
+
 def test_closing_dip_is_the_mean_openings_fall_below_its_start():
     from pipeline.review.report import closing_dip
 

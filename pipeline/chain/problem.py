@@ -25,7 +25,7 @@ from pipeline.flower.growth import growth_rule
 from pipeline.flower.measure import Start
 from pipeline.progress import Progress
 from pipeline.review import report
-from pipeline.sim import checkpoint
+from pipeline.sim import checkpoint, reverse
 from pipeline.sim.build import Prepared
 from pipeline.sim.effects import Params
 from pipeline.sim.explicit.semi_implicit import Diverged
@@ -219,19 +219,18 @@ def _problem(prep: Prepared, job: Job, ckpt: Path, label: str = "") -> Bloom:
         frames_ = prep.frames(bud).opening_toward(model_positions)
         return float(np.mean(np.abs(frames_.opening_angles(model_positions))))
 
-    def bloom(path: str) -> Bloom:
+    def bloom(path: str, unlifted: bool = False) -> Bloom:
         """The run from the bud (an open start: found along ``path``, :func:`~pipeline.
         sim.reverse.open_start`), resumed from its checkpoint if asked (each path its
-        own)."""
+        own). ``unlifted``: where contact cuts the lift to nothing, the model's own path
+        is followed once, as the path back, and is the bloom where it is one
+        (:func:`_own_path_bloom`); else the bud is searched for."""
         v0, model, rest_angle, params, bud_info = v, bud_model, bud_angle, bud_params, {}
         if model_positions is not None:
             v0, model, rest_angle, params, bud_info = open_start(
                 cfg, model, model_positions, rest_angle, params, build_effects, petal,
                 base, prep.s, prep.x, prep.flower_axis, where, faces=prep.faces,
-                plane=prep.plane, path=path, closed_by=closed_by)
-        petals = prep.frames(v0)
-        if model_positions is not None:  # the model is the open flower: it says which way is out
-            petals = petals.opening_toward(model_positions)
+                plane=prep.plane, path=path, closed_by=closed_by, unlifted=unlifted)
         if cfg["growth.keys"]:
             control = Control.keyed(cfg["growth.keys"], frames, steps, h)
         else:
@@ -245,6 +244,64 @@ def _problem(prep: Prepared, job: Job, ckpt: Path, label: str = "") -> Bloom:
                 made.petal = np.asarray(petal)
             return made
 
+        what = f"simulate {label}" if label else "simulate"
+
+        def describe(effects_) -> None:  # (the run's size and effects, logged)
+            log.info("%d vertices (%d fixed), %d springs, %d hinges; %d steps of h = %g, %d "
+                     "frames; effects: %s", model.vertex_count, int(model.pinned.sum()),
+                     model.edge_count, model.hinge_count, steps, h, frames,
+                     ", ".join(effects_.names) or "none")
+            if effects_.connections is not None:
+                log.info("%d connection springs between petals",
+                         len(effects_.connections.pairs))
+
+        def path_back():
+            """The model's own path back to a bud, played forward: ``(recording, wall,
+            stopped, effects)`` (:func:`~pipeline.sim.reverse.retrace`)."""
+            fx = build_effects(model_positions, apart)
+            with Progress(steps, f"{what} (the path back)", progress) as bar:
+                made = retrace(
+                    model, model_positions, control, fresh_integrator(), fx, steps=steps,
+                    frames=frames, h=h, progress=bar.update,
+                    petals_at=lambda bud: prep.frames(bud).opening_toward(model_positions))
+            return (*made, fx)
+
+        # the path back depends on the bud's model only, the same for the lifted and the
+        # own path at the same growth.close (not the faded's: its rest state differs): run
+        # once for both (each of the daisy bush's daisies ran it twice, 10-12 s each)
+        shared = paths_back.setdefault((bud_info.get("bud_close"), path == "faded"),
+                                       _Shared(path_back))
+
+        def retraced():
+            """The model's own path back to a bud, played forward (every frame an
+            equilibrium at its growth): ``(recording, wall, bud, bud_info, effects)``;
+            ``wall`` 0 where another path's bloom ran it."""
+            rec_, wall_, back, fx = shared()
+            bud = np.asarray(rec_.positions[0])
+            info = {**bud_info, "bud_path": "faded" if path == "faded" else "own",
+                    "bloom_path": "retraced",
+                    "bud_distance": distance_to_model(bud, model_positions, petal, base)}
+            if back is not None:  # (the bud is the path's last equilibrium, short of A = 0)
+                info["bud_growth"] = back[0]
+                log.warning("the path back found no equilibrium below A = %.4g (petal %d), "
+                            "even with the rescue: the bloom starts there, from the last "
+                            "equilibrium the path reached (its first frames hold it)",
+                            back[0], int(petal[back[1]]))
+            return rec_, wall_, bud, info, fx
+
+        if model_positions is not None and v0 is None:  # (the lift cut to nothing)
+            direct = _own_path_bloom(retraced, closed_by,
+                                     lambda bud: prep.bud_closed(bud, model_positions),
+                                     "growth.close" not in cfg.given)
+            if direct is None:
+                return bloom(path)
+            rec, wall, v0, bud_info, effects = direct
+            describe(effects)
+            return Bloom(v0, bud_info, effects, rec, wall, None, 0, distance_to_model(
+                np.asarray(rec.positions[-1]), model_positions, petal, base))
+        petals = prep.frames(v0)
+        if model_positions is not None:  # the model is the open flower: it says which way is out
+            petals = petals.opening_toward(model_positions)
         integrator = fresh_integrator()
         if shell and model_positions is not None:  # (the found bud breaks the symmetry)
             integrator.perturbation = 0.0
@@ -263,13 +320,7 @@ def _problem(prep: Prepared, job: Job, ckpt: Path, label: str = "") -> Bloom:
         if resumed is not None:
             log.info("resuming from step %d (%s)", state.step, saved)
         saver = Saver(saved, key, effects, integrator, sim["checkpoint_seconds"])
-        log.info("%d vertices (%d fixed), %d springs, %d hinges; %d steps of h = %g, %d "
-                 "frames; effects: %s", model.vertex_count, int(model.pinned.sum()),
-                 model.edge_count, model.hinge_count, steps, h, frames,
-                 ", ".join(effects.names) or "none")
-        if effects.connections is not None:
-            log.info("%d connection springs between petals", len(effects.connections.pairs))
-        what = f"simulate {label}" if label else "simulate"
+        describe(effects)
         # an open start's bloom that closes first is stopped there: the path back is tried
         # before the rest of it (hallgeirl's flower spent 190 s on a bloom it threw away)
         watch = model_positions is not None and sim["integrator"] == "quasi-static"
@@ -312,40 +363,6 @@ def _problem(prep: Prepared, job: Job, ckpt: Path, label: str = "") -> Bloom:
             return rec_, wall_, failed_, stopped_, False
 
         rec, wall, failed, stopped, closing = forward(resumed, watch)
-
-        def path_back():
-            """The model's own path back to a bud, played forward: ``(recording, wall,
-            stopped, effects)`` (:func:`~pipeline.sim.reverse.retrace`)."""
-            fx = build_effects(model_positions, apart)
-            with Progress(steps, f"{what} (the path back)", progress) as bar:
-                made = retrace(
-                    model, model_positions, control, fresh_integrator(), fx, steps=steps,
-                    frames=frames, h=h, progress=bar.update,
-                    petals_at=lambda bud: prep.frames(bud).opening_toward(model_positions))
-            return (*made, fx)
-
-        # the path back depends on the bud's model only, the same for the lifted and the
-        # own path at the same growth.close (not the faded's: its rest state differs): run
-        # once for both (each of the daisy bush's daisies ran it twice, 10-12 s each)
-        shared = paths_back.setdefault((bud_info.get("bud_close"), path == "faded"),
-                                       _Shared(path_back))
-
-        def retraced():
-            """The model's own path back to a bud, played forward (every frame an
-            equilibrium at its growth): ``(recording, wall, bud, bud_info, effects)``;
-            ``wall`` 0 where another path's bloom ran it."""
-            rec_, wall_, back, fx = shared()
-            bud = np.asarray(rec_.positions[0])
-            info = {**bud_info, "bud_path": "faded" if path == "faded" else "own",
-                    "bloom_path": "retraced",
-                    "bud_distance": distance_to_model(bud, model_positions, petal, base)}
-            if back is not None:  # (the bud is the path's last equilibrium, short of A = 0)
-                info["bud_growth"] = back[0]
-                log.warning("the path back found no equilibrium below A = %.4g (petal %d), "
-                            "even with the rescue: the bloom starts there, from the last "
-                            "equilibrium the path reached (its first frames hold it)",
-                            back[0], int(petal[back[1]]))
-            return rec_, wall_, bud, info, fx
 
         back = _once(retraced)
 
@@ -391,7 +408,7 @@ def _problem(prep: Prepared, job: Job, ckpt: Path, label: str = "") -> Bloom:
         return Bloom(v0, bud_info, effects, rec, wall, resumed, resumed_step, distance, stopped)
 
     paths_back: dict = {}  #: the path back of each bud model (:class:`_Shared`)
-    run_ = bloom("lifted")
+    run_ = bloom("lifted", unlifted=sim["integrator"] == "quasi-static")
     if (run_.distance is not None and run_.distance > report.OFF_MODEL
             and sim["integrator"] == "quasi-static" and run_.bud_info["bud_path"] == "lifted"):
         # the forward path from the bud the lift picked lands on another equilibrium:
@@ -453,6 +470,40 @@ def _faded(run: Bloom, bloom, bud_closed) -> Bloom:
                 "the one %.3g from it kept", other.distance, "" if closed is None else
                 f", from a bud {closed:.1f} deg more closed than the model", run.distance)
     return run
+
+
+def _own_path_bloom(retraced, closed_by, bud_closed, doubling: bool):
+    """An open start whose closing lift contact cuts to nothing (petals that start within
+    the gap of each other: the lifted path is the model's own): that path is followed
+    once, as the path back (``retraced()``), and is the bloom where it is one: it closes
+    no more than :data:`~pipeline.review.report.CLOSES_FIRST` first, its bud does not
+    hang open the other way (``bud_closed(bud)`` > 0, or None) and, with ``doubling``
+    (growth.close at its default), it is :data:`~pipeline.sim.reverse.CLOSED` deg more
+    closed than the model (``closed_by(bud)``) or more. Returns ``(recording, wall, bud,
+    bud_info, effects)``, or None: the bud is then searched for (and the path back,
+    shared, is there if the bloom from it closes first). hallgeirl's flower ran the
+    search, a bloom from its bud that closed first, then this path: 42 s of simulate."""
+    try:
+        back = retraced()
+    except (Diverged, NotConverged, ValueError, RuntimeError) as exc:
+        log.warning("the model's own path found no bud (%s): searching for it",
+                    str(exc).split(";")[0])
+        return None
+    bud = back[2]
+    dip = report.closing_dip(back[0].diagnostics["opening_angle_per_petal"])
+    closed, turned = bud_closed(bud), closed_by(bud)
+    why = (f"it closes {dip:.1f} deg first" if dip > report.CLOSES_FIRST else
+           f"its bud hangs open the other way ({closed:.1f} deg)"
+           if closed is not None and closed <= 0.0 else
+           f"its bud is only {turned:.1f} deg more closed than the model"
+           if doubling and turned < reverse.CLOSED else None)
+    if why is not None:
+        log.info("the model's own path: %s; the bud searched for", why)
+        return None
+    log.info("the model's own path kept as the bloom: it closes %.1f deg first, its bud "
+             "%.1f deg more closed than the model%s", dip, turned if closed is None else closed,
+             "" if closed is None else " (its petals' lean from the axis)")
+    return back
 
 
 class ClosesFirst(Exception):

@@ -400,12 +400,15 @@ CLOSE_TRIES = 2
 
 
 def _find_bud_closing(cfg, close, model, positions, rest_angle, params, build_effects, petal,
-                      base, s, x, flower_axis, faces, plane, path="lifted", bud_shape=None):
+                      base, s, x, flower_axis, faces, plane, path="lifted", bud_shape=None,
+                      unlifted=False):
     """:func:`open_start`'s bud search at ``close`` (``growth.close``): the bud, the solver,
     and the model, rest angles and effect parameters that grow from it back to the mesh.
     ``path`` (:data:`PATHS`): from the model nudged toward closing, along the model's own
     path, or along it with the nudge grown into the rest state (a shell's).
-    ``bud_shape``: a shell's (:func:`bud_shape_of`)."""
+    ``bud_shape``: a shell's (:func:`bud_shape_of`). ``unlifted``: where contact cuts the
+    lift to nothing (petals that start within the gap of each other), no search is made
+    (the bud and the solver None): the lifted path would be the model's own."""
     beta = 0.0
     if cfg["effects.curl.enabled"] is True:
         params = params.but(curl={"beta": close * params.curl.beta})
@@ -438,6 +441,8 @@ def _find_bud_closing(cfg, close, model, positions, rest_angle, params, build_ef
                                beta=beta)
         return bud, solver, model, rest_angle, params
     lift = contact_free(lift, positions, at_model)
+    if unlifted and not np.any(lift):
+        return None, None, model, rest_angle, params
     bud, solver = find_bud(model, positions, build_effects(positions + lift),
                            stages=cfg["simulate.stages"], tolerance=cfg["simulate.tolerance"],
                            lift=lift, settle_effects=at_model, petal=np.asarray(petal),
@@ -456,7 +461,7 @@ def bud_shape_of(cfg, model: Model, positions, petal, s, flower_axis) -> BudShap
 
 def open_start(cfg, model: Model, positions, rest_angle, params: Params, build_effects, petal,
                base, s, x, flower_axis, where: str, *, faces=None, plane=None,
-               path: str = "lifted", closed_by=None):
+               path: str = "lifted", closed_by=None, unlifted: bool = False):
     """``growth.start = "open"``: the model at A = 1, the bud at A = 0. Returns the bud's
     positions, the model, rest angles and effect parameters that grow from it back to
     the mesh, and figures for the artifact (``bud_seconds``, ``bud_newton_iterations``,
@@ -472,8 +477,10 @@ def open_start(cfg, model: Model, positions, rest_angle, params: Params, build_e
     with the nudge grown into its rest state, :func:`lift_faded`).
     ``closed_by(bud)``: how much more closed a bud is than the model (degrees); with
     growth.close at its default, a bud under :data:`CLOSED` is searched again closing
-    twice as far (up to :data:`MOST_CLOSE` times). Raises :class:`BloomError` naming the
-    key to change."""
+    twice as far (up to :data:`MOST_CLOSE` times). ``unlifted``: where contact cuts the
+    lift to nothing, no bud is searched for (the bud returned is None, ``bud_path``
+    "own"): the lifted path would be the model's own, which the caller follows once, as
+    the path back (:func:`retrace`). Raises :class:`BloomError` naming the key to change."""
     close = cfg["growth.close"]
     clock = time.perf_counter()
     shape = bud_shape_of(cfg, model, positions, petal, s, flower_axis)
@@ -481,7 +488,7 @@ def open_start(cfg, model: Model, positions, rest_angle, params: Params, build_e
         try:
             found = _find_bud_closing(cfg, close, model, positions, rest_angle, params,
                                       build_effects, petal, base, s, x, flower_axis, faces,
-                                      plane, path, shape)
+                                      plane, path, shape, unlifted)
             break
         except NotConverged as exc:
             if attempt == CLOSE_TRIES and path == "lifted":  # the model's own path, before
@@ -507,6 +514,12 @@ def open_start(cfg, model: Model, positions, rest_angle, params: Params, build_e
             raise BloomError(f"{exc.key}: finding the bud: {exc}", where=where) from None
         except ValueError as exc:
             raise BloomError(f"growth.start: finding the bud: {exc}", where=where) from None
+    if found[0] is None:  # (the lift cut to nothing: the model's own path, not searched)
+        log.info("growth.start = open: with the lift cut to nothing the path to the bud is "
+                 "the model's own: followed once, as the path back, its frames the bloom")
+        return (None, *found[2:], {"bud_seconds": 0.0, "bud_newton_iterations": 0,
+                                   "bud_close": close, "bud_path": "own",
+                                   **_bud_shape_info(found[2], positions)})
     if closed_by is not None and "growth.close" not in cfg.given and close == cfg["growth.close"]:
         turned = closed_by(found[0])
         while turned < CLOSED and 2.0 * close <= MOST_CLOSE * cfg["growth.close"]:
@@ -535,17 +548,24 @@ def open_start(cfg, model: Model, positions, rest_angle, params: Params, build_e
     log.info("growth.start = open: found the bud in %.2f s (%d Newton iterations); it is %.3g "
              "petal lengths (RMS) from the model", seconds, solver.iterations, moved)
     info = {"bud_seconds": seconds, "bud_newton_iterations": solver.iterations,
-            "bud_distance": moved, "bud_close": close, "bud_path": path}
-    sh = getattr(model, "shell", None)
-    if sh is not None and sh.bud is not None:
-        X = np.asarray(positions, dtype=np.float64)
-        form = sh.form_at(X)
-        info["recurve_share"] = recurve_share(X, sh.face_indices, form, sh.bud.inside)
-        shape = ([f"cupped toward the flower's inside (curvature {sh.bud.cup:g} / petal size, "
-                  "growth.cup)"] if sh.bud.cup > 0.0 else [])
-        if sh.bud.recurve:
-            shape.append(f"not rolled back: the model's recurve ({100 * info['recurve_share']:.0f}"
-                         "% of its squared curvature) grows in over the bloom (growth.recurve)")
-        if shape:
-            log.info("growth.start = open: the bud is %s", " and ".join(shape))
+            "bud_distance": moved, "bud_close": close, "bud_path": path,
+            **_bud_shape_info(model, positions)}
     return bud, model, rest_angle, params, info
+
+
+def _bud_shape_info(model: Model, positions) -> dict:
+    """A shell's bud shape, logged, and the model's recurve share for the artifact
+    (``recurve_share``); nothing for the paper's springs."""
+    sh = getattr(model, "shell", None)
+    if sh is None or sh.bud is None:
+        return {}
+    X = np.asarray(positions, dtype=np.float64)
+    share = recurve_share(X, sh.face_indices, sh.form_at(X), sh.bud.inside)
+    shape = ([f"cupped toward the flower's inside (curvature {sh.bud.cup:g} / petal size, "
+              "growth.cup)"] if sh.bud.cup > 0.0 else [])
+    if sh.bud.recurve:
+        shape.append(f"not rolled back: the model's recurve ({100 * share:.0f}% of its "
+                     "squared curvature) grows in over the bloom (growth.recurve)")
+    if shape:
+        log.info("growth.start = open: the bud is %s", " and ".join(shape))
+    return {"recurve_share": share}
