@@ -193,6 +193,41 @@ def test_a_petal_near_itself_at_one_spot_keeps_off_itself_everywhere_else():
     assert c.max_step(X, alone) == 1.0
 
 
+def test_a_hold_that_cuts_a_spot_left_to_itself_holds_it_whole():
+    """The spot of the test above (own_spots: its vertices, labelled; -1 elsewhere) is
+    held whole by a second try's hold that takes part of it (held in part, its free side
+    folds through its held side with nothing to stop it: the lotus's petal 2); a hold
+    that takes none of it, or all of it, is left as it is."""
+    from types import SimpleNamespace
+
+    from pipeline.chain.simulate import _spots_whole
+    from pipeline.sim.terms.contact import own_spots
+
+    v, faces, sheet, _ = two_sheets(height=0.0)
+    one = np.zeros_like(sheet)
+    X = v.copy()
+    X[sheet == 1, 2] = 5 * GAP
+    upper = np.flatnonzero(sheet == 1)
+    spot = upper[np.argmin(np.linalg.norm(X[upper, :2] - [2.0, 2.0], axis=1))]
+    X[spot, 2] = 1.5 * GAP
+    label = own_spots(X, faces, one, GAP)
+    inside = label >= 0
+    assert inside[spot] and 1 < inside.sum() <= 30 and len(np.unique(label[inside])) == 1
+    # (the paper's springs: the gap is effects.collisions.thickness)
+    cfg = {"simulate.integrator": "quasi-static", "simulate.model": "paper",
+           "effects.collisions.thickness": GAP}
+    prep = SimpleNamespace(vertices=X, faces=faces, contact_faces=None, petal=one, left=None)
+    part = np.zeros(len(X), dtype=bool)
+    part[spot] = True  # (one vertex of the spot)
+    whole = _spots_whole(cfg, prep, ["collisions"], part)
+    np.testing.assert_array_equal(whole, part | inside)
+    none = (sheet == 0) & (np.linalg.norm(X[:, :2] - X[spot, :2], axis=1) > 2.0) & ~inside
+    assert none.any()
+    for held in (none, part | inside):
+        np.testing.assert_array_equal(_spots_whole(cfg, prep, ["collisions"], held), held)
+    np.testing.assert_array_equal(_spots_whole(cfg, prep, [], part), part)  # (no contact)
+
+
 def test_a_petal_near_itself_at_the_start_leaves_the_others_keeping_off_themselves():
     """Two folded petals side by side: petal 0's two sheets 1.5 gaps apart (within the
     barrier's reach at the start: a curled tip), petal 1's 5 gaps apart. Petal 0 is left

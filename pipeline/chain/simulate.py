@@ -29,7 +29,8 @@ from pipeline.review import report
 from pipeline.sim import checkpoint
 from pipeline.sim.build import Prepared
 from pipeline.sim.reverse import petal_lengths
-from pipeline.sim.terms.contact import frame_intersections
+from pipeline.sim.terms.contact import frame_intersections, own_spots
+from pipeline.sim.terms.shell import petal_size
 
 log = logging.getLogger("bloom")
 
@@ -200,7 +201,7 @@ def hold_bowls(cfg: Config, prep: Prepared, job, ckpt: Path, result):
     shut = behind(opening)
     if shut == 0:
         return prep, result, None
-    wider = prep.base | (np.asarray(prep.s) <= HOLD_BOWL)
+    wider = _spots_whole(cfg, prep, job.names, prep.base | (np.asarray(prep.s) <= HOLD_BOWL))
     if np.array_equal(wider, prep.base):
         return prep, result, None
     final = np.asarray(opening)[-1]
@@ -238,6 +239,33 @@ def hold_bowls(cfg: Config, prep: Prepared, job, ckpt: Path, result):
     log.info("held up to s = %g: %d lag (%d before): the first bloom kept",
              HOLD_BOWL, still, shut)
     return prep, dataclasses.replace(result, wall=both), None
+
+
+def _spots_whole(cfg: Config, prep: Prepared, names, held: np.ndarray) -> np.ndarray:
+    """``held`` (``(V,)`` bool, the vertices a second try holds) with every spot the
+    contact leaves to itself (a petal's own triangles that start within the barrier's
+    reach of each other: :func:`~pipeline.sim.terms.contact.own_spots`) that it holds in
+    part held whole: held in part, the free side of such a spot folds through the held
+    side with nothing to stop it (the lotus's petal 2, a rim hairpin across s = 0.35,
+    in one frame). Logged where it holds more."""
+    if "collisions" not in names or cfg["simulate.integrator"] != "quasi-static":
+        return held
+    faces = prep.faces if prep.contact_faces is None else prep.contact_faces
+    gap = (cfg["effects.collisions.gap"] * petal_size(prep.vertices, prep.faces, prep.petal)
+           if cfg["simulate.model"] == "shell" else cfg["effects.collisions.thickness"])
+    count = int(np.max(faces)) + 1
+    spot = np.full(len(held), -1, dtype=np.int64)
+    spot[:count] = own_spots(np.asarray(prep.vertices)[:count], faces,
+                             np.asarray(prep.petal)[:count], gap, prep.left)
+    inside = spot >= 0
+    cut = np.intersect1d(spot[inside & held], spot[inside & ~held])
+    if not len(cut):
+        return held
+    whole = held | np.isin(spot, cut)
+    log.info("held up to s = %g: %d vertices more, of %d spot(s) the contact leaves to "
+             "themselves (a rim's hairpin) that the hold would cut: each held whole",
+             HOLD_BOWL, int(whole.sum() - held.sum()), len(cut))
+    return whole
 
 
 def decide_flowers(cfg: Config, prep: Prepared, flowers: int, frames: int):

@@ -339,6 +339,20 @@ class Contact(Term):
             self.mesh, self._mine(X0), self._mine(X1), self.gap, self.ccd))
 
 
+def own_spots(positions, faces, petal, gap: float, left=None) -> np.ndarray:
+    """``(V,)`` the spot of each vertex (a label), or -1: the spots that the contact with
+    gap ``gap`` leaves to themselves at ``positions`` (a petal's own triangles within the
+    barrier's reach of each other: a rim's hairpin turn, :func:`_own_contact`), with
+    their rings; none where no spot is, or where contact is between petals only."""
+    petal = np.asarray(petal)
+    patches = Contact.build(positions, faces, petal, gap=gap, stiffness=1.0,
+                            left=left)._patches
+    if patches is None or np.array_equal(patches, petal):
+        return np.full(len(petal), -1, dtype=np.int64)
+    patches = np.asarray(patches, dtype=np.int64)
+    return np.where(np.bincount(patches, minlength=len(patches))[patches] > 1, patches, -1)
+
+
 def _own_contact(mesh, X, petal, reach: float) -> np.ndarray | None:
     """Where the barrier can keep each petal off itself from the start ``X``: everywhere
     but among the primitives of one petal that share no vertex and are within the
