@@ -39,7 +39,7 @@ test: $(INSTALLED)  ## run the test suite
 test-studio: $(INSTALLED)  ## the studio-sized models (../shared/external-meshes, a 100k-face flower) through the geometry stages (~8 min)
 	$(VENV)/bin/python -m pytest -m studio tests $(PYTEST_ARGS)
 
-test-extended: $(INSTALLED)  ## whole builds killed and resumed: a killed make, a lost Dask worker (~3 min)
+test-extended: $(INSTALLED)  ## whole builds killed and resumed: a killed make, a lost Dask worker; each petal's own solver resumed (~4 min)
 	$(VENV)/bin/python -m pytest -m extended tests $(PYTEST_ARGS)
 
 bench: $(INSTALLED)  ## print what each effect costs, as ratios to the bare simulation
