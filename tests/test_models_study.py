@@ -44,6 +44,25 @@ def test_the_verdict_follows_the_checks(tmp_path, kw, verdict):
     assert row.seconds == (2.0 if "distance" in kw else 1.5)  # the bud search counts
 
 
+def test_a_models_simulate_seconds_are_its_commands(tmp_path, monkeypatch):
+    """run_model's simulate seconds are the command's wall time (every try it made), not
+    the kept bloom's that sim.h5 records (1.5 s here, with 0.5 of bud search)."""
+    import subprocess
+    import time
+    from types import SimpleNamespace
+
+    def fake(cmd, **kwargs):
+        if "simulate" in cmd:
+            time.sleep(2.5)
+            _sim(tmp_path / "work" / "sim.h5", start="open", opening=(0.0, 25.0),
+                 distance=0.004)
+        return SimpleNamespace(returncode=0, stdout="", stderr="")
+
+    monkeypatch.setattr(subprocess, "run", fake)
+    row = models.run_model(tmp_path / "m.obj", tmp_path / "work", timeout=60.0)
+    assert row.verdict == "ok" and 2.5 <= row.seconds < 60.0
+
+
 def test_the_table_goes_between_its_markers_and_nothing_else_changes(tmp_path):
     doc = tmp_path / "performance.md"
     doc.write_text("# Performance\n\nbefore\n")
