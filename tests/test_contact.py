@@ -166,6 +166,18 @@ def test_a_petal_keeps_off_itself_where_its_start_allows():
         assert (step < 0.5) == cut and (step == 1.0) == (not cut), (height, step)
 
 
+def _folded_with_a_spot():
+    """One petal folded over itself, its two sheets 5 gaps apart, but one vertex of the
+    upper sheet 1.5 gaps from the lower: ``(X, faces, sheet, petal, spot vertex)``."""
+    v, faces, sheet, _ = two_sheets(height=0.0)
+    X = v.copy()
+    X[sheet == 1, 2] = 5 * GAP
+    upper = np.flatnonzero(sheet == 1)
+    spot = upper[np.argmin(np.linalg.norm(X[upper, :2] - [2.0, 2.0], axis=1))]
+    X[spot, 2] = 1.5 * GAP
+    return X, faces, sheet, np.zeros_like(sheet), spot
+
+
 def test_a_petal_near_itself_at_one_spot_keeps_off_itself_everywhere_else():
     """A petal folded over itself, its two sheets 5 gaps apart, but one vertex of the upper
     sheet 1.5 gaps from the lower (within the barrier's reach at the start: a rim's hairpin
@@ -173,13 +185,7 @@ def test_a_petal_near_itself_at_one_spot_keeps_off_itself_everywhere_else():
     of the upper sheet's far corner through the lower one is cut by the CCD (with the whole
     petal left to itself, as before, it was not), and a move of the spot's vertex alone is
     not."""
-    v, faces, sheet, _ = two_sheets(height=0.0)
-    one = np.zeros_like(sheet)
-    X = v.copy()
-    X[sheet == 1, 2] = 5 * GAP
-    upper = np.flatnonzero(sheet == 1)
-    spot = upper[np.argmin(np.linalg.norm(X[upper, :2] - [2.0, 2.0], axis=1))]
-    X[spot, 2] = 1.5 * GAP
+    X, faces, sheet, one, spot = _folded_with_a_spot()
     c = Contact.build(X, faces, one, gap=GAP, stiffness=0.1)
     held = np.bincount(c._patches)[c._patches] > 1
     far = (sheet == 1) & (X[:, 0] > 2.5) & (X[:, 1] < 1.5)  # (a corner away from the spot)
@@ -201,15 +207,10 @@ def test_a_hold_that_cuts_a_spot_left_to_itself_holds_it_whole():
     from types import SimpleNamespace
 
     from pipeline.chain.simulate import _spots_whole
+    from pipeline.sim.build import Prepared
     from pipeline.sim.terms.contact import own_spots
 
-    v, faces, sheet, _ = two_sheets(height=0.0)
-    one = np.zeros_like(sheet)
-    X = v.copy()
-    X[sheet == 1, 2] = 5 * GAP
-    upper = np.flatnonzero(sheet == 1)
-    spot = upper[np.argmin(np.linalg.norm(X[upper, :2] - [2.0, 2.0], axis=1))]
-    X[spot, 2] = 1.5 * GAP
+    X, faces, sheet, one, spot = _folded_with_a_spot()
     label = own_spots(X, faces, one, GAP)
     inside = label >= 0
     assert inside[spot] and 1 < inside.sum() <= 30 and len(np.unique(label[inside])) == 1
@@ -217,6 +218,7 @@ def test_a_hold_that_cuts_a_spot_left_to_itself_holds_it_whole():
     cfg = {"simulate.integrator": "quasi-static", "simulate.model": "paper",
            "effects.collisions.thickness": GAP}
     prep = SimpleNamespace(vertices=X, faces=faces, contact_faces=None, petal=one, left=None)
+    prep.contact_gap = lambda cfg: Prepared.contact_gap(prep, cfg)
     part = np.zeros(len(X), dtype=bool)
     part[spot] = True  # (one vertex of the spot)
     whole = _spots_whole(cfg, prep, ["collisions"], part)

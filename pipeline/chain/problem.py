@@ -193,10 +193,8 @@ def _problem(prep: Prepared, job: Job, ckpt: Path, label: str = "") -> Bloom:
         raise BloomError(f"cannot build the model{' of ' + label if label else ''}: {exc}",
                          where=where) from None
     params = Params.of(cfg)
-    if shell:  # the contact gap in units of the petal (mesh units shrink as the mesh is
-        # refined)
-        params = params.but(collisions={
-            "thickness": cfg["effects.collisions.gap"] * model.shell.size})
+    if shell:  # the contact gap in units of the petal
+        params = params.but(collisions={"thickness": prep.contact_gap(cfg)})
     rest_angle = prep.rest_angle
     max_edge = prep.max_grown_edge()  # once: the bud search changes the model's rest lengths
 

@@ -30,7 +30,6 @@ from pipeline.sim import checkpoint
 from pipeline.sim.build import Prepared
 from pipeline.sim.reverse import petal_lengths
 from pipeline.sim.terms.contact import frame_intersections, own_spots
-from pipeline.sim.terms.shell import petal_size
 
 log = logging.getLogger("bloom")
 
@@ -251,12 +250,10 @@ def _spots_whole(cfg: Config, prep: Prepared, names, held: np.ndarray) -> np.nda
     if "collisions" not in names or cfg["simulate.integrator"] != "quasi-static":
         return held
     faces = prep.faces if prep.contact_faces is None else prep.contact_faces
-    gap = (cfg["effects.collisions.gap"] * petal_size(prep.vertices, prep.faces, prep.petal)
-           if cfg["simulate.model"] == "shell" else cfg["effects.collisions.thickness"])
     count = int(np.max(faces)) + 1
     spot = np.full(len(held), -1, dtype=np.int64)
     spot[:count] = own_spots(np.asarray(prep.vertices)[:count], faces,
-                             np.asarray(prep.petal)[:count], gap, prep.left)
+                             np.asarray(prep.petal)[:count], prep.contact_gap(cfg), prep.left)
     inside = spot >= 0
     cut = np.intersect1d(spot[inside & held], spot[inside & ~held])
     if not len(cut):

@@ -317,6 +317,16 @@ class Prepared:
                         flower_axis=self.flower_axis, max_edge=max_edge, params=params,
                         pushback=pushback, contact_faces=self.contact_faces)
 
+    def contact_gap(self, cfg) -> float:
+        """The gap contact keeps, in mesh units: the shell's ``effects.collisions.gap``
+        in units of the petal size (:func:`~pipeline.sim.terms.shell.petal_size`, the
+        shell's own unit: mesh units shrink as the mesh is refined), the paper's springs'
+        ``effects.collisions.thickness`` as it is."""
+        if cfg["simulate.model"] == "shell":
+            return cfg["effects.collisions.gap"] * petal_size(self.vertices, self.faces,
+                                                              self.petal)
+        return cfg["effects.collisions.thickness"]
+
     def max_grown_edge(self) -> float:
         """The longest edge at full growth (``L (1 + max(alpha, 0))``, measured as the
         model measures its rest lengths): what the collision grid's cells must hold."""
