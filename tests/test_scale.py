@@ -153,6 +153,49 @@ def test_progress_lines_under_make(caplog):
     assert caplog.records == []
 
 
+def test_workers_progress_is_shown_by_the_parent(caplog):
+    """A file's flowers bloom in forked workers: each worker's bars post to a board shared
+    at the fork, and the parent's bar, read from it, logs under make at least every
+    heartbeat, however little is done, naming what each flower is doing and how far."""
+    import multiprocessing
+
+    from pipeline import progress as module
+    from pipeline.progress import Board, Progress
+
+    board = Board(3)
+
+    def worker():
+        board.serve(2)
+        with Progress(10, "simulate flower 2 (the path back)", show=False) as bar:
+            bar.update(4)
+        module.doing("simulate flower 2: checking its frames")  # (no share: not counted)
+        board.serve(0)
+        module.doing("simulate flower 0: finding the bud (own)")
+
+    child = multiprocessing.get_context("fork").Process(target=worker)
+    child.start()
+    child.join(30)
+    assert child.exitcode == 0
+    assert module._POST is None  # (the parent's own bars are its own)
+    share, doing = board.read([0, 1, 2])
+    assert share == 0.0  # (neither says a share; flower 1 has not started)
+    both = "simulate flower 0: finding the bud (own); simulate flower 2: checking its frames"
+    assert doing == both
+    with caplog.at_level(logging.INFO, logger="bloom"):
+        bar = Progress(3, "simulate flowers", show=False, heartbeat=0.0)
+        bar.reach(0.4, doing)
+        bar.reach(0.2, "later")  # (never less than before)
+    lines = [r.getMessage() for r in caplog.records]
+    assert len(lines) == 2 and lines[0].startswith("simulate flowers: 13% done after")
+    assert lines[0].endswith(f"({both})")
+    assert lines[1].startswith("simulate flowers: 13% done") and lines[1].endswith("(later)")
+    quiet = Progress(3, "simulate flowers", show=False)  # no heartbeat: a tenth more, 10 s
+    with caplog.at_level(logging.INFO, logger="bloom"):
+        caplog.clear()
+        quiet.reach(0.1, "x")
+    assert caplog.records == []
+
+
 def test_many_coarse_petals_are_held_to_a_budget_of_vertices(monkeypatch):
     """A coarse petal (under MIN_PETAL_VERTICES) is remeshed up to about that many; a file
     of many coarse petals (a branch of blossoms) is held to COARSE_BUDGET vertices in

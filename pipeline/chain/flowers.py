@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import dataclasses
 import logging
+from concurrent.futures import wait
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -18,7 +19,7 @@ from pipeline.errors import BloomError
 from pipeline.flower import stagger
 from pipeline.forks import can_fork, pool, workers
 from pipeline.mesh.topology import components
-from pipeline.progress import Progress
+from pipeline.progress import Board, Progress
 from pipeline.review import report
 from pipeline.sim.build import Prepared
 from pipeline.sim.effects import ORDER
@@ -36,6 +37,11 @@ _LARGEST = ("max_speed", "center_plane_drift", "stable_step")
 #: problem and vertices (:meth:`~pipeline.sim.build.Prepared.flower_part`), the
 #: :class:`Job` and the checkpoint path
 _TASK: tuple | None = None
+#: where forked workers post how far their flower has got (:class:`~pipeline.progress.Board`)
+_BOARD: Board | None = None
+#: seconds between the parent's looks at the workers' board, and between its log lines
+#: at least while flowers bloom in workers (under make: a bed of roses blooms for minutes)
+TICK, HEARTBEAT = 1.0, 30.0
 
 
 class _Kept(logging.Handler):
@@ -62,6 +68,8 @@ def _bloom_flower(k: int):
     """In a forked worker: :func:`_bloom_one`, with the log lines (level, message) it
     wrote, for the parent to write."""
     _Kept.lines = []
+    if _BOARD is not None:
+        _BOARD.serve(k)
     k, run, why = _bloom_one(k)
     return k, run, why, _Kept.lines
 
@@ -96,7 +104,7 @@ def _bloom_all(parts: list, job: Job, ckpt: Path, own: list):
     thread pool (the parent's has no threads in it after the fork), shows no bar and
     keeps its log: this process writes each flower's log as it comes back, in order,
     and counts the flowers."""
-    global _TASK
+    global _TASK, _BOARD
     many = workers(job.cfg["simulate.workers"])
     forks = can_fork()
     _TASK = (parts, job if many <= 1 or len(own) < 2 or not forks
@@ -108,21 +116,28 @@ def _bloom_all(parts: list, job: Job, ckpt: Path, own: list):
             return
         log.info("%d of %d flowers to bloom, %d side by side (simulate.workers)", len(own),
                  len(parts), min(many, len(own)))
+        _BOARD = Board(len(parts))
         with (pool(min(many, len(own)), initializer=_worker_start) as workers_,
-              Progress(len(own), "simulate flowers", job.progress) as bar):
+              Progress(len(own), "simulate flowers", job.progress,
+                       heartbeat=HEARTBEAT) as bar):
             # the largest problems first (by vertices), so that none starts last and runs
             # alone while the other workers wait (the daisy bush's two daisies that bloom
             # together, 3,190 vertices, ran alone for its last minutes); taken in order
             started = {k: workers_.submit(_bloom_flower, k)
                        for k in sorted(own, key=lambda k: -len(parts[k][1]))}
             for k in own:
+                while not started[k].done():  # (what the workers are doing, shown)
+                    wait([started[k]], timeout=TICK)
+                    pending = [j for j in own if not started[j].done()]
+                    share, doing = _BOARD.read(pending)
+                    bar.reach(len(own) - len(pending) + share, doing)
                 _, run, why, lines = started[k].result()
                 for level, line in lines:
                     log.log(level, "%s", line)
-                bar.update()
+                bar.reach(sum(f.done() for f in started.values()), "")
                 yield k, run, why
     finally:
-        _TASK = None
+        _TASK = _BOARD = None
 
 
 def _seen_crossing(members: list, positions, parts: list, prep: Prepared, starts,

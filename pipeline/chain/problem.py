@@ -23,7 +23,7 @@ from pipeline.config import KEYS, Config
 from pipeline.errors import BloomError
 from pipeline.flower.growth import growth_rule
 from pipeline.flower.measure import Start
-from pipeline.progress import Progress
+from pipeline.progress import Progress, doing
 from pipeline.review import report
 from pipeline.sim import checkpoint, reverse
 from pipeline.sim.build import Prepared
@@ -225,6 +225,7 @@ def _problem(prep: Prepared, job: Job, ckpt: Path, label: str = "") -> Bloom:
         (:func:`_own_path_bloom`); else the bud is searched for."""
         v0, model, rest_angle, params, bud_info = v, bud_model, bud_angle, bud_params, {}
         if model_positions is not None:
+            doing(f"simulate {label}: finding the bud ({path})" if label else "finding the bud")
             v0, model, rest_angle, params, bud_info = open_start(
                 cfg, model, model_positions, rest_angle, params, build_effects, petal,
                 base, prep.s, prep.x, prep.flower_axis, where, faces=prep.faces,
