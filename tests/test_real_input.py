@@ -10,6 +10,7 @@ import pytest
 import trimesh
 from click.testing import CliRunner
 
+from pipeline.io import binding
 from pipeline.mesh import procedural, topology
 from pipeline.review import report
 from stages.cli import cli
@@ -323,6 +324,19 @@ def test_the_blender_lily_reaches_growth_with_six_tepals_based_at_its_centre(tmp
     for stage, src, dst in (("axis", "r.h5", "a.h5"), ("growth", "a.h5", "g.h5")):
         code, out = run(stage, tmp_path / src, "--out", tmp_path / dst)
         assert code == 0, out
+        if stage == "axis":  # (the hub the tepals are joined at stays with it)
+            assert "part 'Circle.003':" in out and "held with the hub" in out, out
+    with h5py.File(tmp_path / "a.h5") as h:
+        b = binding.read_bindings(h)
+        part = list(h["input/asset/names"].asstr()[()]).index("Circle.003")
+        points = h["input/asset/points"][()][h["input/asset/points_offsets"][part]:
+                                               h["input/asset/points_offsets"][part + 1]]
+        line = h["flower/axis"][0]
+        q = points * h.attrs["scale"] - line[:3]
+        r = np.linalg.norm(q - np.outer(q @ line[3:], line[3:]), axis=1)
+        held = b[part].face < 0
+        assert 0 < held.sum() < 0.5 * len(held)  # the hub, not the tepals
+        assert np.median(r[held]) < 0.5 * np.median(r[~held])
     with h5py.File(tmp_path / "g.h5") as h:
         v, petal = h["mesh/vertices"][()], h["mesh/petal"][()]
         base, tip, s = h["axis/base"][()], h["axis/tip"][()], h["axis/s"][()]

@@ -15,6 +15,7 @@ from pipeline.directions import DIRECTIONS
 from pipeline.errors import BloomError
 from pipeline.flower.axis import BASE_REACH, BadPetal, WeakBase, check_axes, find_axes
 from pipeline.flower.stagger import flower_count
+from pipeline.io import binding
 from pipeline.progress import Steps
 
 log = logging.getLogger("bloom")
@@ -96,13 +97,26 @@ def run(remesh_h5: str | Path, out: str | Path, cfg: Config, *, overwrite: bool 
                         "out): %s%s", len(axes.held), named,
                         f"; and {more} more" if more > 0 else "")
         _log_axes(axes, petal, flower)
+        bindings = binding.read_bindings(src)
+        if bindings:  # (the hub of a flower modelled as one solid stays with the hub)
+            held = binding.hold_hub(bindings, v, f, petal, axes.base,
+                                    src["mesh/thickness"] if "mesh/thickness" in src else None,
+                                    axes.flower_axes,
+                                    np.zeros(int(petal.max()) + 1, dtype=np.int64)
+                                    if flower is None else flower)
+            for i, n in held.items():
+                log.info("part %s: %d point(s) inside the ring of its petals' bases, off the "
+                         "sheet's rim, held with the hub (they stay where they are)",
+                         _asset_part_name(src, i), n)
         attrs = {**carried_attrs(src), "flower_axis": axes.flower_axis, "up": up,
                  "flower_count": len(axes.flower_axes)}
         if axes.held:
             attrs["held_petals"] = np.asarray([p for p, _ in axes.held], dtype=np.int64)
         with artifact.writing(out, stage="axis", config_json=cfg.to_json(),
                               inputs=artifact.input_hashes(cfg, remesh_h5), attrs=attrs, previous=src) as h5:
-            src.copy_to(h5, CARRIED)
+            src.copy_to(h5, [name for name in CARRIED if name != binding.BIND_GROUP])
+            if bindings:
+                binding.write_bindings(h5, bindings)
             artifact.put(h5, "axis/base", axes.base, "(V,) fixed base vertices")
             artifact.put(h5, "axis/on_axis", axes.on_axis, "(V,) vertices on the petal axis")
             artifact.put(h5, "axis/tip", axes.tip.astype(np.int64), "(P,) tip vertex per petal")
@@ -137,6 +151,14 @@ def _log_axes(axes, petal: np.ndarray, flower) -> None:
                      "not found (a lone petal)" if not np.all(np.isfinite(line)) else
                      f"through {np.round(line[:3], 3).tolist()} along "
                      f"{np.round(line[3:], 3).tolist()}")
+
+
+def _asset_part_name(src, i: int) -> str:
+    """Input part ``i``'s name, quoted (``input/asset/names``), or its number."""
+    if "input/asset/names" in src:
+        name = src["input/asset/names"][i]
+        return repr(name.decode() if isinstance(name, bytes) else str(name))
+    return str(i)
 
 
 def _part_name(src, petal, p: int) -> str:

@@ -195,6 +195,77 @@ def _keep_to_own_petal(b: Binding, points, piece, vertices, faces, allowed,
         b.face[stray], b.bary[stray], b.offset[stray] = again.face, again.bary, again.offset
 
 
+#: a point of a petal's part inside the ring of its petal's base that hangs off the
+#: sheet's rim by more than this many of the sheet's thickness there (of its mean edges,
+#: for a sheet) is the flower's hub, not the petal: :func:`hold_hub`
+HUB_OFFSET = 2.0
+
+
+def hold_hub(bindings: dict[int, Binding], vertices: np.ndarray, faces: np.ndarray,
+             petal: np.ndarray, base: np.ndarray, thickness: np.ndarray | None,
+             flower_axis: np.ndarray, petal_flower: np.ndarray) -> dict[int, int]:
+    """Points of the petals' parts that belong to the flower's hub stay where they are
+    (in place: ``face`` -1, ``offset`` their place); returns how many, by part.
+
+    A flower modelled as one solid (an OpenSCAD union of petals round a centre sphere, a
+    receptacle fused with its petals) has one part for all of it; its hub is no sheet,
+    so its points were bound to the petals' rims near their bases, far off the sheet, and
+    the bloom swung them with the petals' turning frames and tore the hub to shards. A
+    hub point is one bound to a sheet's rim (not inside a triangle), more than
+    :data:`HUB_OFFSET` of the sheet's thickness there off it, and nearer the axis of its
+    petal's flower than that petal's fixed ``base`` (the median of its base vertices'
+    distances): inside the ring of bases, where the petal is held. A lone petal (no
+    flower axis) has none. ``vertices``, ``faces``: the sheet's rest mesh (mesh units);
+    ``thickness (V,)``: a thick petal's (0 or None for sheets); ``flower_axis (K, 6)``,
+    ``petal_flower (P,)`` as the axis stage finds them."""
+    X = np.asarray(vertices, dtype=np.float64)
+    F = np.asarray(faces, dtype=np.int64)
+    petal = np.asarray(petal, dtype=np.int64)
+    base = np.asarray(base, dtype=bool)
+    axes = np.asarray(flower_axis, dtype=np.float64).reshape(-1, 6)
+    petal_flower = np.asarray(petal_flower, dtype=np.int64)
+    count = int(petal.max()) + 1 if len(petal) else 0
+    thick = np.zeros(len(X)) if thickness is None else np.asarray(thickness, dtype=np.float64)
+    edges = np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]])
+    length = np.linalg.norm(X[edges[:, 0]] - X[edges[:, 1]], axis=1)
+    edge = (np.bincount(petal[edges[:, 0]], weights=length, minlength=count)
+            / np.maximum(np.bincount(petal[edges[:, 0]], minlength=count), 1))
+
+    def radial(points, flower):  # (distance of each point from its flower's axis)
+        q = points - axes[flower, :3]
+        d = axes[flower, 3:]
+        return np.linalg.norm(q - np.einsum("ij,ij->i", q, d)[:, None] * d, axis=1)
+
+    ring = np.full(count, -np.inf)  # (each petal's base's distance from its flower's axis)
+    known = np.all(np.isfinite(axes), axis=1)
+    for p in np.unique(petal[base]).tolist():
+        k = petal_flower[p]
+        if known[k]:
+            mine = np.flatnonzero(base & (petal == p))
+            ring[p] = float(np.median(radial(X[mine], np.full(len(mine), k))))
+    held = {}
+    for i, b in bindings.items():
+        bound = np.flatnonzero(b.face >= 0)
+        if not len(bound):
+            continue
+        tri = F[b.face[bound]]
+        p = petal[tri[:, 0]]
+        off = ~interior(Binding(b.face[bound], b.bary[bound], b.offset[bound]))
+        scale = np.maximum(np.einsum("ij,ij->i", b.bary[bound], thick[tri]), edge[p])
+        off &= np.linalg.norm(b.offset[bound], axis=1) > HUB_OFFSET * scale
+        off &= np.isfinite(ring[p])
+        if not off.any():
+            continue
+        mine = bound[off]
+        place = deform(X, F, Binding(b.face[mine], b.bary[mine], b.offset[mine]))
+        inside = radial(place, petal_flower[p[off]]) < ring[p[off]]
+        mine, place = mine[inside], place[inside]
+        if len(mine):
+            b.face[mine], b.bary[mine], b.offset[mine] = -1, 0.0, place
+            held[i] = len(mine)
+    return held
+
+
 def write_bindings(h5, bindings: dict[int, Binding]) -> None:
     """Store bindings under ``bind/`` (see :func:`read_bindings`): each array once for
     all parts, concatenated, ``bind/part`` the parts bound and ``bind/offsets`` where
