@@ -322,7 +322,7 @@ def test_the_hub_of_a_flower_modelled_in_one_piece_stays_with_the_hub():
     a = a * 0.5 + np.array([2.0, -1.0, 0.0])
     b = a * np.array([-1.0, 1.0, 1.0])  # petal 1: its mirror image, base at x = -2
     V = np.vstack([a, b])
-    F = np.vstack([fa, fb := fa[:, ::-1] + len(a)])
+    F = np.vstack([fa, fa[:, ::-1] + len(a)])  # (petal 1 mirrored: wound back)
     petal = np.repeat([0, 1], len(a))
     base = np.isclose(np.abs(V[:, 0]), 2.0)
     P = np.array([[3.5, 0.2, 0.1],   # on petal 0
