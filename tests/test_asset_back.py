@@ -314,10 +314,10 @@ def test_a_petal_stays_bound_to_its_own_sheet_where_petals_overlap():
 
 
 def test_the_hub_of_a_flower_modelled_in_one_piece_stays_with_the_hub():
-    """Two petal sheets (a grid each, their bases the rows nearest a flower's axis, z)
-    and points of one input part: on a sheet, past a tip, just past a base, and a hub
-    point at the centre, bound to a base rim far off the sheet. Only the hub point stays
-    (held_hub); turning the sheets about their bases moves every other one with them."""
+    """Two petal sheets (a grid each, their bases the rows nearest the centre) and points
+    of one input part: on a sheet, past a tip, just past a base, and a hub point at the
+    centre, behind a base and far off the sheet's rim. Only the hub point stays
+    (hold_hub); turning the sheets about their bases moves every other one with them."""
     a, fa = _grid(9, 5)  # petal 0: x in [2, 6], y in [-1, 1], edges of 0.5, base at x = 2
     a = a * 0.5 + np.array([2.0, -1.0, 0.0])
     b = a * np.array([-1.0, 1.0, 1.0])  # petal 1: its mirror image, base at x = -2
@@ -331,8 +331,7 @@ def test_the_hub_of_a_flower_modelled_in_one_piece_stays_with_the_hub():
                   [0.1, 0.0, 0.0],   # the hub, 1.9 off petal 0's base rim
                   [-3.0, 0.5, -0.1]])  # on petal 1
     bindings = {0: binding.bind(P, V, F)}
-    axis = np.array([[0.0, 0.0, 0.0, 0.0, 0.0, 1.0]])
-    held = binding.hold_hub(bindings, V, F, petal, base, None, axis, np.array([0, 0]))
+    held = binding.hold_hub(bindings, V, F, petal, base)
     assert held == {0: 1}
     bnd = bindings[0]
     assert bnd.face.tolist()[3] == -1 and np.all(np.delete(bnd.face, 3) >= 0)
@@ -347,14 +346,12 @@ def test_the_hub_of_a_flower_modelled_in_one_piece_stays_with_the_hub():
     moved = binding.deform(X, F, bnd)
     np.testing.assert_array_equal(moved[3], rest[3])  # the hub stays
     assert np.all(np.linalg.norm(moved[[0, 1, 4]] - P[[0, 1, 4]], axis=1) > 0.1)
-    # a lone petal (no flower axis) has no hub; thick petals are measured in their
+    # a petal with no fixed base has none behind it; thick petals are measured in their
     # thickness: 1.9 off is under two thicknesses of 1
-    lone = {0: binding.bind(P, V, F)}
-    assert binding.hold_hub(lone, V, F, petal, base, None, np.full((1, 6), np.nan),
-                            np.array([0, 0])) == {}
+    loose = {0: binding.bind(P, V, F)}
+    assert binding.hold_hub(loose, V, F, petal, np.zeros(len(V), dtype=bool)) == {}
     thick = {0: binding.bind(P, V, F)}
-    assert binding.hold_hub(thick, V, F, petal, base, np.ones(len(V)), axis,
-                            np.array([0, 0])) == {}
+    assert binding.hold_hub(thick, V, F, petal, base, np.ones(len(V))) == {}
 
 
 def test_a_leaf_modelled_in_the_petals_part_stays_where_it_is():

@@ -6,6 +6,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import gpytoolbox
+import h5py
 import numpy as np
 import pytest
 import trimesh
@@ -89,6 +90,44 @@ def test_solidified_petal_midsurface_is_halfway(rim):
     # the sheet covers the petal: the original's rim is close to the sheet's
     far = _layer_distance(v0[topology.boundary_vertices(f0, len(v0))], s.vertices, s.faces)
     assert far.max() < 2 * T
+
+
+def _fused_flower(n=5, tilt=60.0, segments=40):
+    """``n`` flattened spheres (petals 20 x 9 x 1.2) round a centre sphere (radius 4),
+    tilted ``tilt`` deg up, unioned into one solid as OpenSCAD writes it (by manifold3d,
+    the library OpenSCAD unions with)."""
+    m3 = pytest.importorskip("manifold3d")
+    parts = [m3.Manifold.sphere(4.0, segments)]
+    for k in range(n):
+        parts.append(m3.Manifold.sphere(1.0, segments).scale([10.0, 4.5, 0.6])
+                     .translate([11.5, 0.0, 0.0]).rotate([0.0, -tilt, 0.0])
+                     .rotate([0.0, 0.0, 360.0 * k / n]))
+    mesh = m3.Manifold.batch_boolean(parts, m3.OpType.Add).to_mesh()
+    v = np.asarray(mesh.vert_properties, dtype=np.float64)[:, :3]
+    return v, np.asarray(mesh.tri_verts, dtype=np.int64)
+
+
+def test_petals_fused_in_one_solid_get_a_sheet_each():
+    """Five petals unioned with a centre sphere into one solid: their sides meet only
+    through the sphere's facets, so the largest side is one petal's (15% of the solid's
+    half area). With ``many`` every pair of sides gives its own sheet: a sheet over each
+    petal, within it, 60% of the half area or more (74%). One solidified petal comes
+    out the same to the bit either way."""
+    v, f = _fused_flower()
+    one = midsurface(v, f)
+    assert _area(one.vertices, one.faces) < 0.2 * 0.5 * _area(v, f)  # (one petal of five)
+    s = midsurface(v, f, many=True)
+    assert _area(s.vertices, s.faces) > 0.6 * 0.5 * _area(v, f)
+    angle = np.degrees(np.arctan2(s.vertices[:, 1], s.vertices[:, 0])) % 360.0
+    sector = np.round(angle / 72.0).astype(int) % 5
+    out = np.linalg.norm(s.vertices[:, :2], axis=1) > 8.0  # (past the sphere)
+    assert np.all(np.bincount(sector[out], minlength=5) > 50)
+    assert np.median(s.thickness[out]) > 0.2 and s.thickness.max() < 1.3  # (the petals are 1.2)
+    assert np.all(np.isin(s.side, [-1, 0, 1]))
+    v1, f1, _, _ = _solidify(*_cup_petal(), T, "all")
+    a, b = midsurface(v1, f1), midsurface(v1, f1, many=True)
+    for name in ("vertices", "faces", "thickness", "source", "side"):
+        np.testing.assert_array_equal(getattr(a, name), getattr(b, name), err_msg=name)
 
 
 def test_flattened_box():
@@ -274,3 +313,31 @@ def test_external_lily_petals_are_refused_with_a_reason():
             s = midsurface(v, f)
             _check_sheet(s, float(np.linalg.norm(np.ptp(v, axis=0))))
             _report(name, s, median_thickness_over_width=s.relative_thickness)
+
+
+def test_an_openscad_flower_in_one_solid_remeshes_to_its_petals_and_keeps_its_hub(tmp_path):
+    """The fused flower as an STL (one solid, no names): remesh finds its five petals
+    (it was refused: "its mid-surface covers only 15% of one side"), and axis holds its
+    centre sphere where it is under the petals' roots (bound to their rims, it tore with
+    them; its top, which the petals' sheets reach over, follows their fixed bases)."""
+    from click.testing import CliRunner
+
+    from pipeline.io import binding
+    from stages.cli import cli
+
+    v, f = _fused_flower()
+    trimesh.Trimesh(v, f, process=False).export(tmp_path / "flower.stl")
+    r = CliRunner().invoke(cli, ["remesh", str(tmp_path / "flower.stl"),
+                                 "--out", str(tmp_path / "r.h5")])
+    assert r.exit_code == 0, r.output
+    assert "5 petal(s) found in 1 part(s)" in r.output and "1 flower(s)" in r.output, r.output
+    r = CliRunner().invoke(cli, ["axis", str(tmp_path / "r.h5"), "--out", str(tmp_path / "a.h5")])
+    assert r.exit_code == 0, r.output
+    assert "held with the hub" in r.output, r.output
+    with h5py.File(tmp_path / "a.h5") as h:
+        b = binding.read_bindings(h)[0]
+        points = h["input/asset/points"][()]  # (input units: the sphere's radius is 4)
+    r = np.linalg.norm(points, axis=1)
+    below = (r < 4.01) & (points[:, 2] < 2.0)  # the sphere under the petals' roots
+    assert below.sum() > 1000 and np.mean(b.face[below] < 0) > 0.95  # the centre stays
+    assert np.all(b.face[r > 12.0] >= 0)  # the petals follow

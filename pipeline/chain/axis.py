@@ -100,13 +100,10 @@ def run(remesh_h5: str | Path, out: str | Path, cfg: Config, *, overwrite: bool 
         bindings = binding.read_bindings(src)
         if bindings:  # (the hub of a flower modelled as one solid stays with the hub)
             held = binding.hold_hub(bindings, v, f, petal, axes.base,
-                                    src["mesh/thickness"] if "mesh/thickness" in src else None,
-                                    axes.flower_axes,
-                                    np.zeros(int(petal.max()) + 1, dtype=np.int64)
-                                    if flower is None else flower)
+                                    src["mesh/thickness"] if "mesh/thickness" in src else None)
             for i, n in held.items():
-                log.info("part %s: %d point(s) inside the ring of its petals' bases, off the "
-                         "sheet's rim, held with the hub (they stay where they are)",
+                log.info("part %s: %d point(s) behind its petals' bases, off the sheet's rim, "
+                         "held with the hub (they stay where they are)",
                          _asset_part_name(src, i), n)
         attrs = {**carried_attrs(src), "flower_axis": axes.flower_axis, "up": up,
                  "flower_count": len(axes.flower_axes)}

@@ -411,6 +411,10 @@ def _mid(v, f):
     m = midsurface(v, f)
     sv, sf, t = _cleaned_sheet(m.vertices, m.faces, m.thickness)
     kept = _area(sv, sf) / max(0.5 * _area(v, f), 1e-300) if len(sf) else 0.0
+    if kept < MIN_MID_AREA:  # (petals fused in one solid: a sheet for each pair of sides)
+        m = midsurface(v, f, many=True)
+        sv, sf, t = _cleaned_sheet(m.vertices, m.faces, m.thickness)
+        kept = _area(sv, sf) / max(0.5 * _area(v, f), 1e-300) if len(sf) else 0.0
     if kept < MIN_MID_AREA:
         raise ValueError(f"its mid-surface covers only {kept:.0%} of one side ({len(sf)} faces); "
                          "the part is not two parallel sides (a low-poly cage, a crumpled or "

@@ -195,15 +195,14 @@ def _keep_to_own_petal(b: Binding, points, piece, vertices, faces, allowed,
         b.face[stray], b.bary[stray], b.offset[stray] = again.face, again.bary, again.offset
 
 
-#: a point of a petal's part inside the ring of its petal's base that hangs off the
-#: sheet's rim by more than this many of the sheet's thickness there (of its mean edges,
-#: for a sheet) is the flower's hub, not the petal: :func:`hold_hub`
+#: a point of a petal's part behind its petal's base that hangs off the sheet's rim by
+#: more than this many of the sheet's thickness there (of its mean edges, for a sheet) is
+#: the flower's hub, not the petal: :func:`hold_hub`
 HUB_OFFSET = 2.0
 
 
 def hold_hub(bindings: dict[int, Binding], vertices: np.ndarray, faces: np.ndarray,
-             petal: np.ndarray, base: np.ndarray, thickness: np.ndarray | None,
-             flower_axis: np.ndarray, petal_flower: np.ndarray) -> dict[int, int]:
+             petal: np.ndarray, base: np.ndarray, thickness: np.ndarray | None = None) -> dict[int, int]:
     """Points of the petals' parts that belong to the flower's hub stay where they are
     (in place: ``face`` -1, ``offset`` their place); returns how many, by part.
 
@@ -212,38 +211,28 @@ def hold_hub(bindings: dict[int, Binding], vertices: np.ndarray, faces: np.ndarr
     so its points were bound to the petals' rims near their bases, far off the sheet, and
     the bloom swung them with the petals' turning frames and tore the hub to shards. A
     hub point is one bound to a sheet's rim (not inside a triangle), more than
-    :data:`HUB_OFFSET` of the sheet's thickness there off it, and nearer the axis of its
-    petal's flower than that petal's fixed ``base`` (the median of its base vertices'
-    distances): inside the ring of bases, where the petal is held. A lone petal (no
-    flower axis) has none. ``vertices``, ``faces``: the sheet's rest mesh (mesh units);
-    ``thickness (V,)``: a thick petal's (0 or None for sheets); ``flower_axis (K, 6)``,
-    ``petal_flower (P,)`` as the axis stage finds them."""
+    :data:`HUB_OFFSET` of the sheet's thickness there off it, and behind its petal's
+    fixed ``base``: on the side of the base's centre away from the petal's own centre,
+    where the petal is held. ``vertices``, ``faces``: the sheet's rest mesh (mesh units);
+    ``thickness (V,)``: a thick petal's (0 or None for sheets)."""
     X = np.asarray(vertices, dtype=np.float64)
     F = np.asarray(faces, dtype=np.int64)
     petal = np.asarray(petal, dtype=np.int64)
     base = np.asarray(base, dtype=bool)
-    axes = np.asarray(flower_axis, dtype=np.float64).reshape(-1, 6)
-    petal_flower = np.asarray(petal_flower, dtype=np.int64)
     count = int(petal.max()) + 1 if len(petal) else 0
     thick = np.zeros(len(X)) if thickness is None else np.asarray(thickness, dtype=np.float64)
     edges = np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]])
     length = np.linalg.norm(X[edges[:, 0]] - X[edges[:, 1]], axis=1)
     edge = (np.bincount(petal[edges[:, 0]], weights=length, minlength=count)
             / np.maximum(np.bincount(petal[edges[:, 0]], minlength=count), 1))
-
-    def radial(points, flower):  # (distance of each point from its flower's axis)
-        q = points - axes[flower, :3]
-        d = axes[flower, 3:]
-        return np.linalg.norm(q - np.einsum("ij,ij->i", q, d)[:, None] * d, axis=1)
-
-    ring = np.full(count, -np.inf)  # (each petal's base's distance from its flower's axis)
-    known = np.all(np.isfinite(axes), axis=1)
-    for p in np.unique(petal[base]).tolist():
-        k = petal_flower[p]
-        if known[k]:
-            mine = np.flatnonzero(base & (petal == p))
-            ring[p] = float(np.median(radial(X[mine], np.full(len(mine), k))))
-    held = {}
+    sizes = np.maximum(np.bincount(petal, minlength=count), 1)[:, None]
+    centre = np.stack([np.bincount(petal, weights=X[:, k], minlength=count)
+                       for k in range(3)], axis=1) / sizes
+    held_base = np.bincount(petal[base], minlength=count)
+    root = np.stack([np.bincount(petal[base], weights=X[base, k], minlength=count)
+                     for k in range(3)], axis=1) / np.maximum(held_base, 1)[:, None]
+    ahead = centre - root  # (from each petal's base toward the petal)
+    out = {}
     for i, b in bindings.items():
         bound = np.flatnonzero(b.face >= 0)
         if not len(bound):
@@ -253,17 +242,17 @@ def hold_hub(bindings: dict[int, Binding], vertices: np.ndarray, faces: np.ndarr
         off = ~interior(Binding(b.face[bound], b.bary[bound], b.offset[bound]))
         scale = np.maximum(np.einsum("ij,ij->i", b.bary[bound], thick[tri]), edge[p])
         off &= np.linalg.norm(b.offset[bound], axis=1) > HUB_OFFSET * scale
-        off &= np.isfinite(ring[p])
+        off &= held_base[p] > 0
         if not off.any():
             continue
         mine = bound[off]
         place = deform(X, F, Binding(b.face[mine], b.bary[mine], b.offset[mine]))
-        inside = radial(place, petal_flower[p[off]]) < ring[p[off]]
-        mine, place = mine[inside], place[inside]
+        behind = np.einsum("ij,ij->i", place - root[p[off]], ahead[p[off]]) < 0.0
+        mine, place = mine[behind], place[behind]
         if len(mine):
             b.face[mine], b.bary[mine], b.offset[mine] = -1, 0.0, place
-            held[i] = len(mine)
-    return held
+            out[i] = len(mine)
+    return out
 
 
 def write_bindings(h5, bindings: dict[int, Binding]) -> None:

@@ -24,6 +24,9 @@ SIDE_DEGREES = 60.0
 MIN_AREA_RATIO = 0.05
 #: rounds of moving a middle point along its segment to equal distances from both sides
 MIDPOINT_ITERATIONS = 2
+#: ``midsurface(many=True)``: a side is taken with the one behind it when its area is at
+#: least this fraction of the largest side's
+MANY_SIDES = 0.2
 
 
 class Midsurface(NamedTuple):
@@ -98,7 +101,7 @@ def _pick_largest(area: np.ndarray, centroid: np.ndarray, size: float) -> int:
     return best
 
 
-def midsurface(vertices: np.ndarray, faces: np.ndarray) -> Midsurface:
+def midsurface(vertices: np.ndarray, faces: np.ndarray, many: bool = False) -> Midsurface:
     """The sheet halfway between the two sides of a thin shell.
 
     Parameters
@@ -108,6 +111,12 @@ def midsurface(vertices: np.ndarray, faces: np.ndarray) -> Midsurface:
         One thick part, welded: a closed thin shell (Blender Solidify: two offset sides
         joined by a rim strip; a flattened box; a flattened tube with caps; a lens) or
         two open layers (a slab cut open by a slit, or two separate sides).
+    many : bool
+        Not only the largest side and the sides behind it, but every other pair of sides
+        too (largest first, each at least ``MANY_SIDES`` of the largest's area): one
+        sheet for each, apart. For petals fused into one solid (an OpenSCAD union of
+        flattened spheres round a centre), whose sides join through the centre only
+        where its faceting lets them.
 
     Returns
     -------
@@ -229,69 +238,95 @@ def midsurface(vertices: np.ndarray, faces: np.ndarray) -> Midsurface:
                               / max(side_area[k], np.finfo(float).tiny)
                               for k, c in enumerate(labels)])
     diag = float(np.linalg.norm(v.max(axis=0) - v.min(axis=0)))
-    keep_label = labels[_pick_largest(side_area, side_centroid, diag)]
-    kept = side == keep_label
+    first = labels[_pick_largest(side_area, side_centroid, diag)]
 
-    # the other side: every side the kept side's rays land on (10% of its area or more)
-    target = m.opposite_face[kept]
-    target_side = side[target]
-    landed = np.zeros(len(labels))
-    np.add.at(landed, np.searchsorted(labels, target_side[target_side >= 0]), area2[kept][target_side >= 0])
-    if landed[np.searchsorted(labels, keep_label)] > 0.5 * area2[kept].sum():
-        raise ValueError("the two sides of the part cannot be told apart (its rim is as "
-                         "smooth as its sides, or the part folds onto itself)")
-    other_labels = labels[(landed >= 0.1 * area2[kept].sum()) & (labels != keep_label)]
-    if other_labels.size == 0:
-        raise ValueError("no opposite side found behind the largest side")
-    other = np.isin(side, other_labels)
+    def sheet_of(keep_label):
+        """The mid-surface of side ``keep_label`` and the sides its rays land on: ``(mid,
+        faces into mid, gap, input vertices, kept faces, other faces)``."""
+        kept = side == keep_label
+        # the other side: every side the kept side's rays land on (10% of its area or more)
+        target = m.opposite_face[kept]
+        target_side = side[target]
+        landed = np.zeros(len(labels))
+        np.add.at(landed, np.searchsorted(labels, target_side[target_side >= 0]),
+                  area2[kept][target_side >= 0])
+        if landed[np.searchsorted(labels, keep_label)] > 0.5 * area2[kept].sum():
+            raise ValueError("the two sides of the part cannot be told apart (its rim is as "
+                             "smooth as its sides, or the part folds onto itself)")
+        other_labels = labels[(landed >= 0.1 * area2[kept].sum()) & (labels != keep_label)]
+        if other_labels.size == 0:
+            raise ValueError("no opposite side found behind the largest side")
+        other = np.isin(side, other_labels)
 
-    # sheet faces are the kept side's; n points away from the other side
-    sheet_f = f[kept]
-    toward_other = m.direction[kept]
-    if float(np.sum(area2[kept] * toward_other)) > 0:
-        sheet_f = sheet_f[:, [0, 2, 1]]
-    used = np.unique(sheet_f)
-    p = v[used]
-    other_f, kept_f = f[other], f[kept]
+        # sheet faces are the kept side's; n points away from the other side
+        sheet_f = f[kept]
+        toward_other = m.direction[kept]
+        if float(np.sum(area2[kept] * toward_other)) > 0:
+            sheet_f = sheet_f[:, [0, 2, 1]]
+        used = np.unique(sheet_f)
+        p = v[used]
+        other_f, kept_f = f[other], f[kept]
 
-    def closest(points, side_faces):
-        _, nearest, bary = gpytoolbox.squared_distance(points, v, side_faces, use_cpp=True)
-        nearest = np.asarray(nearest, dtype=np.int64).reshape(-1)
-        return np.einsum("ik,ikj->ij", np.asarray(bary, dtype=np.float64), v[side_faces[nearest]])
+        def closest(points, side_faces):
+            _, nearest, bary = gpytoolbox.squared_distance(points, v, side_faces, use_cpp=True)
+            nearest = np.asarray(nearest, dtype=np.int64).reshape(-1)
+            return np.einsum("ik,ikj->ij", np.asarray(bary, dtype=np.float64), v[side_faces[nearest]])
 
-    q = closest(p, other_f)
-    span = np.linalg.norm(q - p, axis=1)
-    # The middle lies on the segment from p to its closest point q: there the distance
-    # to the other side is exactly (1 - s)|pq|, and to p's own side c s |pq|, c = 1
-    # for parallel sides, < 1 where they are not (a lens, a crease). Solving
-    # c s = 1 - s with c measured at the current s puts the point at equal distances
-    # without letting it slide along the sheet.
-    frac = np.full(len(p), 0.5)
-    for _ in range(MIDPOINT_ITERATIONS):
+        q = closest(p, other_f)
+        span = np.linalg.norm(q - p, axis=1)
+        # The middle lies on the segment from p to its closest point q: there the distance
+        # to the other side is exactly (1 - s)|pq|, and to p's own side c s |pq|, c = 1
+        # for parallel sides, < 1 where they are not (a lens, a crease). Solving
+        # c s = 1 - s with c measured at the current s puts the point at equal distances
+        # without letting it slide along the sheet.
+        frac = np.full(len(p), 0.5)
+        for _ in range(MIDPOINT_ITERATIONS):
+            mid = p + frac[:, None] * (q - p)
+            own = np.linalg.norm(closest(mid, kept_f) - mid, axis=1)
+            c = np.clip(own / np.maximum(frac * span, np.finfo(float).tiny), 0.0, 1.0)
+            frac = np.where(span > 0, 1.0 / (1.0 + c), 0.5)
         mid = p + frac[:, None] * (q - p)
-        own = np.linalg.norm(closest(mid, kept_f) - mid, axis=1)
-        c = np.clip(own / np.maximum(frac * span, np.finfo(float).tiny), 0.0, 1.0)
-        frac = np.where(span > 0, 1.0 / (1.0 + c), 0.5)
-    mid = p + frac[:, None] * (q - p)
-    gap = (1.0 - frac) * span + np.linalg.norm(closest(mid, kept_f) - mid, axis=1)
+        gap = (1.0 - frac) * span + np.linalg.norm(closest(mid, kept_f) - mid, axis=1)
 
-    local = np.searchsorted(used, sheet_f)
-    old = topology.face_normals(v, sheet_f)
-    new = topology.face_normals(mid, local)
-    old_area2 = np.linalg.norm(old, axis=1)
-    signed = np.einsum("ij,ij->i", new, old) / np.maximum(old_area2, np.finfo(float).tiny)
-    good = signed > MIN_AREA_RATIO * old_area2
-    local = local[good]
-    local = local[manifold_fans(local, len(used))]
-    if len(local) == 0:
-        raise ValueError("the projection onto the middle collapsed every face")
-    link = _adjacent_faces(local)
-    piece = _face_components(local, link)
-    piece_area = np.bincount(piece, weights=np.linalg.norm(topology.face_normals(mid, local), axis=1))
-    local = local[piece == int(np.argmax(piece_area))]
-    keep_v = np.unique(local)
+        local = np.searchsorted(used, sheet_f)
+        old = topology.face_normals(v, sheet_f)
+        new = topology.face_normals(mid, local)
+        old_area2 = np.linalg.norm(old, axis=1)
+        signed = np.einsum("ij,ij->i", new, old) / np.maximum(old_area2, np.finfo(float).tiny)
+        good = signed > MIN_AREA_RATIO * old_area2
+        local = local[good]
+        local = local[manifold_fans(local, len(used))]
+        if len(local) == 0:
+            raise ValueError("the projection onto the middle collapsed every face")
+        link = _adjacent_faces(local)
+        piece = _face_components(local, link)
+        piece_area = np.bincount(piece, weights=np.linalg.norm(topology.face_normals(mid, local), axis=1))
+        local = local[piece == int(np.argmax(piece_area))]
+        keep_v = np.unique(local)
+        return mid[keep_v], np.searchsorted(keep_v, local), gap[keep_v], used[keep_v], kept, other
+
+    made = [sheet_of(first)]
+    if many:  # (each pair of sides its own sheet: the petals of one solid)
+        taken = made[0][4] | made[0][5]
+        for k in np.argsort(-side_area, kind="stable").tolist():
+            c = labels[k]
+            if side_area[k] < MANY_SIDES * side_area.max() or taken[side == c].any():
+                continue
+            try:
+                piece = sheet_of(c)
+            except ValueError:
+                continue
+            if (taken & piece[5]).any():  # (its other side is a sheet's already)
+                continue
+            made.append(piece)
+            taken |= piece[4] | piece[5]
+    at = np.cumsum([0] + [len(piece[0]) for piece in made])
     side_of_input = np.zeros(len(faces), dtype=np.int8)
-    side_of_input[input_face[kept]] = 1
-    side_of_input[input_face[other]] = -1
-    return Midsurface(mid[keep_v], np.searchsorted(keep_v, local), gap[keep_v], used[keep_v],
+    for piece in made:
+        side_of_input[input_face[piece[4]]] = 1
+        side_of_input[input_face[piece[5]]] = -1
+    return Midsurface(np.concatenate([piece[0] for piece in made]),
+                      np.concatenate([piece[1] + o for piece, o in zip(made, at, strict=False)]),
+                      np.concatenate([piece[2] for piece in made]),
+                      np.concatenate([piece[3] for piece in made]),
                       side_of_input, m.relative_thickness, m.layered_fraction)
