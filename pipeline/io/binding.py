@@ -232,6 +232,7 @@ def hold_hub(bindings: dict[int, Binding], vertices: np.ndarray, faces: np.ndarr
     root = np.stack([np.bincount(petal[base], weights=X[base, k], minlength=count)
                      for k in range(3)], axis=1) / np.maximum(held_base, 1)[:, None]
     ahead = centre - root  # (from each petal's base toward the petal)
+    normals = None  # (the sheet's, once: a branch of blossoms has thousands of parts)
     out = {}
     for i, b in bindings.items():
         bound = np.flatnonzero(b.face >= 0)
@@ -246,7 +247,9 @@ def hold_hub(bindings: dict[int, Binding], vertices: np.ndarray, faces: np.ndarr
         if not off.any():
             continue
         mine = bound[off]
-        place = deform(X, F, Binding(b.face[mine], b.bary[mine], b.offset[mine]))
+        if normals is None:
+            normals = vertex_normals(X, F)
+        place = deform(X, F, Binding(b.face[mine], b.bary[mine], b.offset[mine]), normals)
         behind = np.einsum("ij,ij->i", place - root[p[off]], ahead[p[off]]) < 0.0
         mine, place = mine[behind], place[behind]
         if len(mine):
