@@ -115,6 +115,22 @@ def test_the_gltf_comes_back_as_its_own_parts(gltf_chain):
     np.testing.assert_allclose(np.linalg.norm(normals, axis=1), 1.0, atol=1e-5)
 
 
+def test_export_shows_how_far_it_has_got_part_by_part(gltf_chain, monkeypatch, tmp_path):
+    """Under make (no terminal) `bloom export` logs how far it has got, naming the part
+    (a branch of a thousand blossoms took minutes, silent): binding, turning and writing
+    each part is a third of its share; the USD is the same to the bit."""
+    from pipeline import progress
+
+    monkeypatch.setattr(progress, "EVERY", 0.0)  # (a line at every tenth, however quick)
+    usd = tmp_path / "again.usda"
+    r = invoke("export", gltf_chain["sim"], "--out", usd)
+    lines = [line for line in r.output.splitlines() if line.startswith("export: ")]
+    assert lines and lines[-1].startswith("export: 100% done"), r.output
+    assert all("(part '" in line for line in lines)
+    assert {"Petal.001", "Stem"} <= {line.split("(part '")[1].rstrip("')") for line in lines}
+    assert usd.read_text() == gltf_chain["usd"].read_text()
+
+
 def test_a_thick_petal_keeps_its_thickness_and_does_not_pop(gltf_chain):
     """Through every frame, the solidified petal's thickness (each point's distance to
     the other side) stays within 5% of the input's, and no bound point moves further

@@ -3,6 +3,7 @@ deformed through their binding, or the simulated sheet), OBJ or PLY sequences, X
 
 from __future__ import annotations
 
+import contextlib
 import json
 import logging
 from pathlib import Path
@@ -17,6 +18,7 @@ from pipeline.errors import BloomError
 from pipeline.flower import stagger
 from pipeline.io import binding, export, userasset
 from pipeline.mesh.topology import vertex_normals
+from pipeline.progress import Progress
 
 log = logging.getLogger("bloom")
 
@@ -34,7 +36,8 @@ def run(sim_h5: str | Path, out: str | Path, cfg: Config, *, overwrite: bool = F
     time codes the frame numbers, played at render.fps; OBJ or PLY: one file per frame;
     XDMF: a ParaView time series."""
     out = Path(out)
-    with artifact.Artifact(sim_h5, needs="simulate", reader="export") as src:
+    with contextlib.ExitStack() as stack:
+        src = stack.enter_context(artifact.Artifact(sim_h5, needs="simulate", reader="export"))
         scale = float(src.attrs["scale"])
         sheet = src["frames/positions"]
         numbers = src["frames/frame"][()] if "frames/frame" in src else np.arange(len(sheet))
@@ -57,11 +60,18 @@ def run(sim_h5: str | Path, out: str | Path, cfg: Config, *, overwrite: bool = F
         use_input = cfg["export.mesh"] == "input"
         meters = (asset.meters_per_unit if asset is not None and asset.meters_per_unit
                   else cfg["export.meters_per_unit"])
+        # (a bar on a terminal, log lines under make: a branch of blossoms took minutes)
+        bar = stack.enter_context(Progress(3 * len(asset.parts) if use_input else 1, "export"))
+
+        def done(name):
+            bar.note(f"part {name!r}")
+            bar.update()
+
         if use_input:
             bindings = binding.read_bindings(src)
             sides = export.part_sides(asset, bindings, sheet[0], faces, scale)
             frames = export.asset_frames(sheet, faces, asset, bindings, scale,
-                                         cfg["export.keep_thickness"], sides)
+                                         cfg["export.keep_thickness"], sides, progress=done)
             _report(asset, bindings, frames, sheet / scale, sides)
         if fmt == "usd":
             if out.suffix.lower() not in USD_SUFFIXES:
@@ -73,9 +83,10 @@ def run(sim_h5: str | Path, out: str | Path, cfg: Config, *, overwrite: bool = F
             source = {"source": str(sim_h5), "sha256": artifact.sha256_file(sim_h5)}
             with artifact.atomic_path(out) as tmp:
                 if use_input:
-                    turns = _turns(sheet, faces, asset, bindings)
+                    turns = _turns(sheet, faces, asset, bindings, progress=done)
                     export.write_usd_asset(tmp, frames, asset, fps, numbers, turns=turns,
-                                           source=source, up=up, meters_per_unit=meters)
+                                           source=source, up=up, meters_per_unit=meters,
+                                           progress=done)
                 else:
                     export.write_usd(tmp, positions, faces, petal, fps, source=source, up=up,
                                      meters_per_unit=meters, frame_numbers=numbers)
@@ -114,16 +125,22 @@ def _up_axis(src, asset, cfg) -> str:
     return "Y" if up is not None and abs(up[1]) > abs(up[2]) else "Z"
 
 
-def _turns(sheet, faces, asset, bindings) -> dict:
+def _turns(sheet, faces, asset, bindings, progress=None) -> dict:
     """Per deformed part with normals of its own: each frame's rotation of each point's
-    local frame from rest (the normals turn with it)."""
+    local frame from rest (the normals turn with it). ``progress(name)``: called as each
+    part is done (a part with none to turn too)."""
     out = {}
-    for i, b in bindings.items():
-        if asset.parts[i].normals is None:
-            continue
-        rest = binding.local_frames(sheet[0], faces, b.face, b.bary)
-        out[i] = np.stack([binding.rotations(X, faces, b, rest, vertex_normals(X, faces))
-                           for X in sheet])
+    normals = None  # (each frame's sheet normals, once for all parts)
+    for i, part in enumerate(asset.parts):
+        b = bindings.get(i)
+        if b is not None and part.normals is not None:
+            if normals is None:
+                normals = [vertex_normals(X, faces) for X in sheet]
+            rest = binding.local_frames(sheet[0], faces, b.face, b.bary)
+            out[i] = np.stack([binding.rotations(X, faces, b, rest, N)
+                               for X, N in zip(sheet, normals, strict=True)])
+        if progress is not None:
+            progress(part.name)
     return out
 
 

@@ -139,14 +139,14 @@ def write_xdmf(folder, positions: np.ndarray, faces: np.ndarray, petal: np.ndarr
 
 def asset_frames(positions: np.ndarray, faces: np.ndarray, asset, bindings: dict,
                  scale: float, keep_thickness: bool = True,
-                 sides: dict | None = None) -> list[np.ndarray]:
+                 sides: dict | None = None, progress=None) -> list[np.ndarray]:
     """Each part's points through the frames, at the input's scale: ``(T, n, 3)`` for a
     part bound to the sheet (``bindings``: part -> :class:`pipeline.io.binding.Binding`),
     deformed by each frame of ``positions (T, V, 3)`` (mesh units), a thick part's sides
     then kept as far apart as at rest (:func:`pipeline.io.binding.keep_thickness`, unless
     ``keep_thickness`` is off: the binding alone, as Surface Deform does); ``(n, 3)``,
     its own points, for a part that stays where it is. ``sides``: the bound parts'
-    :func:`part_sides`, if already found."""
+    :func:`part_sides`, if already found. ``progress(name)``: called as each part is done."""
 
     if keep_thickness and sides is None:
         sides = part_sides(asset, bindings, positions[0], faces, scale)
@@ -163,6 +163,8 @@ def asset_frames(positions: np.ndarray, faces: np.ndarray, asset, bindings: dict
             out.append(frames)
         else:
             out.append(np.asarray(part.points, dtype=np.float64))
+        if progress is not None:
+            progress(part.name)
     return out
 
 
@@ -210,7 +212,7 @@ def prim_names(names: list[str]) -> list[str]:
 
 def write_usd_asset(path, frames: list[np.ndarray], asset, fps: float, frame_numbers: np.ndarray,
                     turns: dict | None = None, source: dict | None = None, up: str = "Z",
-                    meters_per_unit: float = 1.0) -> None:
+                    meters_per_unit: float = 1.0, progress=None) -> None:
     """Write the user's parts (``asset``, a :class:`pipeline.io.userasset.Asset`) as a USD
     stage: one ``UsdGeom.Mesh`` per part under ``/Bloom``, named after the part (made a
     valid prim name; the file's own name is the prim's ``displayName``), with the part's
@@ -218,7 +220,8 @@ def write_usd_asset(path, frames: list[np.ndarray], asset, fps: float, frame_num
     are, else per vertex); normals; each material name a ``UsdShade.Material`` under
     ``/Bloom/Looks`` bound to its faces through a ``GeomSubset``. ``frames[i]`` is part
     i's points: ``(T, n, 3)`` time-sampled at ``frame_numbers`` (the time codes), or
-    ``(n, 3)`` static. ``turns[i] (T, n, 3, 3)`` turns a deformed part's own normals."""
+    ``(n, 3)`` static. ``turns[i] (T, n, 3, 3)`` turns a deformed part's own normals.
+    ``progress(name)``: called as each part is written."""
     from pxr import Gf, Sdf, Usd, UsdGeom, UsdShade, Vt
 
     frame_numbers = np.asarray(frame_numbers)
@@ -278,6 +281,8 @@ def write_usd_asset(path, frames: list[np.ndarray], asset, fps: float, frame_num
                 UsdShade.MaterialBindingAPI.Apply(subset.GetPrim()).Bind(looks[name])
             binding_api.SetMaterialBindSubsetsFamilyType(
                 UsdGeom.Tokens.partition if covered else UsdGeom.Tokens.nonOverlapping)
+        if progress is not None:
+            progress(part.name)
     stage.GetRootLayer().Save()
 
 
