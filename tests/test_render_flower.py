@@ -129,3 +129,32 @@ def test_render_shows_the_users_parts_upright_and_the_same_every_time(y_up_flowe
     assert r.exit_code == 0, r.output
     only = imageio.imread(sheet / "frames" / "0002.png")[..., :3].astype(int)
     assert ((only[..., 1] > only[..., 0] + 15) & (only[..., 1] > only[..., 2])).sum() == 0
+
+
+def test_a_petal_pieces_hub_keeps_the_petal_colour_and_a_leaf_is_a_leaf():
+    """A petal part of two pieces, its points unwelded (as an STL's): a petal whose hub
+    end stays (held with the hub) and a leaf that stays whole. The leaf is drawn as a
+    leaf, apart and unframed; the petal, its held hub too, in the petal's colour."""
+    from pipeline.io import binding, userasset
+
+    quad = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]], dtype=float)
+    petal = np.vstack([quad, quad + [1.0, 0.0, 0.0]])  # two squares side by side
+    leaf = quad + [5.0, 0.0, 0.0]
+    tris = np.array([[0, 1, 2], [0, 2, 3], [4, 5, 6], [4, 6, 7], [8, 9, 10], [8, 10, 11]])
+    corners = np.vstack([petal, leaf])[tris.ravel()]  # (unwelded: each triangle its own)
+    part = userasset.AssetPart("Flower", corners, np.full(len(tris), 3),
+                               np.arange(3 * len(tris)))
+    face = np.full(len(corners), 0, dtype=np.int64)
+    face[:6] = -1  # (the petal's first square: its hub, held)
+    face[12:] = -1  # (the leaf)
+    b = binding.Binding(face, np.full((len(corners), 3), 1.0 / 3.0), corners.copy())
+    sheet = np.array([[0, 1, 2]])
+    frames = [np.stack([corners, corners + [0.0, 0.0, 0.1]])]
+    asset = userasset.Asset([part], None, None)
+    layers = render.asset_layers(frames, asset, {0: b}, sheet, np.zeros(3, dtype=np.int64),
+                                 color="#ff99cc", palette="single")
+    leaf_layer = [layer for layer in layers if layer.color == render.PART_COLOURS["leaf"]]
+    assert len(leaf_layer) == 1 and not leaf_layer[0].framed
+    assert sorted(np.unique(leaf_layer[0].faces // 3).tolist()) == [4, 5]  # the leaf only
+    petal_layer = [layer for layer in layers if layer.color == "#ff99cc"]
+    assert len(petal_layer) == 1 and len(petal_layer[0].faces) == 4  # the hub's two too

@@ -17,6 +17,8 @@ from pathlib import Path
 
 import numpy as np
 
+from pipeline.mesh import topology
+
 os.environ.setdefault("PYVISTA_OFF_SCREEN", "true")
 if not os.environ.get("DISPLAY"):
     # No X server: go straight to EGL instead of trying X first (and warning about it).
@@ -171,6 +173,13 @@ def asset_layers(frames: list[np.ndarray], asset, bindings: dict, faces: np.ndar
         if i in bindings:
             b = bindings[i]
             stays = np.all(b.face[tris] < 0, axis=1)  # a leaf or stem of a petal's part
+            if stays.any():  # (but not the hub a petal piece is held at: a petal's colour;
+                # pieces by position, as an STL's triangles share no points)
+                _, same = np.unique(np.asarray(part.points), axis=0, return_inverse=True)
+                same = same.reshape(-1)
+                piece = topology.components(same[tris], int(same.max()) + 1)[same[tris[:, 0]]]
+                moves = np.bincount(piece, weights=~stays, minlength=piece.max() + 1) > 0
+                stays &= ~moves[piece]
             if stays.any():
                 layers.append(Layer(tris[stays], np.asarray(pts, dtype=np.float64),
                                     color=PART_COLOURS["leaf"], framed=False))
