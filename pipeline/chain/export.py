@@ -64,8 +64,7 @@ def run(sim_h5: str | Path, out: str | Path, cfg: Config, *, overwrite: bool = F
         bar = stack.enter_context(Progress(3 * len(asset.parts) if use_input else 1, "export"))
 
         def done(name):
-            bar.note(f"part {name!r}")
-            bar.update()
+            bar.reach(bar.done + 1, f"part {name!r}")
 
         if use_input:
             bindings = binding.read_bindings(src)

@@ -639,9 +639,7 @@ def find_axes(vertices: np.ndarray, faces: np.ndarray, petal: np.ndarray, *,
             as_modelled.append((p, exc.reason))
 
     # each petal's base-to-tip chord
-    held = np.maximum(np.bincount(petal[base], minlength=count), 1)
-    base_centre = np.stack([np.bincount(petal[base], weights=v[base, j], minlength=count)
-                            for j in range(3)], 1) / held[:, None]
+    base_centre = topology.label_means(v[base], petal[base], count)
     chords = v[tips] - base_centre
     chords[[p for p, _ in as_modelled]] = 0.0  # (a petal held as modelled tells no way up)
     lines = np.full((flowers, 6), np.nan)

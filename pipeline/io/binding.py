@@ -28,7 +28,7 @@ import scipy.sparse as sp
 
 from pipeline.artifact import put
 from pipeline.mesh.nearest import closest_points, nearest_among
-from pipeline.mesh.topology import components, vertex_normals
+from pipeline.mesh.topology import components, label_means, vertex_normals
 
 
 @dataclass
@@ -225,13 +225,9 @@ def hold_hub(bindings: dict[int, Binding], vertices: np.ndarray, faces: np.ndarr
     length = np.linalg.norm(X[edges[:, 0]] - X[edges[:, 1]], axis=1)
     edge = (np.bincount(petal[edges[:, 0]], weights=length, minlength=count)
             / np.maximum(np.bincount(petal[edges[:, 0]], minlength=count), 1))
-    sizes = np.maximum(np.bincount(petal, minlength=count), 1)[:, None]
-    centre = np.stack([np.bincount(petal, weights=X[:, k], minlength=count)
-                       for k in range(3)], axis=1) / sizes
     held_base = np.bincount(petal[base], minlength=count)
-    root = np.stack([np.bincount(petal[base], weights=X[base, k], minlength=count)
-                     for k in range(3)], axis=1) / np.maximum(held_base, 1)[:, None]
-    ahead = centre - root  # (from each petal's base toward the petal)
+    root = label_means(X[base], petal[base], count)
+    ahead = label_means(X, petal, count) - root  # (from each petal's base toward the petal)
     normals = None  # (the sheet's, once: a branch of blossoms has thousands of parts)
     out = {}
     for i, b in bindings.items():

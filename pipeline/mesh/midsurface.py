@@ -326,7 +326,7 @@ def midsurface(vertices: np.ndarray, faces: np.ndarray, many: bool = False) -> M
         side_of_input[input_face[piece[4]]] = 1
         side_of_input[input_face[piece[5]]] = -1
     return Midsurface(np.concatenate([piece[0] for piece in made]),
-                      np.concatenate([piece[1] + o for piece, o in zip(made, at, strict=False)]),
+                      np.concatenate([piece[1] + o for piece, o in zip(made, at[:-1], strict=True)]),
                       np.concatenate([piece[2] for piece in made]),
                       np.concatenate([piece[3] for piece in made]),
                       side_of_input, m.relative_thickness, m.layered_fraction)

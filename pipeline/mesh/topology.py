@@ -240,14 +240,21 @@ def by_label(label: np.ndarray, count: int) -> list[np.ndarray]:
     return [order[bounds[k]:bounds[k + 1]] for k in range(count)]
 
 
+def label_means(points: np.ndarray, label: np.ndarray, count: int) -> np.ndarray:
+    """``(count, 3)`` the mean of each label's points (0 for a label with none), in one
+    pass over them."""
+    n = np.bincount(label, minlength=count).astype(np.float64)
+    mean = np.stack([np.bincount(label, weights=points[:, k], minlength=count) for k in range(3)], 1)
+    return mean / np.maximum(n, 1.0)[:, None]
+
+
 def grouped_moments(points: np.ndarray, label: np.ndarray, count: int):
     """Per label, in one pass over the points: ``(n (count,), mean (count, 3), centred
     (N, 3), cov (count, 3, 3), axes (count, 3, 3))``: how many points, their centroid,
     each point less its label's centroid, the scatter matrix and its eigenvectors (columns,
     by ascending eigenvalue)."""
     n = np.bincount(label, minlength=count).astype(np.float64)
-    mean = np.stack([np.bincount(label, weights=points[:, k], minlength=count) for k in range(3)], 1)
-    mean /= np.maximum(n, 1.0)[:, None]
+    mean = label_means(points, label, count)
     centred = points - mean[label]
     cov = np.empty((count, 3, 3))
     for a in range(3):
