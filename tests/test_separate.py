@@ -15,7 +15,7 @@ from click.testing import CliRunner
 from pipeline.mesh import procedural
 from pipeline.mesh.clean import mean_edge_length
 from pipeline.mesh.separate import SeparationError, separate
-from pipeline.sim.terms.contact import Contact, frame_intersections
+from pipeline.sim.terms.contact import Contact, crossings_between, frame_intersections
 from stages.cli import cli
 from tests.conftest import min_distance
 
@@ -207,6 +207,10 @@ def test_a_pair_too_far_through_each_other_is_left_as_modelled_and_the_rest_sepa
     assert frame_intersections([out.vertices], f) == [True]  # (0 and 1 still cross)
     assert frame_intersections([out.vertices], f, p, out.left) == [False]
     assert frame_intersections([v], f, p, out.left) == [True]  # (0 and 2 crossed)
+    # flowers' crossings (each sheet a flower of its own) leave the pair out the same way
+    assert crossings_between([out.vertices], f, p) == [True]
+    assert crossings_between([out.vertices], f, p, petal=p, left=out.left) == [False]
+    assert crossings_between([v], f, p, petal=p, left=out.left) == [True]
     contact = Contact.build(out.vertices, f, p, gap=GAP, stiffness=1.0, left=out.left)
     assert min_distance(contact, out.vertices, 4 * GAP) >= GAP  # (the others kept apart)
 

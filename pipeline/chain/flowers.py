@@ -156,7 +156,8 @@ def _seen_crossing(members: list, positions, parts: list, prep: Prepared, starts
         seen = stagger.staggered(seen, local, np.asarray(starts)[members])
     if frames is not None:  # (frames of the whole: past this one's last, it holds it)
         seen = seen[np.minimum(frames, len(seen) - 1)]
-    return np.asarray(crossings_between(seen, faces, local != 0 if against_first else local),
+    return np.asarray(crossings_between(seen, faces, local != 0 if against_first else local,
+                                        petal=np.asarray(prep.petal)[sub], left=prep.left),
                       dtype=bool)
 
 

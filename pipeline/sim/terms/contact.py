@@ -418,21 +418,23 @@ def _pairs(pairs) -> str:
     return ", ".join(f"{a}-{b}" for a, b in pairs) or "(none found pairwise)"
 
 
-def crossings_between(frames, faces, group) -> list[bool]:
+def crossings_between(frames, faces, group, petal=None, left=None) -> list[bool]:
     """For each frame ``(V, 3)`` of ``frames``, whether a triangle of one group passes
     through one of another (ipctk's exact edge-through-triangle test): ``group (V,)``
     each vertex's group (a flower, a side); two triangles of one group are not looked
-    at."""
+    at, nor (``petal (V,)`` each vertex's, ``left (K, 2)``) two of a pair of petals left
+    through each other as modelled, as :func:`frame_intersections` does not."""
     ipctk = one_thread()
     F = np.asfortranarray(faces, dtype=np.int32)
     E = ipctk.edges(F)
-    group32 = np.ascontiguousarray(group, dtype=np.int32)  # (lives as long as the mesh)
+    pairs = [] if petal is None or left is None else np.asarray(left).reshape(-1, 2).tolist()
+    keep = Filter(group, petal=petal, pairs=pairs)  # (lives as long as the mesh)
     mesh, out = None, []
     for X in frames:
         X = np.asfortranarray(X, dtype=np.float64)
         if mesh is None:
             mesh = ipctk.CollisionMesh(X, E, F)
-            mesh.can_collide = ipctk.make_vertex_patches_filter(group32)
+            keep.apply(mesh)
         out.append(bool(ipctk.has_intersections(mesh, X)))
     return out
 
