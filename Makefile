@@ -13,6 +13,8 @@ INSTALLED := $(VENV)/.installed
 OUT := outputs
 SCENES ?= $(sort $(basename $(notdir $(wildcard configs/*.toml))))
 PYTEST_ARGS ?=
+# make test spreads the test files over the cores (pytest-xdist; at most 4 workers)
+TEST_JOBS ?= -n auto --maxprocesses 4 --dist loadfile
 # real flower models other people made (make models)
 MODELS ?= ../shared/external-meshes
 
@@ -34,10 +36,10 @@ $(INSTALLED): pyproject.toml constraints.txt
 	touch $@
 
 test: $(INSTALLED)  ## run the test suite
-	$(VENV)/bin/python -m pytest $(PYTEST_ARGS)
+	$(VENV)/bin/python -m pytest $(TEST_JOBS) $(PYTEST_ARGS)
 
 test-studio: $(INSTALLED)  ## the studio-sized models (../shared/external-meshes, a 100k-face flower) through the geometry stages (~8 min)
-	$(VENV)/bin/python -m pytest -m studio tests $(PYTEST_ARGS)
+	$(VENV)/bin/python -m pytest $(TEST_JOBS) -m studio tests $(PYTEST_ARGS)
 
 test-extended: $(INSTALLED)  ## whole builds killed and resumed: a killed make, a lost Dask worker; each petal's own solver resumed (~4 min)
 	$(VENV)/bin/python -m pytest -m extended tests $(PYTEST_ARGS)

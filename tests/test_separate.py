@@ -367,8 +367,9 @@ def test_petals_remesh_cannot_separate_are_left_as_modelled_and_bloom(tmp_path):
         assert h["mesh/left"][()].tolist() == [[0, 1]]
     for stage, src, dst in zip(("axis", "growth", "simulate"), files[:3], files[1:], strict=True):
         r = CliRunner().invoke(cli, [stage, str(src), "--out", str(dst), "--set",
-                                     "simulate.frames=5"] + args)
-        assert r.exit_code == 0, r.output
+                                     "simulate.frames=5", "--set", "simulate.petal_vertices=0"]
+                               + args)  # (the blades as meshed: cut finer, 3,030 vertices
+        assert r.exit_code == 0, r.output  # snap at A 0.37 and take minutes)
     assert "not between petals left through each other as modelled: 0-1" in r.output
     with h5py.File(files[3]) as h:
         assert not h["diagnostics/intersecting"][()].any()
