@@ -447,9 +447,11 @@ SHORT = ["--set", "simulate.steps=400", "--set", "simulate.frames=5", "--set",
 
 def test_each_flower_of_a_file_blooms_as_it_would_alone(tmp_path):
     """A file of staggered flowers is simulated flower by flower: each flower's frames
-    in sim.h5 are, to the bit, those of its own problem run alone; the openings per
-    petal are each flower's, in the file's petal order, and their mean is the mean."""
+    in sim.h5 are, to the bit, those of its own problem run alone (at its own size,
+    :func:`pipeline.chain.flowers.solve`); the openings per petal are each flower's, in
+    the file's petal order, and their mean is the mean."""
     from pipeline.chain import problem
+    from pipeline.chain.flowers import solve
     from pipeline.config import load_config
     from pipeline.flower.measure import Start
     from pipeline.sim.build import Prepared
@@ -468,12 +470,37 @@ def test_each_flower_of_a_file_blooms_as_it_would_alone(tmp_path):
     with h5py.File(growth) as src:
         prep = Prepared.from_artifact(src)
         part, idx = prep.flower_part(1)
-        alone = problem.problem(part, job, tmp_path / "alone.ckpt")
+        alone = solve(part, job, tmp_path / "alone.ckpt", "alone")
         mine = np.unique(np.asarray(prep.petal)[idx])
     np.testing.assert_array_equal(X[:, idx], np.asarray(alone.rec.positions))
     np.testing.assert_array_equal(opening[:, mine], alone.rec.arrays()["opening_angle_per_petal"])
     np.testing.assert_allclose(mean, opening.mean(axis=1), rtol=1e-12)
     assert opening[-1].min() > 1.0  # (every petal opened some)
+
+
+def test_a_flower_of_a_file_blooms_the_same_at_any_size(tmp_path):
+    """A flower of a file is solved at its own size (pipeline.chain.flowers.solve): the
+    same flower three times the size blooms three times the size, to 1e-9 of it, with
+    contact on (its gap in mesh units). Solved at the size it is given, the two differ
+    by 1.2% of the flower's size."""
+    from pipeline.chain import problem
+    from pipeline.chain.flowers import solve
+    from pipeline.config import load_config
+    from pipeline.flower.measure import Start
+    from pipeline.sim.build import Prepared
+
+    growth = _bush_growth(tmp_path)
+    sets = ["simulate.steps=400", "simulate.frames=5", "effects.collisions.enabled=true"]
+    job = problem.Job(load_config(None, sets), Start("bud", float("nan"), "test"),
+                      ["collisions"], {}, False, False, "test")
+    with h5py.File(growth) as src:
+        part, _ = Prepared.from_artifact(src).flower_part(0)
+        one = np.asarray(solve(part, job, tmp_path / "one.ckpt", "one").rec.positions)
+        three = np.asarray(solve(part.scaled(3.0), job, tmp_path / "three.ckpt",
+                                 "three").rec.positions)
+    size = float(np.ptp(one[0], axis=0).max())
+    assert np.abs(three / 3.0 - one).max() < 1e-9 * size
+    assert np.abs(one[-1] - one[0]).max() > 0.2 * size  # (it bloomed)
 
 
 def test_flowers_bloom_side_by_side_to_the_same_bits(tmp_path):
@@ -550,9 +577,9 @@ def test_a_flower_that_cannot_bloom_is_kept_as_modelled_and_named(tmp_path, monk
     assert not (tmp_path / "t.h5").exists()
 
 
-def _copied_bush(tmp_path):
-    """Three open lilies, the third the first turned and moved: its growth.h5 (remesh,
-    axis and growth run), and ``(vertices, faces, petal, turn, move)``."""
+def _copied_bush(tmp_path, scale: float = 1.0):
+    """Three open lilies, the third the first scaled by ``scale``, turned and moved: its
+    growth.h5 (remesh, axis and growth run), and ``(vertices, faces, petal, turn, move)``."""
     v, f, petal, _ = bush(petals=5, vertices=600)
     first = np.flatnonzero(petal < 5)
     second = np.flatnonzero((petal >= 5) & (petal < 10))
@@ -563,7 +590,7 @@ def _copied_bush(tmp_path):
         return np.searchsorted(idx, f[np.isin(f[:, 0], idx)])
 
     parts = [("Flower.000", v[first], faces_of(first)), ("Flower.001", v[second], faces_of(second)),
-             ("Flower.002", v[first] @ turn.T + move, faces_of(first))]
+             ("Flower.002", scale * v[first] @ turn.T + move, faces_of(first))]
     mesh = write_parts(tmp_path / "copies.obj", parts)
     paths = {k: tmp_path / f"{k}.h5" for k in ("r", "a", "g", "s")}
     for stage, src, out in (("remesh", mesh, "r"), ("axis", paths["r"], "a"),
@@ -573,18 +600,22 @@ def _copied_bush(tmp_path):
     return paths, (v, f, petal, turn, move)
 
 
-def test_a_flower_that_is_a_copy_of_another_blooms_as_it_does_moved(tmp_path):
-    """Instanced blossoms: the third flower is the first one turned and moved (its petals
-    remeshed alike, as remesh does a copy). It is not simulated again: its frames are the
-    first flower's turned and moved, to rounding, and its own problem run alone blooms
-    the same to a millionth of the petal length (the problem is the same, turned)."""
+@pytest.mark.parametrize("scale", [1.0, 1.25])
+def test_a_flower_that_is_a_copy_of_another_blooms_as_it_does_moved(tmp_path, scale):
+    """Instanced blossoms: the third flower is the first one turned and moved, and
+    scaled 1.25 (its petals remeshed alike, as remesh does a copy). It is not simulated
+    again: its frames are the first flower's turned, moved and scaled, to rounding, and
+    its own problem, solved alone (at its own size, as every flower of a file is), blooms
+    the same to a millionth of the petal length. (Solved at the file's scale, a copy
+    scaled 1.25 opened 55-58 deg where its original opened 62-89.)"""
     from pipeline.chain import problem
+    from pipeline.chain.flowers import solve
     from pipeline.config import load_config
     from pipeline.flower.measure import Start
     from pipeline.mesh.similar import similarity
     from pipeline.sim.build import Prepared
 
-    paths, (v, f, petal, turn, move) = _copied_bush(tmp_path)
+    paths, (v, f, petal, turn, move) = _copied_bush(tmp_path, scale)
     r = CliRunner().invoke(cli, ["simulate", str(paths["g"]), "--out", str(paths["s"]), *SHORT])
     assert r.exit_code == 0, r.output
     assert "1 of 3 flowers are copies of others" in r.output
@@ -597,11 +628,11 @@ def test_a_flower_that_is_a_copy_of_another_blooms_as_it_does_moved(tmp_path):
         prep = Prepared.from_artifact(src)
         _, idx0 = prep.flower_part(0)
         part2, idx2 = prep.flower_part(2)
-        alone = np.asarray(problem.problem(part2, job, tmp_path / "alone.ckpt").rec.positions)
+        alone = np.asarray(solve(part2, job, tmp_path / "alone.ckpt", "alone").rec.positions)
     size = float(np.ptp(X[0, idx2], axis=0).max())
-    _, rot, shift = similarity(X[0, idx0], X[0, idx2], scaled=False)  # (mesh units)
-    assert np.allclose(rot, turn, atol=1e-9)
-    moved = X[:, idx0] @ rot.T + shift
+    grown, rot, shift = similarity(X[0, idx0], X[0, idx2])  # (mesh units)
+    assert np.allclose(rot, turn, atol=1e-9) and abs(grown - scale) < 1e-9
+    moved = grown * X[:, idx0] @ rot.T + shift
     assert np.abs(X[:, idx2] - moved).max() < 1e-9 * size
     assert np.abs(alone - X[:, idx2]).max() < 1e-6 * size
     assert np.abs(X[-1, idx2] - X[0, idx2]).max() > 0.05 * size  # (it bloomed)
@@ -615,6 +646,7 @@ def test_a_copy_that_would_pass_through_a_neighbour_blooms_on_its_own(tmp_path, 
     it, so it is kept: flower 2's frames are its own problem's, and no frame the user
     sees (staggered) has a crossing."""
     from pipeline.chain import copies, problem
+    from pipeline.chain.flowers import solve
     from pipeline.config import load_config
     from pipeline.flower.measure import Start
     from pipeline.sim.build import Prepared
@@ -627,7 +659,8 @@ def test_a_copy_that_would_pass_through_a_neighbour_blooms_on_its_own(tmp_path, 
         into = 0.8 * (np.asarray(prep.vertices)[idx1].mean(axis=0)
                       - np.asarray(prep.vertices)[idx2].mean(axis=0))
     original = copies.moved
-    monkeypatch.setattr(copies, "moved", lambda run, rot, t: original(run, rot, t + into))
+    monkeypatch.setattr(copies, "moved",
+                        lambda run, rot, t, scale: original(run, rot, t + into, scale))
     r = CliRunner().invoke(cli, ["simulate", str(paths["g"]), "--out", str(paths["s"]), *SHORT])
     assert r.exit_code == 0, r.output
     assert "1 copied flower(s) pass through a neighbour when moved (flower 2 in" in r.output
@@ -638,7 +671,7 @@ def test_a_copy_that_would_pass_through_a_neighbour_blooms_on_its_own(tmp_path, 
         assert h.attrs["summary"].startswith("sound"), h.attrs["summary"]
     cfg = load_config(None, [s for s in SHORT if s != "--set"])
     job = problem.Job(cfg, Start("bud", float("nan"), "test"), [], {}, False, False, "test")
-    alone = np.asarray(problem.problem(part2, job, tmp_path / "alone.ckpt").rec.positions)
+    alone = np.asarray(solve(part2, job, tmp_path / "alone.ckpt", "alone").rec.positions)
     size = float(np.ptp(X[0, idx2], axis=0).max())
     assert np.abs(alone - X[:, idx2]).max() < 1e-9 * size
 
@@ -654,6 +687,7 @@ def test_flowers_that_cross_blooming_apart_bloom_together(tmp_path, monkeypatch)
     import dataclasses
 
     from pipeline.chain import problem
+    from pipeline.chain.flowers import solve
     from pipeline.config import load_config
     from pipeline.flower import stagger
     from pipeline.flower.measure import Start
@@ -673,7 +707,7 @@ def test_flowers_that_cross_blooming_apart_bloom_together(tmp_path, monkeypatch)
     assert np.degrees(np.arccos(np.clip(axes[0, 3:] @ axes[1, 3:], -1, 1))) > 5.0
     original = problem.problem
 
-    def pushed(part, job, ckpt, label=""):
+    def pushed(part, job, ckpt, label=""):  # (the push in the flower's own units, ~1)
         run = original(part, job, ckpt, label)
         if label != "flower 1":
             return run
@@ -700,7 +734,7 @@ def test_flowers_that_cross_blooming_apart_bloom_together(tmp_path, monkeypatch)
     assert starts.tolist() == [1, 1, 0]  # (2, 1, 0 apart)
     job = problem.Job(cfg, Start("bud", float("nan"), "test"), ["collisions"], {}, False,
                       False, "test")
-    together = np.asarray(original(both, job, tmp_path / "both.ckpt").rec.positions)
+    together = np.asarray(solve(both, job, tmp_path / "both.ckpt", "both").rec.positions)
     np.testing.assert_array_equal(X[:, idx], together)
 
 

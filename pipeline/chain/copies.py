@@ -4,6 +4,8 @@ branch): the bloom is the same problem turned, so it is found once and moved
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 
 from pipeline.mesh.similar import AS_EXPORTED, TOLERANCE, Copies
@@ -16,18 +18,20 @@ COPY = TOLERANCE
 
 def seen() -> Copies:
     """An empty record of the flowers met so far, for :func:`copy_of`. A copy's vertices
-    lie on its original's moved to within :data:`~pipeline.mesh.similar.AS_EXPORTED` of
-    its size: remesh places each copied petal by the motion that puts the input's petal
-    on its original, and a file's 6 decimals or float32 leave that motion up to 1e-4 of a
-    small petal off, differently for each petal of a blossom."""
-    return Copies(scaled=False, tolerance=AS_EXPORTED)
+    lie on its original's moved, turned and scaled to within :data:`~pipeline.mesh.
+    similar.AS_EXPORTED` of its size: remesh places each copied petal by the motion that
+    puts the input's petal on its original, and a file's 6 decimals or float32 leave that
+    motion up to 1e-4 of a small petal off, differently for each petal of a blossom. A
+    scaled copy is one: each flower of a file is solved at its own size (mean edge 1,
+    :func:`pipeline.chain.flowers.solve`), as it would be alone in a file."""
+    return Copies(scaled=True, tolerance=AS_EXPORTED)
 
 
 def copy_of(k: int, part, shapes: Copies):
-    """``(j, R, t)`` if flower ``k`` (``part``, a :class:`~pipeline.sim.build.Prepared`)
-    is flower ``j`` (an earlier one of ``shapes``, which this adds flower ``k`` to
-    otherwise) turned by ``R`` and moved by ``t``: the same faces (so edges and hinges),
-    petals, fixed base, axis vertices, tips, growth ratios and stiffnesses, and its
+    """``(j, R, t, scale)`` if flower ``k`` (``part``, a :class:`~pipeline.sim.build.
+    Prepared`) is flower ``j`` (an earlier one of ``shapes``, which this adds flower ``k``
+    to otherwise) scaled by ``scale``, turned by ``R`` and moved by ``t``: the same faces
+    (so edges and hinges), petals, fixed base, axis vertices, tips, growth ratios and stiffnesses, and its
     vertices those of ``j`` moved (:func:`seen`), its s and x to :data:`COPY`. None otherwise."""
 
     def alike(original, _rot) -> bool:
@@ -41,17 +45,18 @@ def copy_of(k: int, part, shapes: Copies):
 
     found = shapes.find(np.asarray(part.vertices), np.asarray(part.faces), accept=alike)
     if found is not None:
-        return found[0][0], found[2], found[3]
+        return found[0][0], found[2], found[3], found[1]
     shapes.add(np.asarray(part.vertices), np.asarray(part.faces), (k, part))
     return None
 
 
-def moved(run, rot: np.ndarray, t: np.ndarray):
-    """A flower's bloom (:class:`~pipeline.chain.problem.Bloom`) for a copy of it turned by
-    ``rot`` and moved by ``t``: its frames and bud moved, its diagnostics (energies,
-    angles, counts: the same for a turned copy) kept; no wall time of its own."""
+def moved(run, rot: np.ndarray, t: np.ndarray, scale: float = 1.0):
+    """A flower's bloom (:class:`~pipeline.chain.problem.Bloom`) for a copy of it scaled
+    by ``scale``, turned by ``rot`` and moved by ``t`` (``X scale R^T + t``): its frames
+    and bud moved, the rest kept (energies, angles, counts: each flower's figures are of
+    its own problem, at mean edge 1); no wall time of its own."""
     rec = Recording(list(run.rec.time),
-                    [np.asarray(X) @ rot.T + t for X in run.rec.positions],
+                    [scale * np.asarray(X) @ rot.T + t for X in run.rec.positions],
                     run.rec.diagnostics)
-    return type(run)(np.asarray(run.bud) @ rot.T + t, run.bud_info, run.effects, rec, 0.0,
-                     run.resumed, run.resumed_step, run.distance, run.stopped)
+    return dataclasses.replace(run, bud=scale * np.asarray(run.bud) @ rot.T + t, rec=rec,
+                               wall=0.0)

@@ -18,12 +18,14 @@ from pipeline.chain.problem import Job, Result
 from pipeline.errors import BloomError
 from pipeline.flower import stagger
 from pipeline.forks import can_fork, pool, workers
+from pipeline.mesh import clean
 from pipeline.mesh.topology import components
 from pipeline.progress import Board, Progress
 from pipeline.review import report
 from pipeline.sim.build import Prepared
 from pipeline.sim.effects import ORDER
 from pipeline.sim.reverse import distance_to_model
+from pipeline.sim.run import Recording
 from pipeline.sim.terms.contact import crossings_between
 
 log = logging.getLogger("bloom")
@@ -64,6 +66,30 @@ def _worker_start() -> None:
     bloom.handlers, bloom.propagate = [_Kept()], False
 
 
+def solve(part: Prepared, job: Job, ckpt: Path, label: str):
+    """The bloom of a flower of a file of many (or of flowers that bloom together) as it
+    would be alone in a file: solved at its own size, its mean edge 1 (remesh scales a
+    file so), and given back in the file's units (:func:`~pipeline.chain.copies.moved`).
+    A blossom scaled 1.25 blooms as the same blossom does, 1.25 times the size; solved at
+    the file's scale, two such copies opened 62-89 and 55-58 deg (contact's gap, the bud
+    search's nudge and the solver's tolerances are in mesh units)."""
+    rest = np.asarray(part.vertices, dtype=np.float64)
+    size = clean.mean_edge_length(rest, np.asarray(part.faces))
+    unit = part.scaled(1.0 / size)
+    run = problem.problem(unit, job, ckpt, label=label)
+
+    def back(X):  # (a vertex where it was, the fixed base, exactly where it was)
+        X = np.asarray(X, dtype=np.float64)
+        out = size * X
+        still = np.all(X == unit.vertices, axis=1)
+        out[still] = rest[still]
+        return out
+
+    rec = Recording(list(run.rec.time), [back(X) for X in run.rec.positions],
+                    run.rec.diagnostics)
+    return dataclasses.replace(run, bud=back(run.bud), rec=rec)
+
+
 def _bloom_flower(k: int):
     """In a forked worker: :func:`_bloom_one`, with the log lines (level, message) it
     wrote, for the parent to write."""
@@ -84,8 +110,7 @@ def _bloom_one(k: int):
     log.info("flower %d of %d: %d petal(s), %d vertices", k, len(parts), len(part.tip),
              len(idx))
     try:
-        run = problem.problem(part, job, ckpt.with_name(f"{ckpt.name}-flower{k}"),
-                              label=f"flower {k}")
+        run = solve(part, job, ckpt.with_name(f"{ckpt.name}-flower{k}"), f"flower {k}")
     except BloomError as exc:
         return k, None, str(exc).removeprefix(f"{job.where}: ")
     c = run.effects.connections
@@ -277,8 +302,7 @@ def _together_where_flowers_cross(runs: dict, parts: list, prep: Prepared, job: 
                  int(whole.sum()), len(whole), int(np.asarray(starts)[members].min()))
         part, idx = prep.flowers_part(members)
         try:
-            run = problem.problem(part, together, ckpt.with_name(f"{ckpt.name}-together{c}"),
-                                  label=label)
+            run = solve(part, together, ckpt.with_name(f"{ckpt.name}-together{c}"), label)
         except BloomError as exc:
             log.info("%s: together they find no bloom (%s); they bloom apart", label,
                      str(exc).removeprefix(f"{job.where}: "))

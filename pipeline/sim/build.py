@@ -166,6 +166,25 @@ class Prepared:
             np.asarray(self.stiffness)[on_edge], hinges, np.asarray(self.rest_angle)[on_hinge],
             part(self.thickness), self._left_among(renumber), **together), idx
 
+    def scaled(self, factor: float) -> Prepared:
+        """The same problem ``factor`` times the size: its vertices, center planes'
+        offsets, flowers' axis points and thicknesses scaled; everything else (``s``,
+        ``x``, growth ratios, stiffness factors, angles) has no unit."""
+        def points(axes):  # ((6,) or (K, 6): point, direction)
+            if axes is None:
+                return None
+            axes = np.array(axes, dtype=np.float64)
+            axes[..., :3] *= factor
+            return axes
+
+        plane = np.array(self.plane, dtype=np.float64)
+        plane[:, 3] *= factor
+        return dataclasses.replace(
+            self, vertices=factor * np.asarray(self.vertices, dtype=np.float64), plane=plane,
+            flower_axis=points(self.flower_axis), flower_axes=points(self.flower_axes),
+            thickness=None if self.thickness is None
+            else factor * np.asarray(self.thickness, dtype=np.float64))
+
     def _left_among(self, renumber) -> np.ndarray | None:
         """:attr:`left`'s pairs of petals both kept, in their new numbers (``renumber``
         (P,): each petal's, -1 where it is not kept)."""
