@@ -71,8 +71,8 @@ def solve(part: Prepared, job: Job, ckpt: Path, label: str):
     would be alone in a file: solved at its own size, its mean edge 1 (remesh scales a
     file so), and given back in the file's units (:func:`~pipeline.chain.copies.moved`).
     A blossom scaled 1.25 blooms as the same blossom does, 1.25 times the size; solved at
-    the file's scale, two such copies opened 62-89 and 55-58 deg (contact's gap, the bud
-    search's nudge and the solver's tolerances are in mesh units)."""
+    the file's scale, two such copies opened 62-89 and 55-58 deg (the Newton tolerance,
+    ``simulate.tolerance``, and the solver's nudge are in mesh units)."""
     rest = np.asarray(part.vertices, dtype=np.float64)
     size = clean.mean_edge_length(rest, np.asarray(part.faces))
     unit = part.scaled(1.0 / size)
