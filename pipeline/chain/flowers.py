@@ -359,7 +359,7 @@ def flowers_apart(prep: Prepared, job: Job, ckpt: Path, starts) -> Result:
             blooms[k] = run
     copied = count - len(own)
     if copied:
-        log.info("%d of %d flowers are copies of others (moved and turned, their petals "
+        log.info("%d of %d flowers are copies of others (moved, turned or scaled, their petals "
                  "remeshed alike): each blooms as its original does, moved", copied, count)
     if not blooms:
         raise BloomError(refusals[0], where=job.where)
