@@ -31,8 +31,9 @@ def copy_of(k: int, part, shapes: Copies):
     """``(j, R, t, scale)`` if flower ``k`` (``part``, a :class:`~pipeline.sim.build.
     Prepared`) is flower ``j`` (an earlier one of ``shapes``, which this adds flower ``k``
     to otherwise) scaled by ``scale``, turned by ``R`` and moved by ``t``: the same faces
-    (so edges and hinges), petals, fixed base, axis vertices, tips, growth ratios and stiffnesses, and its
-    vertices those of ``j`` moved (:func:`seen`), its s and x to :data:`COPY`. None otherwise."""
+    (so edges and hinges), petals, fixed base, axis vertices, tips, growth ratios and
+    stiffnesses, and its vertices those of ``j`` moved (:func:`seen`), its s and x to
+    :data:`COPY`. None otherwise."""
 
     def alike(original, _rot) -> bool:
         other = original[1]

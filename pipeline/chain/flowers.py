@@ -69,10 +69,11 @@ def _worker_start() -> None:
 def solve(part: Prepared, job: Job, ckpt: Path, label: str):
     """The bloom of a flower of a file of many (or of flowers that bloom together) as it
     would be alone in a file: solved at its own size, its mean edge 1 (remesh scales a
-    file so), and given back in the file's units (:func:`~pipeline.chain.copies.moved`).
-    A blossom scaled 1.25 blooms as the same blossom does, 1.25 times the size; solved at
-    the file's scale, two such copies opened 62-89 and 55-58 deg (the Newton tolerance,
-    ``simulate.tolerance``, and the solver's nudge are in mesh units)."""
+    file so), and given back in the file's units, a vertex that did not move (the fixed
+    base) exactly where it was. A blossom scaled 1.25 blooms as the same blossom does,
+    1.25 times the size; solved at the file's scale, two such copies opened 62-89 and
+    55-58 deg (what in the solve is in mesh units, ``simulate.tolerance`` for one, was
+    not measured apart)."""
     rest = np.asarray(part.vertices, dtype=np.float64)
     size = clean.mean_edge_length(rest, np.asarray(part.faces))
     unit = part.scaled(1.0 / size)
