@@ -82,3 +82,26 @@ def test_the_project_buds_keep_their_bases(petals, vertices, monkeypatch):
     assert np.array_equal(now.base, before.base) and now.widened == ()
     for k in range(petals):
         assert base_width(v[now.base & (p == k)], v[p == k]) >= 2 * MIN_BASE_WIDTH
+
+
+def test_in_a_file_of_many_flowers_a_base_on_a_line_is_held_not_refused(monkeypatch):
+    """One blossom of a thousand whose base cannot be widened does not stop the file: with
+    ``hold_bad`` (a file of many flowers) it is held as modelled and named, the other
+    flower's axes are what they are alone; without it, it is refused as before."""
+    v, f = cupped_petal()
+    monkeypatch.setattr(axis, "BASE_REACH", 0.0)
+    good = procedural.bud(1, 200, 0)
+    shift = np.array([0.0, 0.0, 60.0])
+    both_v = np.vstack([good[0], v + shift])
+    both_f = np.vstack([good[1], f + len(good[0])])
+    petal = np.r_[np.zeros(len(good[0]), dtype=np.int64), np.ones(len(v), dtype=np.int64)]
+    flower = np.array([0, 1])
+    with pytest.raises(WeakBase, match="petal 1's base is a line"):
+        find_axes(both_v, both_f, petal, flower=flower, base_fraction=0.04)
+    axes = find_axes(both_v, both_f, petal, flower=flower, base_fraction=0.04, hold_bad=True)
+    assert [p for p, _ in axes.held] == [1] and "base is a line" in axes.held[0][1]
+    mine = petal == 1
+    assert axes.base[mine].all() and np.all(axes.s[mine] == 0.0)
+    alone = find_axes(*good, base_fraction=0.04)
+    for name in ("base", "on_axis", "s", "x"):
+        assert np.array_equal(getattr(axes, name)[~mine], getattr(alone, name)), name

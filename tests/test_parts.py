@@ -11,8 +11,8 @@ import trimesh
 from pipeline.config import load_config
 from pipeline.errors import BloomError
 from pipeline.flower.classify import KINDS, classify, select
-from pipeline.io.meshfile import Part, read_parts
-from pipeline.mesh import procedural, topology
+from pipeline.io.meshfile import MeshFile, Part, read_parts
+from pipeline.mesh import procedural, symmetry, topology
 
 EXTERNAL = Path(__file__).resolve().parents[2] / "shared" / "external-meshes"
 
@@ -330,3 +330,65 @@ def test_five_open_petals_in_one_group_are_petals():
     assert list(verdicts) == ["pPlane18"]
     assert verdicts["pPlane18"].kind == "petal"
     assert "5 pieces" in verdicts["pPlane18"].reason and "one of 5 alike" in verdicts["pPlane18"].reason
+
+
+def _low_poly_blossom(size: float = 0.005, seed: int = 3):
+    """A blossom as a branch's low-poly asset writes it: five kite petals of 4 vertices
+    (2 triangles) leaning out of a flat hexagon disc whose rim they pass through, all in
+    one mesh, in metres."""
+    rng = np.random.default_rng(seed)
+    axis = np.array([0.3, -0.2, 1.0]) / np.linalg.norm([0.3, -0.2, 1.0])
+    u = np.cross(axis, [1.0, 0.0, 0.0])
+    u /= np.linalg.norm(u)
+    w = np.cross(axis, u)
+    centre = np.array([0.1, 0.2, 0.3])
+    verts = [centre] + [centre + 0.25 * size * (np.cos(a) * u + np.sin(a) * w) + 0.02 * size * axis
+                        for a in np.arange(6) * np.pi / 3]
+    faces = [[0, 1 + k, 1 + (k + 1) % 6] for k in range(6)]
+    lean = np.radians(60.0)
+    for p in range(5):
+        az = 2 * np.pi * p / 5 + rng.normal(0, 0.05)
+        radial = np.cos(az) * u + np.sin(az) * w
+        side = np.cross(axis, radial)
+        out = np.sin(lean) * radial + np.cos(lean) * axis
+        base = centre + 0.2 * size * radial
+        mid = base + 0.5 * size * out
+        k = len(verts)
+        verts += [base, mid + 0.22 * size * side, base + size * out, mid - 0.22 * size * side]
+        faces += [[k, k + 1, k + 2], [k, k + 2, k + 3]]
+    return np.array(verts, dtype=np.float32).astype(np.float64), np.array(faces)  # (a glb's)
+
+
+def test_a_low_poly_blossom_gives_its_five_kites_and_keeps_its_disc():
+    """Its disc is the blossom's centre (a flat round sheet facing along the axis), not a
+    petal nor a sepal, and is kept; each kite is a petal (its surface's principal axes,
+    not its two face centres', give its length), cut along its center plane and mirrored
+    (the side corners, its widest points, are not snapped onto the plane: that left a
+    line and the petal was lost), along its length though a rhombus is symmetric across
+    it too (float32 rounding chose either)."""
+    from pipeline.flower.petals import prepare_parts
+
+    for seed in range(12):
+        v, f = _low_poly_blossom(seed=seed)
+        for k in range(7, 27, 4):
+            plane, _ = symmetry.mirror_plane(v[k:k + 4])
+            along = v[k + 2] - v[k]  # base to tip
+            assert abs(plane[:3] @ along) < 1e-3 * np.linalg.norm(along), (seed, k)
+
+    v, f = _low_poly_blossom()
+    verdict = classify([Part("Blossom", v, f)])[0]
+    assert verdict.kind == "petal" and verdict.faces is not None
+    assert "5 petals" in verdict.reason and "1 receptacle" in verdict.reason, verdict.reason
+    assert int(verdict.faces.sum()) == 10  # the kites' two triangles each
+    result = prepare_parts(MeshFile([Part("Blossom", v, f)], None, None), where="blossom")
+    assert int(result.petal.max()) + 1 == 5
+    assert not any("left out" in n for n in result.notes), result.notes
+    assert result.unsymmetrized == []
+    assert np.all(np.bincount(result.petal) > 30)  # remeshed up from 4 vertices
+    # each rhombus is mirror-symmetric both ways: its center plane is along its length
+    # (through the disc's centre, the normal across the petal), not across it
+    for k in range(5):
+        mine = result.vertices[result.petal == k]
+        centre = mine.mean(axis=0)
+        along = mine[np.argmax(np.linalg.norm(mine - centre, axis=1))] - centre
+        assert abs(result.plane[k][:3] @ along) < 0.2 * np.linalg.norm(along), k

@@ -626,7 +626,7 @@ def find_axes(vertices: np.ndarray, faces: np.ndarray, petal: np.ndarray, *,
             _check_line(p, pts, sub, local_edges, mine_axis, dist_base, tip_local, xs)
             done.add(pts, local_faces, p)
             ways[p] = direction
-        except BadPetal as exc:
+        except (BadPetal, WeakBase) as exc:
             if not hold_bad:
                 raise
             # a file of many flowers: the petal stays as modelled (every vertex held, no
@@ -636,7 +636,8 @@ def find_axes(vertices: np.ndarray, faces: np.ndarray, petal: np.ndarray, *,
             tips[p] = idx[-1]
             if p in widened:
                 widened.remove(p)
-            as_modelled.append((p, exc.reason))
+            as_modelled.append((p, exc.reason if isinstance(exc, BadPetal) else
+                                f"its base is a line ({exc.width:.2g} of its length off one)"))
 
     # each petal's base-to-tip chord
     base_centre = topology.label_means(v[base], petal[base], count)

@@ -69,6 +69,7 @@ from pipeline.mesh.thickness import thickness
 
 KINDS = ("petal", "thick petal", "stem", "leaf", "sepal", "stamen", "pistil", "receptacle", "other")
 PETAL_KINDS = ("petal", "thick petal")
+HUB_KINDS = ("receptacle", "stamen", "pistil")  #: kinds at a flower's centre
 
 WELD = 1e-5  #: vertices closer than this fraction of a part's diagonal are one
 NARROW = 0.1  #: mean width / length below this: a stem, filament or style
@@ -84,6 +85,12 @@ ALIKE_AREA = 2.0  #: petals of one ring differ in area by less than this factor 
 ALIKE_LENGTH = 1.5  #: ... and in length by less than this one
 RING_SPREAD = 0.35  #: std / mean of the petals' distances from the axis
 ROUND = 0.7  #: second / first extent of a part that is a whole ring of petals
+#: a flat sheet on the axis at the base is the flower's centre (a low-poly blossom's
+#: disc), not a petal or a sepal, when it is flat (third extent under FLAT of the
+#: second), faces along the axis (its normal within acos(FACING) of it) and fills its
+#: outline (area at least FILLS of its extents' rectangle: a disc 0.79, a hexagon 0.75;
+#: a calyx's star of sepals less; the Blender lily's spiky cup is not flat)
+FLAT, FACING, FILLS = 0.25, 0.9, 0.6
 ON_AXIS = 0.05  #: a part is on the axis when its centroid is nearer than its own
 #: half-width or this fraction of the petals' length
 #: another ring of alike sheets in a flower, its axis within this angle of the petals',
@@ -131,6 +138,16 @@ class _Shape:
     form: str  #: narrow, shell, sheet, blob or solid
 
 
+def _spread(tri: np.ndarray, centres: np.ndarray) -> np.ndarray:
+    """``(F, 3, 3)`` each triangle's own second moment about its centroid, per unit area
+    (a uniform triangle's: a twelfth of its corners' outer products about the centroid).
+    Added to the centroids' spread, a part's principal axes are its surface's, not its
+    face centres' (a kite petal of two triangles: the two centres lie across it, and its
+    width was taken for its length)."""
+    d = tri - centres[:, None, :]
+    return np.einsum("fia,fib->fab", d, d) / 12.0
+
+
 def _measure(vertices: np.ndarray, faces: np.ndarray) -> _Shape:
     v = np.asarray(vertices, dtype=np.float64)
     f = np.asarray(faces, dtype=np.int64)
@@ -148,7 +165,8 @@ def _measure(vertices: np.ndarray, faces: np.ndarray) -> _Shape:
     weight = face_area / area if area > 0 else np.full(len(f), 1.0 / max(len(f), 1))
     centroid = weight @ centres
     d = centres - centroid
-    cov = (d * weight[:, None]).T @ d + 1e-30 * np.eye(3)
+    cov = (d * weight[:, None]).T @ d + np.einsum("f,fab->ab", weight, _spread(tri, centres)) \
+        + 1e-30 * np.eye(3)
     _, vecs = np.linalg.eigh(cov)
     axes = vecs[:, ::-1].T
     extents = np.ptp((v - centroid) @ axes.T, axis=0)
@@ -227,11 +245,12 @@ def _measure_pieces(vertices: np.ndarray, faces: np.ndarray, label: np.ndarray,
     centroid = np.stack([np.bincount(lab, weights=weight * centres[:, k], minlength=count)
                          for k in range(3)], 1)
     d = centres - centroid[lab]
+    within = _spread(tri, centres)
     cov = np.empty((count, 3, 3))
     for a in range(3):
         for b in range(a, 3):
-            cov[:, a, b] = cov[:, b, a] = np.bincount(lab, weights=weight * d[:, a] * d[:, b],
-                                                      minlength=count)
+            cov[:, a, b] = cov[:, b, a] = np.bincount(
+                lab, weights=weight * (d[:, a] * d[:, b] + within[:, a, b]), minlength=count)
     cov += 1e-30 * np.eye(3)
     _, vecs = np.linalg.eigh(cov)
     axes = np.transpose(vecs[:, :, ::-1], (0, 2, 1))  # rows, longest first
@@ -662,7 +681,11 @@ def classify(parts, workers: int = 1) -> list[Verdict]:
             continue
         kinds = [_place(units, u, frame_of[u]) for u in mine]
         petal = [k in PETAL_KINDS for k, _ in kinds]
-        if alike[i] or all(petal) or not any(petal):  # several alike petals in one part
+        # several alike petals in one part take their most common verdict, unless the
+        # pieces that are not petals sit at the hub (a blossom's disc, its stamens)
+        hub = any(petal) and all(k in HUB_KINDS for (k, _), is_petal in zip(kinds, petal, strict=True)
+                                 if not is_petal)
+        if (alike[i] and not hub) or all(petal) or not any(petal):
             kind = max(set(k for k, _ in kinds), key=lambda k: (sum(1 for q, _ in kinds if q == k), k))
             why = next(r for k, r in kinds if k == kind)
             verdicts.append(Verdict(kind, f"{len(mine)} pieces; {why}"))
@@ -707,6 +730,12 @@ def _place(units: list[_Shape], u: int, frame: _Frame | None) -> tuple[str, str]
             and s.length < 0.7 * L and abs(centre_axial) < 0.5 * L):
         return "receptacle", (f"{what}, round, on the flower's axis at the petals' base, "
                               f"{s.length / L:.2f} of a petal's length")
+    if (s.form == "sheet" and on_axis and s.extents[1] >= ROUND * s.length
+            and s.length < 0.7 * L and abs(centre_axial) < 0.3 * L
+            and s.extents[2] <= FLAT * s.extents[1] and abs(s.axes[2] @ frame.axis) >= FACING
+            and s.area >= FILLS * s.extents[0] * s.extents[1]):
+        return "receptacle", (f"{what}, a round disc facing along the flower's axis at the "
+                              f"petals' base, {s.length / L:.2f} of a petal's length")
     if s.form in ("sheet", "shell"):
         level = abs(centre_axial - float(np.median([frame.axial(units[m].centroid) - frame.base
                                                     for m in frame.members])))

@@ -1067,9 +1067,12 @@ def _petal(pts, lf, plane, h, symmetrize, what, scale):
         kept = len(fixed_f) == len(lf) and np.all(fixed_f == lf)
         return fixed, fixed_f, (0.0 if kept else target), note + [
             f"{what}: warning: cannot be mirrored ({exc}); left unsymmetrized"], False
-    missed = _shortfall(out, out_f)
-    if topology.components(out_f, len(out)).max() > 0:
+    if len(out_f) == 0:
+        missed = "no triangles (the cut left a line)"
+    elif topology.components(out_f, len(out)).max() > 0:
         missed = "pieces (the center plane cuts the petal more than once)"
+    else:
+        missed = _shortfall(out, out_f)
     if missed:
         # the cut met the rim in a notch or a slit the mirrored remesh cannot mend, or cut
         # a curled petal into pieces; the simulator needs a sound sheet more than symmetry

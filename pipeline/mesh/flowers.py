@@ -39,6 +39,18 @@ def _principal(points: np.ndarray, label: np.ndarray, count: int):
     return mean, axes[:, :, 2]
 
 
+def _nearest_other(tree, owner: np.ndarray, at: np.ndarray, petal: np.ndarray,
+                   k: int) -> np.ndarray:
+    """``(n,)`` the distance from each point ``at`` to the nearest sampled point of a
+    petal other than ``petal`` (inf if none among its ``k`` nearest: ``k`` one more than
+    any petal's sample, so one is found whenever another petal exists)."""
+    d, j = tree.query(at, k=k)
+    d, j = d.reshape(len(at), -1), j.reshape(len(at), -1)
+    valid = j < len(owner)
+    other = valid & (owner[np.where(valid, j, 0)] != petal[:, None])
+    return np.where(other, d, np.inf).min(axis=1)
+
+
 def flowers(points: np.ndarray, label: np.ndarray, link: float = LINK,
             joined: list | None = None) -> Flowers:
     """Group petals into flowers: petals whose bases gather at one place are one flower.
@@ -68,8 +80,9 @@ def flowers(points: np.ndarray, label: np.ndarray, link: float = LINK,
     A petal's ends are the mean of its points within ``END`` of its length of either end
     of its principal axis. Its base is the end that more other petals come near (within
     ``NEAR`` of its length): the petals of a flower meet at the receptacle, their tips
-    are apart. Where neither end has more (a lone petal, a flower of two), the end nearer
-    the other petals' mean is the base, or (alone) the narrower end. Petals cluster by
+    are apart. Where neither end has more (a lone petal, a flower of two, a low-poly
+    blossom's petals whose bases lie a little apart), the end nearer another petal is
+    the base, or (alone) the narrower end. Petals cluster by
     their bases, not by where they touch: two flowers of a bush whose petals cross at
     the tips stay two. Each petal is measured on at most ``SAMPLE`` of its points, so
     the cost is one k-d tree over ``SAMPLE`` P points and grows linearly with P.
@@ -122,14 +135,16 @@ def flowers(points: np.ndarray, label: np.ndarray, link: float = LINK,
         others.append(np.array(near_petals))
     base_low = others[0] > others[1]
     tie = others[0] == others[1]
-    if tie.any():
-        # the end nearer the mean of the other petals' centroids; alone, the narrower end
-        total = centroid.sum(axis=0)
-        rest = (total - centroid) / max(count - 1, 1)
-        d_low = np.linalg.norm(ends[0] - rest, axis=1)
-        d_high = np.linalg.norm(ends[1] - rest, axis=1)
-        guess = d_low <= d_high if count > 1 else widths[0] <= widths[1]
-        base_low = np.where(tie, guess, base_low)
+    if tie.any() and count > 1:
+        # the end nearer another petal (a blossom's coarse petals, whose bases lie a
+        # little over NEAR apart; the mean of the file's other petals was the middle of
+        # a branch, and half of its blossoms' petals took their tips for their bases)
+        tied = np.flatnonzero(tie)
+        k = min(len(keep), int(np.max(np.bincount(owner, minlength=count))) + 1)
+        near_low, near_high = (_nearest_other(tree, owner, end[tied], tied, k) for end in ends)
+        base_low[tied] = near_low <= near_high
+    elif tie.any():  # alone: the narrower end
+        base_low = np.where(tie, widths[0] <= widths[1], base_low)
     base = np.where(base_low[:, None], ends[0], ends[1])
     tip = np.where(base_low[:, None], ends[1], ends[0])
 
