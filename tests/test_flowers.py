@@ -792,3 +792,29 @@ def _star_petals(v, f, k):
     out = r > 1.6
     petal = np.round(np.arctan2(v[out, 1], v[out, 0]) * k / (2 * np.pi)).astype(int) % k
     return v[out], petal
+
+
+def test_a_blossoms_petals_whose_bases_lie_apart_find_their_base_by_their_neighbours():
+    """Two blossoms far apart, each of five strip petals radiating from 0.3 of a petal
+    length off its centre (the bases 0.35 of a length apart: past NEAR, so neither end
+    of a petal has another petal near). The base is the end nearer another petal; by
+    the mean of the file's petals (the old rule) the petal of each blossom that points
+    at the other took its tip for its base and came apart from its blossom."""
+    from pipeline.mesh.flowers import flowers
+
+    points, label = [], []
+    for centre in (np.zeros(3), np.array([100.0, 0.0, 0.0])):
+        for k in range(5):
+            a = 2 * np.pi * k / 5
+            radial, side = np.array([np.cos(a), np.sin(a), 0.0]), np.array([-np.sin(a), np.cos(a), 0.0])
+            s, w = np.meshgrid(np.linspace(0.3, 1.3, 11), np.linspace(-0.15, 0.15, 3))
+            strip = centre + s.reshape(-1, 1) * radial + w.reshape(-1, 1) * side
+            strip[:, 2] += 0.3 * (s.reshape(-1) - 0.3)  # (leaning up)
+            points.append(strip)
+            label.append(np.full(len(strip), len(label)))
+    found = flowers(np.vstack(points), np.concatenate(label))
+    assert found.count == 2
+    assert np.array_equal(found.flower, np.repeat([0, 1], 5))
+    radial_base = np.linalg.norm(found.base[:, :2] - np.repeat([[0.0, 0.0], [100.0, 0.0]], 5, axis=0),
+                                 axis=1)
+    assert np.all(radial_base < 0.5)  # every base at the blossom's centre end

@@ -332,16 +332,17 @@ def test_five_open_petals_in_one_group_are_petals():
     assert "5 pieces" in verdicts["pPlane18"].reason and "one of 5 alike" in verdicts["pPlane18"].reason
 
 
-def _low_poly_blossom(size: float = 0.005, seed: int = 3):
+def _low_poly_blossom(size: float = 0.005, seed: int = 3, axis=(0.3, -0.2, 1.0),
+                      centre=(0.1, 0.2, 0.3)):
     """A blossom as a branch's low-poly asset writes it: five kite petals of 4 vertices
     (2 triangles) leaning out of a flat hexagon disc whose rim they pass through, all in
     one mesh, in metres."""
     rng = np.random.default_rng(seed)
-    axis = np.array([0.3, -0.2, 1.0]) / np.linalg.norm([0.3, -0.2, 1.0])
+    axis = np.asarray(axis, dtype=np.float64) / np.linalg.norm(axis)
     u = np.cross(axis, [1.0, 0.0, 0.0])
     u /= np.linalg.norm(u)
     w = np.cross(axis, u)
-    centre = np.array([0.1, 0.2, 0.3])
+    centre = np.asarray(centre, dtype=np.float64)
     verts = [centre] + [centre + 0.25 * size * (np.cos(a) * u + np.sin(a) * w) + 0.02 * size * axis
                         for a in np.arange(6) * np.pi / 3]
     faces = [[0, 1 + k, 1 + (k + 1) % 6] for k in range(6)]
