@@ -266,7 +266,14 @@ SCHEMA: dict[str, Any] = {
                               "as it is)", low=0),
         "max_vertices": Key(int, 6000, "shell: a mesh is cut finer for the solve "
                             "(simulate.petal_vertices) only while the solve keeps to this many "
-                            "vertices (each flower of a file of many its own)", low=0),
+                            "vertices (each flower of a file of many its own, within "
+                            "simulate.file_vertices)", low=0),
+        "file_vertices": Key(int, 60000, "shell, a file of many flowers: the flowers that are "
+                             "not copies share this many vertices for their solves cut finer "
+                             "(simulate.petal_vertices): each keeps to its share or to "
+                             "simulate.max_vertices, the fewer (a branch of a thousand "
+                             "blossoms: 60 each, solved as meshed; 0: no limit but "
+                             "simulate.max_vertices)", low=0),
         "poisson": Key(float, 1.0 / 3.0, "shell: Poisson's ratio (1/3: the paper's lattice of "
                        "springs)", low=0.0, high=0.5, high_open=True),
         "stretch_stiffness": Key(float, 0.1, "paper model: K_s, per edge (paper: 0.1); with the "

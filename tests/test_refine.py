@@ -284,3 +284,27 @@ def test_a_coarse_outline_cut_finer_twice_keeps_its_base_corners():
     assert base_edge(v, f, rim, v[:, 1], reach).sum() == 1
     kept = base_edge(v, f, rim, v[:, 1], reach, corners)
     assert kept[ends].all() and kept.sum() > 4
+
+
+def test_the_flowers_of_a_file_share_its_budget_of_vertices():
+    """A file's flowers that are not copies share simulate.file_vertices (60,000) for
+    their solves cut finer, each also within simulate.max_vertices: a branch of a thousand
+    blossoms of 50 vertices is solved as meshed (each cut three times had 3,200, and the
+    thousand took hours); ten flowers keep max_vertices' 6,000 each; 0 is no limit."""
+    from pipeline.chain.flowers import _shared_budget
+    from pipeline.chain.problem import Job
+
+    petal = np.repeat(np.arange(5), 10)  # (a blossom of five 10-vertex petals)
+    prep = Prepared(np.zeros((len(petal), 3)), np.zeros((0, 3), dtype=np.int64), petal,
+                    *([None] * 12))
+
+    def levels(problems: int, *sets: str) -> int:
+        job = Job(load_config(None, sets), None, [], {}, False, False, "branch.glb")
+        return levels_for(prep, job.cfg, _shared_budget(job, problems).max_vertices)
+
+    assert levels(1) == 3  # alone: cut three times (3,200 vertices, 640 a petal)
+    assert levels(10) == 3  # ten share 6,000 each: as alone
+    assert levels(100) == 1  # 600 each: cut once (200; twice is 800)
+    assert levels(1000) == 0  # 60 each: as meshed
+    assert levels(1000, "simulate.file_vertices=0") == 3
+    assert levels(1000, "simulate.file_vertices=6000000") == 3  # (6,000 each)

@@ -52,6 +52,9 @@ class Job:
     resume: bool
     progress: bool | None
     where: str
+    #: the most vertices a solve cut finer may have (None: ``simulate.max_vertices``; a
+    #: file of many flowers: their share of ``simulate.file_vertices``, or fewer)
+    max_vertices: int | None = None
 
 
 @dataclass
@@ -111,15 +114,17 @@ SEARCHES = {"lifted": {}, "own": {"bud search": "own path"},
 MAX_LEVELS = 3
 
 
-def levels_for(prep: Prepared, cfg: Config) -> int:
+def levels_for(prep: Prepared, cfg: Config, most: int | None = None) -> int:
     """How many times the shell's solve cuts ``prep`` finer (:meth:`Prepared.refined`):
     until its median petal holds ``simulate.petal_vertices`` (each cut about four times
-    the vertices), at most :data:`MAX_LEVELS` and ``simulate.max_vertices`` in all; 0 for
+    the vertices), at most :data:`MAX_LEVELS` and ``most`` (default
+    ``simulate.max_vertices``) in all; 0 for
     the paper's springs (their energy is the triangles': a finer mesh is another
     material) and the dynamic integrators (their push-back is on every vertex: the
     coarse mesh's contact, :attr:`Prepared.contact_faces`, is the quasi-static
     solver's)."""
-    want, most = cfg["simulate.petal_vertices"], cfg["simulate.max_vertices"]
+    want = cfg["simulate.petal_vertices"]
+    most = cfg["simulate.max_vertices"] if most is None else most
     if (cfg["simulate.model"] != "shell" or cfg["simulate.integrator"] != "quasi-static"
             or want <= 0 or len(prep.vertices) == 0):
         return 0
@@ -135,7 +140,7 @@ def problem(prep: Prepared, job: Job, ckpt: Path, label: str = "") -> Bloom:
     """One problem's bloom (a whole file, or one flower of many), solved on ``prep`` cut
     finer where its petals are coarser than ``simulate.petal_vertices`` (:func:`levels_for`;
     the bloom's frames then those of ``prep``'s own vertices)."""
-    levels = levels_for(prep, job.cfg)
+    levels = levels_for(prep, job.cfg, job.max_vertices)
     if levels == 0:
         return _problem(prep, job, ckpt, label)
     cfg = job.cfg
