@@ -723,7 +723,7 @@ def test_flowers_that_cross_blooming_apart_bloom_together(tmp_path, monkeypatch)
     r = CliRunner().invoke(cli, ["simulate", str(growth), "--out", str(out), *short])
     assert r.exit_code == 0, r.output
     assert "flowers 0, 1 pass through each other in" in r.output
-    assert "flowers 0, 1 bloom together: the flowers cross in 0 frame(s)" in r.output
+    assert "flowers 0, 1 bloom together: they and their neighbours cross in 0 frame(s)" in r.output
     with h5py.File(out) as h:
         X = h["frames/positions"][()]
         assert h["flower/together"][()].tolist() == [0, 0, 2]

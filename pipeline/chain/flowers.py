@@ -273,14 +273,17 @@ def _together_where_flowers_cross(runs: dict, parts: list, prep: Prepared, job: 
     (:meth:`~pipeline.sim.build.Prepared.flowers_part`): the bud search keeps contact
     within each flower (as apart), and the bloom from those buds has contact between
     them too, starting at one frame: the earliest start among them. Kept where it
-    leaves fewer frames crossing in the whole (``whole``: those frames,
-    :func:`_seen_crossing`) and ends as near the model (:data:`TOGETHER_OFF`); ``runs``
-    and ``positions`` updated in place, the choice logged. Returns ``(K,)`` each
-    flower's problem (its first flower), or None where each blooms apart."""
+    leaves fewer frames crossing among them and their neighbours (``whole``: the frames
+    the file crosses in, :func:`_seen_crossing`) and ends as near the model
+    (:data:`TOGETHER_OFF`); ``runs``
+    and ``positions`` updated in place, the choice logged. Where the flowers of a cluster,
+    bloomed apart but started together, cross nothing, that is kept without a solve (and
+    where together they cross more, or find no bloom, it is kept if it crosses less than
+    staggered). Returns ``(K,)`` each flower's cluster (its first flower: those of one
+    start together), or None where each blooms apart, staggered."""
     if job.cfg["effects.collisions.enabled"] is False or not whole.any():
         return None
     count = len(parts)
-    everyone = list(range(count))
     at = np.flatnonzero(whole)
     boxes = _boxes(positions, parts)
     pairs = [(k, int(j)) for k in sorted(runs) for j in _near(k, boxes) if j > k and j in runs
@@ -297,40 +300,62 @@ def _together_where_flowers_cross(runs: dict, parts: list, prep: Prepared, job: 
     together = dataclasses.replace(job, names=names)
     for c, members in enumerate(clusters.values()):
         label = "flowers " + ", ".join(map(str, members))
+        # judged where it can change anything: these flowers and those whose boxes meet
+        # theirs (by the whole file's frames, one cluster of a branch's many could never
+        # leave fewer: the others cross in the same frames)
+        region = sorted({*members, *(int(j) for k in members for j in _near(k, boxes))})
+        joined = cluster.copy()
+        joined[members] = members[0]
+        before = _seen_crossing(region, positions, parts, prep,
+                                stagger.together(starts, cluster)).sum()
+        # first, bloomed apart but started together (no solve: each ends on its model,
+        # and in step they may keep apart where staggered they crossed)
+        synced = _seen_crossing(region, positions, parts, prep,
+                                stagger.together(starts, joined)).sum()
+        if synced == 0:
+            log.info("%s pass through each other blooming apart, staggered (%d frame(s) with "
+                     "their neighbours): started together, they cross in none", label,
+                     int(before))
+            cluster = joined
+            continue
         log.info("%s pass through each other in %d of %d frames, blooming apart: they "
                  "bloom together, as one problem with contact between them (their buds "
                  "searched with contact within each), from frame %d", label,
                  int(whole.sum()), len(whole), int(np.asarray(starts)[members].min()))
         part, idx = prep.flowers_part(members)
+        run, why = None, ""
         try:
             run = solve(part, together, ckpt.with_name(f"{ckpt.name}-together{c}"), label)
         except BloomError as exc:
-            log.info("%s: together they find no bloom (%s); they bloom apart", label,
-                     str(exc).removeprefix(f"{job.where}: "))
-            continue
+            why = f"together they find no bloom ({str(exc).removeprefix(f'{job.where}: ')})"
         apart = [runs[k][0].distance for k in members]
-        if run.distance is not None and None not in apart and run.distance > max(
-                TOGETHER_OFF * report.OFF_MODEL, TOGETHER_APART * max(apart)):
-            log.info("%s bloom apart: together they end %.3g petal lengths from the model, "
-                     "apart %.3g at most", label, run.distance, max(apart))
-            continue
-        kept = positions[:, idx].copy()
-        positions[:, idx] = np.asarray(run.rec.positions)
-        joined = cluster.copy()
-        joined[members] = members[0]
-        moved = stagger.together(starts, joined)
-        after = _seen_crossing(everyone, positions, parts, prep, moved)
-        if after.sum() < whole.sum():
-            log.info("%s bloom together: the flowers cross in %d frame(s), %d apart", label,
-                     int(after.sum()), int(whole.sum()))
-            for k in members:
-                runs.pop(k, None)
-            runs[members[0]] = (run, idx)
-            cluster, whole = joined, after
-        else:
+        if run is not None and run.distance is not None and None not in apart and \
+                run.distance > max(TOGETHER_OFF * report.OFF_MODEL, TOGETHER_APART * max(apart)):
+            why = (f"together they end {run.distance:.3g} petal lengths from the model, apart "
+                   f"{max(apart):.3g} at most")
+            run = None
+        after = None
+        if run is not None:
+            kept = positions[:, idx].copy()
+            positions[:, idx] = np.asarray(run.rec.positions)
+            after = _seen_crossing(region, positions, parts, prep,
+                                   stagger.together(starts, joined)).sum()
+            if after < min(before, synced):
+                log.info("%s bloom together: they and their neighbours cross in %d frame(s), "
+                         "%d apart", label, int(after), int(before))
+                for k in members:
+                    runs.pop(k, None)
+                runs[members[0]] = (run, idx)
+                cluster = joined
+                continue
             positions[:, idx] = kept
-            log.info("%s bloom apart: together the flowers cross in %d frame(s), %d apart",
-                     label, int(after.sum()), int(whole.sum()))
+            why = f"together they and their neighbours cross in {int(after)} frame(s)"
+        if synced < before:
+            log.info("%s bloom apart, started together: they and their neighbours cross in %d "
+                     "frame(s), %d staggered (%s)", label, int(synced), int(before), why)
+            cluster = joined
+        else:
+            log.info("%s bloom apart: %s; %d frame(s) apart", label, why, int(before))
     return cluster if np.any(cluster != np.arange(count)) else None
 
 

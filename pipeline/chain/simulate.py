@@ -171,9 +171,10 @@ def run(growth_h5: str | Path, out: str | Path, cfg: Config, *, overwrite: bool 
                 artifact.put(h5, f"diagnostics/{name}", values)
             if result.together is not None:
                 artifact.put(h5, "flower/together", result.together,
-                             "(K,) each flower's problem (the first flower in it): flowers "
-                             "that would pass through each other blooming apart bloom "
-                             "together, and start together")
+                             "(K,) each flower's cluster (the first flower in it): flowers "
+                             "that would pass through each other blooming apart, staggered, "
+                             "start together, and bloom as one problem where that crosses "
+                             "less")
             if result.connections is not None:
                 c = result.connections
                 artifact.put(h5, "effects/connections/pairs", c.pairs,
