@@ -186,3 +186,29 @@ def test_subtrees_factored_in_two_threads_are_the_serial_factorization(monkeypat
     b = np.sin(np.arange(3 * n))
     assert np.array_equal(split.d, serial.d) and np.array_equal(split.solve(b), serial.solve(b))
     assert _residual(A, split.solve(b), b) < 1e-12
+
+
+def test_a_forked_child_makes_its_own_thread_pools():
+    """A pool made before a fork has no thread in the child: a factorization submitted to
+    it waited forever (a test run hung in a file's flowers bloomed in forked workers after
+    an earlier solve in the same process). Each pool is forgotten at a fork."""
+    import multiprocessing
+
+    from pipeline.sim import threads
+    from pipeline.sim.solver import ldl
+
+    assert ldl._pool().submit(lambda: 1).result() == 1
+    assert threads.parallel_map(lambda x: x + 1, [1, 2]) == [2, 3]
+
+    def child():
+        assert ldl._POOL is None and threads._POOL is None
+        assert ldl._pool().submit(lambda: 2).result(timeout=20) == 2
+        assert threads.parallel_map(lambda x: x * 2, [1, 2]) == [2, 4]
+
+    proc = multiprocessing.get_context("fork").Process(target=child)
+    proc.start()
+    proc.join(60)
+    alive = proc.is_alive()
+    if alive:
+        proc.kill()
+    assert not alive and proc.exitcode == 0

@@ -57,11 +57,9 @@ class _Kept(logging.Handler):
 
 
 def _worker_start() -> None:
-    """A forked worker's start: the parent's thread pool has no threads in it here, and
-    the log is kept for the parent (:class:`_Kept`)."""
-    from pipeline.sim import threads
-
-    threads._POOL = None
+    """A forked worker's start: the log is kept for the parent (:class:`_Kept`). (The
+    thread pools the parent made are forgotten at every fork: ``os.register_at_fork`` in
+    :mod:`pipeline.sim.threads` and :mod:`pipeline.sim.solver.ldl`.)"""
     bloom = logging.getLogger("bloom")
     bloom.handlers, bloom.propagate = [_Kept()], False
 

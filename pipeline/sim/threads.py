@@ -22,6 +22,15 @@ import numpy as np
 from numba import njit
 
 _POOL = None  #: the thread pool, made at its first use
+
+
+def _forgotten() -> None:
+    """In a forked child the parent's pool has no threads: a new one at the next use."""
+    global _POOL
+    _POOL = None
+
+
+os.register_at_fork(after_in_child=_forgotten)
 #: whether this thread is running a call of :func:`parallel_map` (a cluster of petals
 #: solved in a pool thread maps its groups inline: waiting on the pool from the pool can
 #: deadlock it)

@@ -443,6 +443,17 @@ def _pool():
     return _POOL
 
 
+def _forgotten() -> None:
+    """In a forked child: the parent's pool has no thread here (a factor submitted to
+    it waited forever: a file's flowers bloomed in workers forked after a solve), so a
+    new one is made at the next use."""
+    global _POOL
+    _POOL = None
+
+
+os.register_at_fork(after_in_child=_forgotten)
+
+
 #: a pivot no larger than this fraction of the matrix's largest diagonal entry is zero
 #: to rounding: the matrix is taken as singular (an exact zero, or a cancellation that
 #: leaves only rounding, would give a step of any size)
