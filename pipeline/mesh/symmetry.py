@@ -41,9 +41,6 @@ SHEET_IN_PLANE = 0.5
 #: better (hallgeirl's tubes: 0.16-0.42 against 0.68-1.08; the Blender lily's tepals, a
 #: plane 0.6-2.5 degrees off for a few percent, are left as they were)
 ELSEWHERE = 0.75
-#: asymmetries under this fraction of a petal's length are taken as exact (rounding: a
-#: float32 file's 1e-7) when mirror planes are compared
-EXACT = 1e-4
 
 
 def mirror_plane(points: np.ndarray, refine: bool = True) -> tuple[np.ndarray, float]:
@@ -79,19 +76,9 @@ def mirror_plane(points: np.ndarray, refine: bool = True) -> tuple[np.ndarray, f
         plane = np.r_[n, n @ c]
         rough.append((plane, asymmetry(p, plane), center_plane_fault(p, plane, tree) is None))
     best, best_err = None, np.inf
-    longest = vecs[:, 2]
-    # a plane along the petal's length (its normal across it) is its midrib's; one across
-    # it wins only where it is clearly more symmetric (a rhombus kite of 4 vertices is
-    # mirror-symmetric both ways, and float32 rounding chose the plane across it)
-    along = [abs(plane[:3] @ longest) < 0.5 for plane, _, _ in rough]
-    weight = [1.0 if a else 1.0 / ELSEWHERE for a in along]
-    # (asymmetries under EXACT of the petal's length are alike: rounding, not shape)
-    floor = EXACT * float(np.ptp((p - c) @ longest))
-    for (plane, err, sane), w in zip(rough, weight, strict=True):
-        if sane and max(err, floor) * w < best_err - 1e-12:
-            best, best_err = plane, max(err, floor) * w
-    if best is not None:
-        best_err = asymmetry(p, best)
+    for plane, err, sane in rough:
+        if sane and err < best_err - 1e-12:
+            best, best_err = plane, err
     if best is None:  # only the sheet's own plane(s): the most symmetric, as it is
         for plane, err, _ in rough:
             if err < best_err - 1e-12:
@@ -102,13 +89,14 @@ def mirror_plane(points: np.ndarray, refine: bool = True) -> tuple[np.ndarray, f
         err = asymmetry(p, plane)
         if err < best_err and center_plane_fault(p, plane, tree) is None:
             best, best_err = plane, err
+        longest = vecs[:, 2]
         others = [refine_plane(p, q) for q, _, sane in rough if sane and q is not best]
         others += [refine_plane(p, q, across=longest) for q, _, sane in rough
                    if sane and abs(q[:3] @ longest) < 0.5]
         first = best_err
         for plane in others:
             err = asymmetry(p, plane)
-            if (max(err, floor) < min(best_err, ELSEWHERE * max(first, floor)) and
+            if (err < min(best_err, ELSEWHERE * first) and
                     center_plane_fault(p, plane, tree) is None):
                 best, best_err = plane, err
     return best, best_err
