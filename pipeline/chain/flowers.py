@@ -332,7 +332,6 @@ def _together_where_flowers_cross(runs: dict, parts: list, prep: Prepared, job: 
             why = (f"together they end {run.distance:.3g} petal lengths from the model, apart "
                    f"{max(apart):.3g} at most")
             run = None
-        after = None
         if run is not None:
             kept = positions[:, idx].copy()
             positions[:, idx] = np.asarray(run.rec.positions)
