@@ -263,7 +263,9 @@ def test_a_bloom_that_closes_first_is_the_path_back_played_forward(tmp_path, mon
         else:
             assert "the path back kept: it closes 0.0 deg first" in r.output
             assert h.attrs["bloom_path"] == "retraced" and h.attrs["bud_path"] == "own"
-            assert report.closing_dip(opening) == 0.0 and opening[-1].min() > 10.0
+            # (no dip: the first frame's angles are the bud's own, 0 to rounding)
+            assert report.closing_dip(opening) <= 1e-9 * opening[-1].max()
+            assert opening[-1].min() > 10.0
             assert h.attrs["distance_to_model"] < 1e-12
             assert h.attrs["summary"].startswith("sound")
 

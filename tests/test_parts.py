@@ -12,7 +12,7 @@ from pipeline.config import load_config
 from pipeline.errors import BloomError
 from pipeline.flower.classify import KINDS, classify, select
 from pipeline.io.meshfile import MeshFile, Part, read_parts
-from pipeline.mesh import procedural, topology
+from pipeline.mesh import procedural, symmetry, topology
 
 EXTERNAL = Path(__file__).resolve().parents[2] / "shared" / "external-meshes"
 
@@ -365,8 +365,16 @@ def test_a_low_poly_blossom_gives_its_five_kites_and_keeps_its_disc():
     petal nor a sepal, and is kept; each kite is a petal (its surface's principal axes,
     not its two face centres', give its length), cut along its center plane and mirrored
     (the side corners, its widest points, are not snapped onto the plane: that left a
-    line and the petal was lost)."""
+    line and the petal was lost), along its length though a rhombus is symmetric across
+    it too (float32 rounding chose either)."""
     from pipeline.flower.petals import prepare_parts
+
+    for seed in range(12):
+        v, f = _low_poly_blossom(seed=seed)
+        for k in range(7, 27, 4):
+            plane, _ = symmetry.mirror_plane(v[k:k + 4])
+            along = v[k + 2] - v[k]  # base to tip
+            assert abs(plane[:3] @ along) < 1e-3 * np.linalg.norm(along), (seed, k)
 
     v, f = _low_poly_blossom()
     verdict = classify([Part("Blossom", v, f)])[0]
@@ -378,3 +386,10 @@ def test_a_low_poly_blossom_gives_its_five_kites_and_keeps_its_disc():
     assert not any("left out" in n for n in result.notes), result.notes
     assert result.unsymmetrized == []
     assert np.all(np.bincount(result.petal) > 30)  # remeshed up from 4 vertices
+    # each rhombus is mirror-symmetric both ways: its center plane is along its length
+    # (through the disc's centre, the normal across the petal), not across it
+    for k in range(5):
+        mine = result.vertices[result.petal == k]
+        centre = mine.mean(axis=0)
+        along = mine[np.argmax(np.linalg.norm(mine - centre, axis=1))] - centre
+        assert abs(result.plane[k][:3] @ along) < 0.2 * np.linalg.norm(along), k

@@ -41,6 +41,9 @@ SHEET_IN_PLANE = 0.5
 #: better (hallgeirl's tubes: 0.16-0.42 against 0.68-1.08; the Blender lily's tepals, a
 #: plane 0.6-2.5 degrees off for a few percent, are left as they were)
 ELSEWHERE = 0.75
+#: asymmetries under this fraction of a petal's length are rounding (a float32 file's
+#: 1e-7), not shape: among planes that exact, the one along the petal's length is taken
+EXACT = 1e-4
 
 
 def mirror_plane(points: np.ndarray, refine: bool = True) -> tuple[np.ndarray, float]:
@@ -79,6 +82,17 @@ def mirror_plane(points: np.ndarray, refine: bool = True) -> tuple[np.ndarray, f
     for plane, err, sane in rough:
         if sane and err < best_err - 1e-12:
             best, best_err = plane, err
+    longest = vecs[:, 2]
+    floor = EXACT * float(np.ptp((p - c) @ longest))
+    if best is not None and best_err <= floor:
+        # exact to rounding: kept as found, not refined (refining weighs rounding). Where
+        # it is symmetric both ways (a rhombus kite of 4 vertices), the plane along the
+        # petal's length is its midrib's; float32 rounding chose the one across it
+        along = [(plane, err) for plane, err, sane in rough
+                 if sane and err <= floor and abs(plane[:3] @ longest) < 0.5]
+        if along and abs(best[:3] @ longest) >= 0.5:
+            best, best_err = min(along, key=lambda pe: pe[1])
+        return best, best_err
     if best is None:  # only the sheet's own plane(s): the most symmetric, as it is
         for plane, err, _ in rough:
             if err < best_err - 1e-12:
@@ -89,7 +103,6 @@ def mirror_plane(points: np.ndarray, refine: bool = True) -> tuple[np.ndarray, f
         err = asymmetry(p, plane)
         if err < best_err and center_plane_fault(p, plane, tree) is None:
             best, best_err = plane, err
-        longest = vecs[:, 2]
         others = [refine_plane(p, q) for q, _, sane in rough if sane and q is not best]
         others += [refine_plane(p, q, across=longest) for q, _, sane in rough
                    if sane and abs(q[:3] @ longest) < 0.5]
