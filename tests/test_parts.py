@@ -393,3 +393,47 @@ def test_a_low_poly_blossom_gives_its_five_kites_and_keeps_its_disc():
         centre = mine.mean(axis=0)
         along = mine[np.argmax(np.linalg.norm(mine - centre, axis=1))] - centre
         assert abs(result.plane[k][:3] @ along) < 0.2 * np.linalg.norm(along), k
+
+
+def _turned(v, axis, centre, degrees):
+    """``v`` turned about the line through ``centre`` along ``axis``."""
+    from scipy.spatial.transform import Rotation
+
+    axis = np.asarray(axis, dtype=np.float64) / np.linalg.norm(axis)
+    turn = Rotation.from_rotvec(np.radians(degrees) * axis)
+    return turn.apply(v - np.asarray(centre)) + np.asarray(centre)
+
+
+def test_blossoms_a_few_tenths_of_a_petal_apart_stay_a_flower_each():
+    """A branch's blossoms, each one mesh of kites and a disc, whose bases lie closer than
+    the flowers' link (0.4 petal lengths): each part whose own pieces ring an axis is a
+    flower of its own, its disc a receptacle; grouped by their bases alone, two blossoms
+    made one ring of ten and their discs were taken for petals. Two parts that ring one
+    axis (a flower's whorls in two meshes) stay one flower."""
+    from pipeline.flower.petals import prepare_parts
+
+    size = 0.005
+    axes = [(0.3, -0.2, 1.0), (-0.4, 0.3, 1.0), (0.1, 0.5, 1.0)]
+    parts = [Part(f"Blossom.{k:03d}",
+                  *_low_poly_blossom(size, seed=k, axis=axes[k],
+                                     centre=(0.1 + 0.4 * size * k, 0.2, 0.3)))
+             for k in range(3)]
+    verdicts = classify(parts)
+    for p, verdict in zip(parts, verdicts, strict=True):
+        assert verdict.kind == "petal" and verdict.faces is not None, (p.name, verdict.reason)
+        assert "5 petals" in verdict.reason and "1 receptacle" in verdict.reason, verdict.reason
+    assert sorted(v.whole for v in verdicts) == [0, 1, 2]
+    result = prepare_parts(MeshFile(parts, None, None), where="branch")
+    assert int(result.petal.max()) + 1 == 15
+    assert np.array_equal(np.bincount(result.petal_flower), [5, 5, 5])
+
+    # an outer whorl and an inner one, each its own mesh, around one axis: one flower
+    v, f = _low_poly_blossom(size, seed=1)
+    inner = _turned(v, (0.3, -0.2, 1.0), (0.1, 0.2, 0.3), 36.0)
+    whorls = [Part("Outer", v, f), Part("Inner", inner[7:], f[6:] - 7)]
+    verdicts = classify(whorls)
+    assert [v.kind for v in verdicts] == ["petal", "petal"], [v.reason for v in verdicts]
+    assert verdicts[0].whole == verdicts[1].whole == 0
+    result = prepare_parts(MeshFile(whorls, None, None), where="whorls")
+    assert int(result.petal.max()) + 1 == 10
+    assert np.array_equal(result.petal_flower, np.zeros(10, dtype=np.int64))

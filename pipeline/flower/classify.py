@@ -58,7 +58,7 @@ from __future__ import annotations
 
 import fnmatch
 import re
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -96,6 +96,10 @@ ON_AXIS = 0.05  #: a part is on the axis when its centroid is nearer than its ow
 #: another ring of alike sheets in a flower, its axis within this angle of the petals',
 #: at or above their base, is a whorl of petals (a water lily's inner whorls)
 WHORL_DEGREES = 30.0
+#: two parts that each ring an axis on their own are one flower (whorls in two meshes)
+#: when each ring's base is within this fraction of a petal length of the other's axis
+#: and their axes are within WHORL_DEGREES (a branch's blossoms lie a few tenths apart)
+COAXIAL = 0.15
 #: a flower's ring is sought from at most this many seeds (quantiles of petal area)
 RING_SEEDS = 32
 
@@ -116,6 +120,10 @@ class Verdict:
     #: (F,) bool over the part's faces (as given): the pieces that are petals, where only
     #: some of a part's pieces are (a whole flower in one mesh); None: the whole part
     faces: np.ndarray | None = field(default=None, compare=False, repr=False)
+    #: the flower this part holds on its own (its pieces ring an axis: a blossom in one
+    #: mesh), numbered by the first such part of it (parts ringing one axis are one
+    #: flower's whorls), or -1: petals of two such flowers are never one flower
+    whole: int = field(default=-1, compare=False)
 
     @property
     def is_petal(self) -> bool:
@@ -443,18 +451,54 @@ def _whorls(units: list[_Shape], group: list[int], frame: _Frame) -> None:
         rest = [k for k in rest if k not in whorl.members]
 
 
-def _frames(units: list[_Shape], candidates: list[int], several_parts: bool) -> list[_Frame]:
+def _whole_parts(units: list[_Shape], candidates: list[int], owner: list[int]) -> dict:
+    """``{part: flower}`` for the parts whose own candidates (three or more) ring an axis
+    (:func:`_ring`): a blossom in one mesh. Parts whose rings share an axis (each ring's
+    base within ``COAXIAL`` of a petal length of the other's axis, the axes within
+    ``WHORL_DEGREES``) are one flower's whorls, numbered by the first of them."""
+    mine: dict[int, list[int]] = {}
+    for k in candidates:
+        mine.setdefault(owner[k], []).append(k)
+    if len(mine) < 2:
+        return {}
+    rings = {i: ring for i, ks in mine.items() if len(ks) >= 3
+             and (ring := _ring(units, ks)) is not None}
+    if len(rings) < 2:
+        return {}
+    found = sorted(rings)
+    centre = np.array([rings[i].base_point() for i in found])
+    reach = COAXIAL * np.array([rings[i].length for i in found])
+    from scipy.spatial import cKDTree
+
+    flower = {i: i for i in found}
+    # (whorls of one flower lie within a petal length of each other along the axis)
+    for a, b in sorted(cKDTree(centre).query_pairs(2.0 * float(reach.max()) / COAXIAL)):
+        ra, rb = rings[found[a]], rings[found[b]]
+        if (ra.radial(centre[b]) < reach[a] and rb.radial(centre[a]) < reach[b]
+                and abs(float(ra.axis @ rb.axis)) >= np.cos(np.radians(WHORL_DEGREES))):
+            lo, hi = sorted((flower[found[a]], flower[found[b]]))
+            flower = {i: lo if f == hi else f for i, f in flower.items()}
+    return flower
+
+
+def _frames(units: list[_Shape], candidates: list[int], several_parts: bool,
+            whole: dict | None = None, owner: list[int] | None = None) -> list[_Frame]:
     """Each flower's frame: the candidates (sheets and shells) grouped into flowers by
-    where their bases gather (:func:`pipeline.mesh.flowers.flowers`), the ring of each
-    flower (:func:`_ring`) with its inner whorls. Where no flower has a ring, the ring of
-    all the candidates, else (a file of several parts) a part that is a whole ring."""
+    where their bases gather (:func:`pipeline.mesh.flowers.flowers`; the pieces of two
+    parts that are flowers on their own, ``whole`` by part of ``owner``, never one), the
+    ring of each flower (:func:`_ring`) with its inner whorls. Where no flower has a
+    ring, the ring of all the candidates, else (a file of several parts) a part that is
+    a whole ring."""
     from pipeline.mesh.flowers import flowers
 
     if not candidates:
         return []
     points = np.vstack([units[k].vertices for k in candidates])
     label = np.concatenate([np.full(len(units[k].vertices), j) for j, k in enumerate(candidates)])
-    grouped = flowers(points, label)
+    known = None
+    if whole:
+        known = np.array([whole.get(owner[k], -1) for k in candidates], dtype=np.int64)
+    grouped = flowers(points, label, whole=known)
     frames = []
     for g in range(grouped.count):
         group = [candidates[j] for j in np.flatnonzero(grouped.flower == g)]
@@ -657,8 +701,12 @@ def classify(parts, workers: int = 1) -> list[Verdict]:
     # where the file names its petals, its flowers are theirs (a tuft of grass also rings
     # an axis)
     named = [u for u in candidates if hinted[owner[u]] == "petal"]
-    frames = _frames(units, named, len(parts) > 1) if named else []
-    frame_of = _frame_of(units, frames or _frames(units, candidates, len(parts) > 1))
+    # a part whose own pieces ring an axis is a flower of its own: a branch's blossoms,
+    # a few millimetres apart, are not grouped into one by their bases
+    whole = _whole_parts(units, named or candidates, owner)
+    frames = _frames(units, named, len(parts) > 1, whole, owner) if named else []
+    frame_of = _frame_of(units, frames or _frames(units, candidates, len(parts) > 1, whole,
+                                                  owner))
 
     verdicts = []
     for i, p in enumerate(parts):
@@ -703,7 +751,7 @@ def classify(parts, workers: int = 1) -> list[Verdict]:
         why = next(r for (k, r), is_petal in zip(kinds, petal, strict=True) if is_petal)
         verdicts.append(Verdict(kind, f"a whole flower in one mesh ({len(mine)} pieces): "
                                       f"{sum(petal)} petals ({why}); {others}", faces))
-    return verdicts
+    return [replace(v, whole=whole[i]) if i in whole else v for i, v in enumerate(verdicts)]
 
 
 def _place(units: list[_Shape], u: int, frame: _Frame | None) -> tuple[str, str]:

@@ -645,7 +645,8 @@ def prepare_parts(mesh_file, *, where: str, target_edge: float = 0.0, petal_vert
         raise BloomError("no petals: " + "; ".join(problems + others) + hint, where=where)
     grouped = flowers(np.vstack([sv for sv, _, _, _ in sheets]),
                       np.concatenate([np.full(len(sv), k) for k, (sv, _, _, _) in enumerate(sheets)]),
-                      joined=hubs)
+                      joined=hubs, whole=np.array([verdicts[i].whole for _, _, i, _ in sheets],
+                                                  dtype=np.int64))
     picked = _pick_flower(flower, grouped, [i for _, _, i, _ in sheets], names, where)
     unpicked: dict = {}
     if picked is not None:

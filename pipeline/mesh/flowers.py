@@ -52,7 +52,7 @@ def _nearest_other(tree, owner: np.ndarray, at: np.ndarray, petal: np.ndarray,
 
 
 def flowers(points: np.ndarray, label: np.ndarray, link: float = LINK,
-            joined: list | None = None) -> Flowers:
+            joined: list | None = None, whole: np.ndarray | None = None) -> Flowers:
     """Group petals into flowers: petals whose bases gather at one place are one flower.
 
     Parameters
@@ -68,6 +68,12 @@ def flowers(points: np.ndarray, label: np.ndarray, link: float = LINK,
         Petals known to be of one flower whatever their bases' distance: those one sheet
         held, joined at a hub the remesh left out (a flower modelled as one solid, whose
         hub can be wider than its petals are long).
+    whole : (P,) int, optional
+        The flower each petal is known to belong to, from a part that holds a whole
+        flower (:attr:`pipeline.flower.classify.Verdict.whole`), or -1: the petals of
+        one known flower are one flower, and petals of two are never linked, however
+        near their bases (a branch's blossoms, each one mesh, a few millimetres apart:
+        a coarse kite whose base is taken at its tip reaches the next blossom).
 
     Returns
     -------
@@ -154,7 +160,16 @@ def flowers(points: np.ndarray, label: np.ndarray, link: float = LINK,
         d = np.linalg.norm(base[pairs[:, 0]] - base[pairs[:, 1]], axis=1)
         pairs = pairs[d < link * np.minimum(scale[pairs[:, 0]], scale[pairs[:, 1]])]
     pairs = np.asarray(pairs, dtype=np.int64).reshape(-1, 2)
+    if whole is not None and len(pairs):
+        known = np.asarray(whole, dtype=np.int64)[pairs]
+        pairs = pairs[~((known[:, 0] >= 0) & (known[:, 1] >= 0) & (known[:, 0] != known[:, 1]))]
     hubs = [(int(hub[0]), int(q)) for hub in joined or [] for q in hub[1:]]
+    if whole is not None:  # (each known flower's petals chained, first to each)
+        known = np.asarray(whole, dtype=np.int64)
+        at = np.flatnonzero(known >= 0)
+        _, first = np.unique(known[at], return_index=True)
+        lead = at[first][np.searchsorted(np.unique(known[at]), known[at])]
+        hubs += [(int(a), int(b)) for a, b in zip(lead, at, strict=True) if a != b]
     if hubs:
         pairs = np.vstack([pairs, np.asarray(hubs, dtype=np.int64)])
     g = sp.coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(count, count))
