@@ -818,3 +818,77 @@ def test_a_blossoms_petals_whose_bases_lie_apart_find_their_base_by_their_neighb
     radial_base = np.linalg.norm(found.base[:, :2] - np.repeat([[0.0, 0.0], [100.0, 0.0]], 5, axis=0),
                                  axis=1)
     assert np.all(radial_base < 0.5)  # every base at the blossom's centre end
+
+
+def test_flowers_whose_buds_found_apart_cross_are_searched_together(tmp_path, monkeypatch):
+    """Flowers that cross blooming apart bloom together from buds searched within each
+    flower; where those buds pass through each other (a branch's blossoms a few tenths
+    of a petal apart), the bloom together cannot start, and the buds are searched again
+    with contact between the flowers too: that bloom is kept, its frames those of the
+    problem searched together, to the bit. (The crossing buds are a stand-in: the first
+    search together is refused as contact refuses such a bud.)"""
+    import dataclasses
+
+    from pipeline.chain import problem
+    from pipeline.chain.flowers import solve
+    from pipeline.config import load_config
+    from pipeline.errors import BloomError
+    from pipeline.flower.measure import Start
+    from pipeline.sim.build import Prepared
+    from pipeline.sim.run import Recording
+
+    growth = _bush_growth(tmp_path)
+    with h5py.File(growth) as src:
+        prep = Prepared.from_artifact(src)
+        both, idx = prep.flowers_part([0, 1])
+        v = np.asarray(prep.vertices)
+        flower = np.asarray(prep.flower)
+        into = 0.6 * (v[flower == 0].mean(axis=0) - v[flower == 1].mean(axis=0))
+    original = problem.problem
+    seen = []
+
+    def pushed(part, job, ckpt, label=""):
+        if part.together:
+            seen.append(part.searched_together)
+            if not part.searched_together:
+                raise BloomError("effects.collisions: petals 2-7 pass through each other in "
+                                 "the bud: contact cannot start from an intersecting bud",
+                                 where=job.where)
+        run = original(part, job, ckpt, label)
+        if label != "flower 1":
+            return run
+        frames = [np.asarray(X) + (into if 0 < i < len(run.rec.positions) - 1 else 0.0)
+                  for i, X in enumerate(run.rec.positions)]
+        return dataclasses.replace(run, rec=Recording(list(run.rec.time), frames,
+                                                      run.rec.diagnostics))
+
+    monkeypatch.setattr(problem, "problem", pushed)
+    short = [s.replace("collisions.enabled=false", "collisions.enabled=true")
+             .replace("scene.stagger=2", "scene.stagger=4") for s in SHORT]
+    out = tmp_path / "s.h5"
+    r = CliRunner().invoke(cli, ["simulate", str(growth), "--out", str(out), *short])
+    assert r.exit_code == 0, r.output
+    assert seen == [False, True]
+    assert "their buds are searched together, with contact between them" in r.output
+    assert "flowers 0, 1 bloom together: they and their neighbours cross in 0 frame(s)" in r.output
+    with h5py.File(out) as h:
+        X = h["frames/positions"][()]
+        assert h["flower/together"][()].tolist() == [0, 0, 2]
+        assert not h["diagnostics/intersecting"][()].any()
+    cfg = load_config(None, [s for s in short if s != "--set"])
+    job = problem.Job(cfg, Start("bud", float("nan"), "test"), ["collisions"], {}, False,
+                      False, "test")
+    searched = dataclasses.replace(both, searched_together=True)
+    together = np.asarray(solve(searched, job, tmp_path / "both.ckpt", "both").rec.positions)
+    np.testing.assert_array_equal(X[:, idx], together)
+
+    # the bud search's contact: within each flower, or between them too where so asked
+    asked = []
+    monkeypatch.setattr(Prepared, "effects", lambda self, names, params, **kw:
+                        asked.append(kw["apart"]) or (_ for _ in ()).throw(BloomError("stop")))
+    open_job = dataclasses.replace(job, start=Start("open", float("nan"), "test"))
+    for part, apart in ((both, True), (searched, False)):
+        asked.clear()
+        with pytest.raises(BloomError, match="stop"):
+            original(part, open_job, tmp_path / "bud.ckpt", "both")
+        assert asked and set(asked) == {apart}

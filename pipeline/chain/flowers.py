@@ -326,6 +326,16 @@ def _together_where_flowers_cross(runs: dict, parts: list, prep: Prepared, job: 
             run = solve(part, together, ckpt.with_name(f"{ckpt.name}-together{c}"), label)
         except BloomError as exc:
             why = f"together they find no bloom ({str(exc).removeprefix(f'{job.where}: ')})"
+            # their buds found apart may pass through each other: searched together, with
+            # contact between them too, they are kept apart from the model back
+            log.info("%s: %s; their buds are searched together, with contact between them",
+                     label, why)
+            try:
+                run = solve(dataclasses.replace(part, searched_together=True), together,
+                            ckpt.with_name(f"{ckpt.name}-together{c}-searched"), label)
+            except BloomError as again:
+                why = ("together they find no bloom, their buds searched apart or together "
+                       f"({str(again).removeprefix(f'{job.where}: ')})")
         apart = [runs[k][0].distance for k in members]
         if run is not None and run.distance is not None and None not in apart and \
                 run.distance > max(TOGETHER_OFF * report.OFF_MODEL, TOGETHER_APART * max(apart)):

@@ -208,9 +208,13 @@ def _problem(prep: Prepared, job: Job, ckpt: Path, label: str = "") -> Bloom:
                             max_edge=max_edge,
                             pushback=sim["integrator"] != "quasi-static", apart=apart)
 
-    # flowers that bloom together: the bud search with contact within each, the bloom
-    # with contact between them too
+    # flowers that bloom together: the bud search with contact within each (or between
+    # them too, where so asked), the bloom with contact between them too
     apart = not prep.together
+    searched_apart = not prep.searched_together
+
+    def bud_effects(positions):
+        return build_effects(positions, searched_apart)
 
     inputs = job.inputs
     model_positions = np.asarray(v) if start.start == "open" else None
@@ -232,7 +236,7 @@ def _problem(prep: Prepared, job: Job, ckpt: Path, label: str = "") -> Bloom:
         if model_positions is not None:
             doing(f"simulate {label}: finding the bud ({path})" if label else "finding the bud")
             v0, model, rest_angle, params, bud_info = open_start(
-                cfg, model, model_positions, rest_angle, params, build_effects, petal,
+                cfg, model, model_positions, rest_angle, params, bud_effects, petal,
                 base, prep.s, prep.x, prep.flower_axis, where, faces=prep.faces,
                 plane=prep.plane, path=path, closed_by=closed_by, unlifted=unlifted)
         if cfg["growth.keys"]:

@@ -66,6 +66,10 @@ class Prepared:
     #: flowers that bloom together (:meth:`flowers_part`): the bud search keeps contact
     #: within each (:attr:`flower` apart), the bloom has contact between them too
     together: bool = False
+    #: with :attr:`together`, the bud search has contact between the flowers too: their
+    #: buds searched within each can pass through each other (a branch's blossoms a few
+    #: tenths of a petal apart), and the bloom cannot start from them
+    searched_together: bool = False
     #: each petal held further than its base, up to this ``s`` (every vertex within it
     #: fixed; simulate's second try for a bowl), or None
     held: float | None = None
