@@ -41,9 +41,10 @@ SHEET_IN_PLANE = 0.5
 #: better (hallgeirl's tubes: 0.16-0.42 against 0.68-1.08; the Blender lily's tepals, a
 #: plane 0.6-2.5 degrees off for a few percent, are left as they were)
 ELSEWHERE = 0.75
-#: asymmetries under this fraction of a petal's length are rounding (a float32 file's
-#: 1e-7), not shape: among planes that exact, the one along the petal's length is taken
-EXACT = 1e-4
+#: asymmetries under this fraction of the points' largest coordinate are rounding (a
+#: float32 file's 6e-8 of it), not shape: among planes that exact, the one along the
+#: petal's length is taken (a rhombus kite 0.3 m from the origin: 3e-8 m)
+EXACT = 1e-6
 
 
 def mirror_plane(points: np.ndarray, refine: bool = True) -> tuple[np.ndarray, float]:
@@ -83,7 +84,7 @@ def mirror_plane(points: np.ndarray, refine: bool = True) -> tuple[np.ndarray, f
         if sane and err < best_err - 1e-12:
             best, best_err = plane, err
     longest = vecs[:, 2]
-    floor = EXACT * float(np.ptp((p - c) @ longest))
+    floor = EXACT * float(np.abs(p).max())
     if best is not None and best_err <= floor:
         # exact to rounding: kept as found, not refined (refining weighs rounding). Where
         # it is symmetric both ways (a rhombus kite of 4 vertices), the plane along the
