@@ -104,12 +104,16 @@ def _bloom_one(k: int):
     None)``, or ``(k, None, why)`` where it is refused. Its effects are kept as what the
     put-together bloom reads of them (their names, the connection springs), so that a
     worker can send it back."""
-    parts, job, ckpt = _TASK
+    parts, job, ckpt, labels = _TASK
     part, idx = parts[k]
-    log.info("flower %d of %d: %d petal(s), %d vertices", k, len(parts), len(part.tip),
-             len(idx))
+    if labels is None:
+        label, suffix = f"flower {k}", f"-flower{k}"
+        log.info("flower %d of %d: %d petal(s), %d vertices", k, len(parts), len(part.tip),
+                 len(idx))
+    else:
+        label, suffix = labels[k]
     try:
-        run = solve(part, job, ckpt.with_name(f"{ckpt.name}-flower{k}"), f"flower {k}")
+        run = solve(part, job, ckpt.with_name(f"{ckpt.name}{suffix}"), label)
     except BloomError as exc:
         return k, None, str(exc).removeprefix(f"{job.where}: ")
     c = run.effects.connections
@@ -119,8 +123,10 @@ def _bloom_one(k: int):
     return k, dataclasses.replace(run, effects=kept), None
 
 
-def _bloom_all(parts: list, job: Job, ckpt: Path, own: list):
-    """``(k, bloom or None, why refused or None)`` of each flower of ``own``, in order: in
+def _bloom_all(parts: list, job: Job, ckpt: Path, own: list, labels: list | None = None):
+    """``(k, bloom or None, why refused or None)`` of each flower of ``own`` (``labels``:
+    each problem's ``(label, checkpoint suffix)``, for problems that are not one flower
+    each), in order: in
     this process, or (``simulate.workers`` > 1, two flowers or more, a system that
     forks) in a pool of forked processes, the largest started first, each flower's
     problem its own, so the blooms
@@ -132,14 +138,18 @@ def _bloom_all(parts: list, job: Job, ckpt: Path, own: list):
     many = workers(job.cfg["simulate.workers"])
     forks = can_fork()
     _TASK = (parts, job if many <= 1 or len(own) < 2 or not forks
-             else dataclasses.replace(job, progress=False), ckpt)
+             else dataclasses.replace(job, progress=False), ckpt, labels)
     try:
         if many <= 1 or len(own) < 2 or not forks:
             for k in own:
                 yield _bloom_one(k)
             return
-        log.info("%d of %d flowers to bloom, %d side by side (simulate.workers)", len(own),
-                 len(parts), min(many, len(own)))
+        if labels is None:
+            log.info("%d of %d flowers to bloom, %d side by side (simulate.workers)", len(own),
+                     len(parts), min(many, len(own)))
+        else:
+            log.info("%d problems of flowers together to solve, %d side by side "
+                     "(simulate.workers)", len(own), min(many, len(own)))
         _BOARD = Board(len(parts))
         with (pool(min(many, len(own)), initializer=_worker_start) as workers_,
               Progress(len(own), "simulate flowers", job.progress,
@@ -296,6 +306,17 @@ def _together_where_flowers_cross(runs: dict, parts: list, prep: Prepared, job: 
     cluster = np.arange(count)
     names = job.names if "collisions" in job.names else [*job.names, "collisions"]
     together = dataclasses.replace(job, names=names)
+    # the clusters that need a solve (bloomed apart but started together, they still
+    # cross) solved first, side by side: each problem is its own, so the same bits as
+    # one after another; judged below in order, as neighbours change
+    unsynced = []
+    for c, members in enumerate(clusters.values()):
+        joined = cluster.copy()
+        joined[members] = members[0]
+        region = sorted({*members, *(int(j) for k in members for j in _near(k, boxes))})
+        if _seen_crossing(region, positions, parts, prep, stagger.together(starts, joined)).any():
+            unsynced.append((c, members))
+    solved = _solved_together(prep, unsynced, together, ckpt)
     for c, members in enumerate(clusters.values()):
         label = "flowers " + ", ".join(map(str, members))
         # judged where it can change anything: these flowers and those whose boxes meet
@@ -320,22 +341,13 @@ def _together_where_flowers_cross(runs: dict, parts: list, prep: Prepared, job: 
                  "bloom together, as one problem with contact between them (their buds "
                  "searched with contact within each), from frame %d", label,
                  int(whole.sum()), len(whole), int(np.asarray(starts)[members].min()))
-        part, idx = prep.flowers_part(members)
-        run, why = None, ""
-        try:
-            run = solve(part, together, ckpt.with_name(f"{ckpt.name}-together{c}"), label)
-        except BloomError as exc:
-            why = f"together they find no bloom ({str(exc).removeprefix(f'{job.where}: ')})"
-            # their buds found apart may pass through each other: searched together, with
-            # contact between them too, they are kept apart from the model back
-            log.info("%s: %s; their buds are searched together, with contact between them",
-                     label, why)
-            try:
-                run = solve(dataclasses.replace(part, searched_together=True), together,
-                            ckpt.with_name(f"{ckpt.name}-together{c}-searched"), label)
-            except BloomError as again:
-                why = ("together they find no bloom, their buds searched apart or together "
-                       f"({str(again).removeprefix(f'{job.where}: ')})")
+        if c not in solved:  # (synced, it crossed nothing before a neighbour changed)
+            solved.update(_solved_together(prep, [(c, members)], together, ckpt))
+        run, why, searched = solved.pop(c)
+        if searched is not None:
+            log.info("%s: together they find no bloom (%s); their buds are searched "
+                     "together, with contact between them", label, searched)
+        idx = np.flatnonzero(np.isin(np.asarray(prep.flower), members))
         apart = [runs[k][0].distance for k in members]
         if run is not None and run.distance is not None and None not in apart and \
                 run.distance > max(TOGETHER_OFF * report.OFF_MODEL, TOGETHER_APART * max(apart)):
@@ -364,6 +376,39 @@ def _together_where_flowers_cross(runs: dict, parts: list, prep: Prepared, job: 
         else:
             log.info("%s bloom apart: %s; %d frame(s) apart", label, why, int(before))
     return cluster if np.any(cluster != np.arange(count)) else None
+
+
+def _solved_together(prep: Prepared, clusters: list, job: Job, ckpt: Path) -> dict:
+    """``{c: (bloom or None, why refused, why the first search was refused or None)}``:
+    each cluster ``(c, members)`` of flowers as one problem (:func:`_bloom_all`, side by
+    side), its buds searched within each flower; a cluster refused so (those buds can
+    pass through each other, and the bloom cannot start from them) is solved again with
+    its buds searched together, contact between its flowers too."""
+    if not clusters:
+        return {}
+    parts = [prep.flowers_part(members) for _, members in clusters]
+    labels = [("flowers " + ", ".join(map(str, members)), f"-together{c}")
+              for c, members in clusters]
+    first = {k: (run, why) for k, run, why in
+             _bloom_all(parts, job, ckpt, list(range(len(clusters))), labels)}
+    again = [k for k in first if first[k][0] is None]
+    second = {}
+    if again:
+        searched = [(dataclasses.replace(parts[k][0], searched_together=True), parts[k][1])
+                    for k in again]
+        relabel = [(labels[k][0], labels[k][1] + "-searched") for k in again]
+        second = {again[j]: (run, why) for j, run, why in
+                  _bloom_all(searched, job, ckpt, list(range(len(again))), relabel)}
+    out = {}
+    for k, (c, _) in enumerate(clusters):
+        run, why = first[k]
+        if run is not None:
+            out[c] = (run, "", None)
+            continue
+        run, why_again = second[k]
+        out[c] = (run, "" if run is not None else "together they find no bloom, their buds "
+                  f"searched apart or together ({why_again})", why)
+    return out
 
 
 def _shared_budget(job: Job, problems: int) -> Job:
