@@ -1,7 +1,13 @@
 """A file of many flowers in the simulate stage (:func:`flowers_apart`): each flower a
 problem of its own (:func:`pipeline.chain.problem.problem`), a copy of another bloomed
 once and moved (:mod:`pipeline.chain.copies`), the others side by side in
-``simulate.workers`` forked processes, put together into one bloom."""
+``simulate.workers`` forked processes, put together into one bloom. Where flowers pass
+through each other (:mod:`pipeline.chain.crossing`), a copy blooms on its own and a
+cluster blooms together.
+
+The module is long because blooming the flowers apart, blooming again those that cross
+and putting them back into one bloom read and update the same runs and positions, and
+share the pool of workers."""
 
 from __future__ import annotations
 
@@ -13,7 +19,7 @@ from types import SimpleNamespace
 
 import numpy as np
 
-from pipeline.chain import copies, problem
+from pipeline.chain import copies, crossing, problem
 from pipeline.chain.problem import Job, Result
 from pipeline.errors import BloomError
 from pipeline.flower import stagger
@@ -26,7 +32,6 @@ from pipeline.sim.build import Prepared
 from pipeline.sim.effects import ORDER
 from pipeline.sim.reverse import distance_to_model
 from pipeline.sim.run import Recording
-from pipeline.sim.terms.contact import crossings_between
 
 log = logging.getLogger("bloom")
 
@@ -174,52 +179,6 @@ def _bloom_all(parts: list, job: Job, ckpt: Path, own: list, labels: list | None
         _TASK = _BOARD = None
 
 
-def _seen_crossing(members: list, positions, parts: list, prep: Prepared, starts,
-                   against_first: bool = False, frames=None) -> np.ndarray:
-    """``(T',)`` whether a flower of ``members`` passes through another of them in each
-    frame the user sees (staggered by ``starts``; ``frames``: only those), on their
-    vertices only. ``against_first``: only the first against the others."""
-    sub = np.concatenate([parts[j][1] for j in members])
-    local = np.repeat(np.arange(len(members)), [len(parts[j][1]) for j in members])
-    new = np.full(len(prep.vertices), -1, dtype=np.int64)
-    new[sub] = np.arange(len(sub))
-    faces = np.asarray(prep.faces, dtype=np.int64)
-    faces = new[faces[np.all(new[faces] >= 0, axis=1)]]
-    seen = positions[:, sub]
-    if starts is not None:
-        seen = stagger.staggered(seen, local, np.asarray(starts)[members])
-    if frames is not None:  # (frames of the whole: past this one's last, it holds it)
-        seen = seen[np.minimum(frames, len(seen) - 1)]
-    return np.asarray(crossings_between(seen, faces, local != 0 if against_first else local,
-                                        petal=np.asarray(prep.petal)[sub], left=prep.left),
-                      dtype=bool)
-
-
-def _boxes(positions, parts: list) -> np.ndarray:
-    """``(K, 2, 3)`` each flower's box over the whole bloom."""
-    return np.stack([np.stack([positions[:, idx].min(axis=(0, 1)),
-                               positions[:, idx].max(axis=(0, 1))]) for _, idx in parts])
-
-
-def _near(k: int, boxes) -> np.ndarray:
-    """The flowers whose box meets flower ``k``'s, but ``k``."""
-    lo, hi = boxes[:, 0], boxes[:, 1]
-    near = np.flatnonzero(np.all((lo <= hi[k]) & (hi >= lo[k]), axis=1))
-    return near[near != k]
-
-
-def _crossings(k: int, positions, parts: list, prep: Prepared, starts, boxes,
-               frames=None) -> int:
-    """How many frames the user sees (staggered by ``starts``; ``frames``: of those)
-    flower ``k`` passes through a flower whose box (over the whole bloom, ``boxes
-    (flowers, 2, 3)``) meets its own: on those flowers' vertices only."""
-    near = _near(k, boxes)
-    if not len(near):
-        return 0
-    return int(_seen_crossing([k, *near.tolist()], positions, parts, prep, starts,
-                              against_first=True, frames=frames).sum())
-
-
 def _own_where_copies_cross(runs: dict, source: dict, parts: list, prep: Prepared, job: Job,
                             ckpt: Path, positions, starts, whole: np.ndarray) -> np.ndarray:
     """A copy blooms as its original does, moved; but the original's neighbours are not
@@ -227,21 +186,21 @@ def _own_where_copies_cross(runs: dict, source: dict, parts: list, prep: Prepare
     the user sees, blooms on its own as well (rounding can pick another branch of its
     path), and keeps the bloom that crosses in fewer frames: ``runs`` and ``positions``
     updated in place, the choice logged. ``whole``: the frames in which flowers cross
-    (:func:`_seen_crossing` of them all: a branch has a thousand copies, looked at only
+    (:func:`~pipeline.chain.crossing.seen` of them all: a branch has a thousand copies, looked at only
     where that finds one); returns it, looked at again if a copy changed."""
     copied = sorted(k for k in runs if source[k] is not None)
     if not copied or not whole.any():
         return whole
     at = np.flatnonzero(whole)
-    boxes = _boxes(positions, parts)
-    crossing = {k: n for k in copied
-                if (n := _crossings(k, positions, parts, prep, starts, boxes, frames=at))}
-    if not crossing:
+    boxes = crossing.boxes(positions, parts)
+    crossed = {k: n for k in copied
+                if (n := crossing.count(k, positions, parts, prep, starts, boxes, frames=at))}
+    if not crossed:
         return whole
     log.info("%d copied flower(s) pass through a neighbour when moved (%s): each blooms on "
-             "its own", len(crossing), ", ".join(f"flower {k} in {n} frame(s)"
-                                                  for k, n in crossing.items()))
-    for k, run, why in _bloom_all(parts, job, ckpt, list(crossing)):
+             "its own", len(crossed), ", ".join(f"flower {k} in {n} frame(s)"
+                                                  for k, n in crossed.items()))
+    for k, run, why in _bloom_all(parts, job, ckpt, list(crossed)):
         idx = parts[k][1]
         if run is None:
             log.info("flower %d: its own bloom is refused (%s); it blooms as flower %d, "
@@ -249,17 +208,17 @@ def _own_where_copies_cross(runs: dict, source: dict, parts: list, prep: Prepare
             continue
         kept = positions[:, idx].copy()
         positions[:, idx] = np.asarray(run.rec.positions)
-        own = _crossings(k, positions, parts, prep, starts, boxes)
-        if own < crossing[k]:
+        own = crossing.count(k, positions, parts, prep, starts, boxes)
+        if own < crossed[k]:
             runs[k] = (run, idx)
             log.info("flower %d blooms on its own: it crosses a neighbour in %d frame(s), "
-                     "%d as a copy", k, own, crossing[k])
+                     "%d as a copy", k, own, crossed[k])
         else:
             positions[:, idx] = kept
             log.info("flower %d blooms as flower %d, moved: on its own it crosses a "
                      "neighbour in %d frame(s), %d as a copy", k, source[k][0], own,
-                     crossing[k])
-    return _seen_crossing(list(range(len(parts))), positions, parts, prep, starts)
+                     crossed[k])
+    return crossing.seen(list(range(len(parts))), positions, parts, prep, starts)
 
 
 #: flowers that cross blooming apart bloom together only if that ends near the model (an
@@ -282,7 +241,7 @@ def _together_where_flowers_cross(runs: dict, parts: list, prep: Prepared, job: 
     within each flower (as apart), and the bloom from those buds has contact between
     them too, starting at one frame: the earliest start among them. Kept where it
     leaves fewer frames crossing among them and their neighbours (``whole``: the frames
-    the file crosses in, :func:`_seen_crossing`) and ends as near the model
+    the file crosses in, :func:`~pipeline.chain.crossing.seen`) and ends as near the model
     (:data:`TOGETHER_OFF`); ``runs``
     and ``positions`` updated in place, the choice logged. Where the flowers of a cluster,
     bloomed apart but started together, cross nothing, that is kept without a solve (and
@@ -293,15 +252,15 @@ def _together_where_flowers_cross(runs: dict, parts: list, prep: Prepared, job: 
         return None
     count = len(parts)
     at = np.flatnonzero(whole)
-    boxes = _boxes(positions, parts)
-    pairs = [(k, int(j)) for k in sorted(runs) for j in _near(k, boxes) if j > k and j in runs
-             and _seen_crossing([k, int(j)], positions, parts, prep, starts, frames=at).any()]
+    boxes = crossing.boxes(positions, parts)
+    pairs = [(k, int(j)) for k in sorted(runs) for j in crossing.near(k, boxes) if j > k and j in runs
+             and crossing.seen([k, int(j)], positions, parts, prep, starts, frames=at).any()]
     if not pairs:
         return None
     label_of = components(np.asarray(pairs, dtype=np.int64), count)
-    crossing = sorted({q for pair in pairs for q in pair})
+    crossed = sorted({q for pair in pairs for q in pair})
     clusters = {}
-    for k in crossing:
+    for k in crossed:
         clusters.setdefault(int(label_of[k]), []).append(k)
     cluster = np.arange(count)
     names = job.names if "collisions" in job.names else [*job.names, "collisions"]
@@ -313,23 +272,29 @@ def _together_where_flowers_cross(runs: dict, parts: list, prep: Prepared, job: 
     for c, members in enumerate(clusters.values()):
         joined = cluster.copy()
         joined[members] = members[0]
-        region = sorted({*members, *(int(j) for k in members for j in _near(k, boxes))})
-        if _seen_crossing(region, positions, parts, prep, stagger.together(starts, joined)).any():
+        region = sorted({*members, *(int(j) for k in members for j in crossing.near(k, boxes))})
+        if crossing.seen(region, positions, parts, prep, stagger.together(starts, joined)).any():
             unsynced.append((c, members))
-    solved = _solved_together(prep, unsynced, together, ckpt)
+    # buds found apart that pass through each other: the bloom together cannot start from
+    # them, so those clusters' buds are searched together at once
+    buds = np.asarray(prep.vertices, dtype=np.float64)[None].copy()
+    for k in runs:
+        buds[0, runs[k][1]] = runs[k][0].bud
+    tangled = {c for c, members in unsynced if crossing.seen(members, buds, parts, prep, None)[0]}
+    solved = _solved_together(prep, unsynced, together, ckpt, tangled)
     for c, members in enumerate(clusters.values()):
         label = "flowers " + ", ".join(map(str, members))
         # judged where it can change anything: these flowers and those whose boxes meet
         # theirs (by the whole file's frames, one cluster of a branch's many could never
         # leave fewer: the others cross in the same frames)
-        region = sorted({*members, *(int(j) for k in members for j in _near(k, boxes))})
+        region = sorted({*members, *(int(j) for k in members for j in crossing.near(k, boxes))})
         joined = cluster.copy()
         joined[members] = members[0]
-        before = _seen_crossing(region, positions, parts, prep,
+        before = crossing.seen(region, positions, parts, prep,
                                 stagger.together(starts, cluster)).sum()
         # first, bloomed apart but started together (no solve: each ends on its model,
         # and in step they may keep apart where staggered they crossed)
-        synced = _seen_crossing(region, positions, parts, prep,
+        synced = crossing.seen(region, positions, parts, prep,
                                 stagger.together(starts, joined)).sum()
         if synced == 0:
             log.info("%s pass through each other blooming apart, staggered (%d frame(s) with "
@@ -345,8 +310,8 @@ def _together_where_flowers_cross(runs: dict, parts: list, prep: Prepared, job: 
             solved.update(_solved_together(prep, [(c, members)], together, ckpt))
         run, why, searched = solved.pop(c)
         if searched is not None:
-            log.info("%s: together they find no bloom (%s); their buds are searched "
-                     "together, with contact between them", label, searched)
+            log.info("%s: %s; their buds are searched together, with contact between them",
+                     label, searched)
         idx = np.flatnonzero(np.isin(np.asarray(prep.flower), members))
         apart = [runs[k][0].distance for k in members]
         if run is not None and run.distance is not None and None not in apart and \
@@ -357,7 +322,7 @@ def _together_where_flowers_cross(runs: dict, parts: list, prep: Prepared, job: 
         if run is not None:
             kept = positions[:, idx].copy()
             positions[:, idx] = np.asarray(run.rec.positions)
-            after = _seen_crossing(region, positions, parts, prep,
+            after = crossing.seen(region, positions, parts, prep,
                                    stagger.together(starts, joined)).sum()
             if after < min(before, synced):
                 log.info("%s bloom together: they and their neighbours cross in %d frame(s), "
@@ -378,20 +343,25 @@ def _together_where_flowers_cross(runs: dict, parts: list, prep: Prepared, job: 
     return cluster if np.any(cluster != np.arange(count)) else None
 
 
-def _solved_together(prep: Prepared, clusters: list, job: Job, ckpt: Path) -> dict:
-    """``{c: (bloom or None, why refused, why the first search was refused or None)}``:
+def _solved_together(prep: Prepared, clusters: list, job: Job, ckpt: Path,
+                     tangled=frozenset()) -> dict:
+    """``{c: (bloom or None, why refused, why its buds were searched together or None)}``:
     each cluster ``(c, members)`` of flowers as one problem (:func:`_bloom_all`, side by
     side), its buds searched within each flower; a cluster refused so (those buds can
-    pass through each other, and the bloom cannot start from them) is solved again with
-    its buds searched together, contact between its flowers too."""
+    pass through each other, and the bloom cannot start from them), or one of
+    ``tangled`` (its buds found apart do), is solved with its buds searched together,
+    contact between its flowers too."""
     if not clusters:
         return {}
     parts = [prep.flowers_part(members) for _, members in clusters]
     labels = [("flowers " + ", ".join(map(str, members)), f"-together{c}")
               for c, members in clusters]
-    first = {k: (run, why) for k, run, why in
-             _bloom_all(parts, job, ckpt, list(range(len(clusters))), labels)}
-    again = [k for k in first if first[k][0] is None]
+    plain = [k for k, (c, _) in enumerate(clusters) if c not in tangled]
+    first = {k: (None, "their buds found apart pass through each other") for k in
+             range(len(clusters)) if k not in plain}
+    first.update({k: (run, f"together they find no bloom ({why})") for k, run, why in
+                  _bloom_all(parts, job, ckpt, plain, labels)})
+    again = [k for k in range(len(clusters)) if first[k][0] is None]
     second = {}
     if again:
         searched = [(dataclasses.replace(parts[k][0], searched_together=True), parts[k][1])
@@ -406,8 +376,8 @@ def _solved_together(prep: Prepared, clusters: list, job: Job, ckpt: Path) -> di
             out[c] = (run, "", None)
             continue
         run, why_again = second[k]
-        out[c] = (run, "" if run is not None else "together they find no bloom, their buds "
-                  f"searched apart or together ({why_again})", why)
+        out[c] = (run, "" if run is not None else f"together they find no bloom "
+                  f"({why_again}), their buds searched together too", why)
     return out
 
 
@@ -475,7 +445,7 @@ def flowers_apart(prep: Prepared, job: Job, ckpt: Path, starts) -> Result:
     for run_, idx in runs.values():
         positions[:, idx] = np.asarray(run_.rec.positions)
     # what the user sees: flowers through each other, staggered
-    whole = _seen_crossing(list(range(count)), positions, parts, prep, starts)
+    whole = crossing.seen(list(range(count)), positions, parts, prep, starts)
     whole = _own_where_copies_cross(runs, source, parts, prep, job, ckpt, positions, starts,
                                     whole)
     together = _together_where_flowers_cross(runs, parts, prep, job, ckpt, positions, starts,
