@@ -676,6 +676,31 @@ def test_a_copy_that_would_pass_through_a_neighbour_blooms_on_its_own(tmp_path, 
     assert np.abs(alone - X[:, idx2]).max() < 1e-9 * size
 
 
+#: SHORT with contact, the three flowers starting at frames 2, 1, 0 apart
+SHORT_TOGETHER = [s.replace("collisions.enabled=false", "collisions.enabled=true")
+                  .replace("scene.stagger=2", "scene.stagger=4") for s in SHORT]
+
+
+def _pushed_into(original, into):
+    """``original`` (:func:`pipeline.chain.problem.problem`) with flower 1's bloom apart
+    pushed by ``into`` (in the flower's own units, ~1) in every frame but its first and
+    last, as a path swinging wide would be."""
+    import dataclasses
+
+    from pipeline.sim.run import Recording
+
+    def pushed(part, job, ckpt, label=""):
+        run = original(part, job, ckpt, label)
+        if label != "flower 1":
+            return run
+        frames = [np.asarray(X) + (into if 0 < i < len(run.rec.positions) - 1 else 0.0)
+                  for i, X in enumerate(run.rec.positions)]
+        return dataclasses.replace(run, rec=Recording(list(run.rec.time), frames,
+                                                      run.rec.diagnostics))
+
+    return pushed
+
+
 def test_flowers_that_cross_blooming_apart_bloom_together(tmp_path, monkeypatch):
     """Staggered flowers bloom apart, each at its own stage of growth: where two pass
     through each other in a frame the user sees, they bloom together, as one problem
@@ -684,7 +709,6 @@ def test_flowers_that_cross_blooming_apart_bloom_together(tmp_path, monkeypatch)
     a path swinging wide would); together they are clear of each other. Their frames are
     those of their problem together, to the bit; sim.h5 names the problem of each
     flower, and the export staggers the two as one."""
-    import dataclasses
 
     from pipeline.chain import problem
     from pipeline.chain.flowers import solve
@@ -692,7 +716,6 @@ def test_flowers_that_cross_blooming_apart_bloom_together(tmp_path, monkeypatch)
     from pipeline.flower import stagger
     from pipeline.flower.measure import Start
     from pipeline.sim.build import Prepared
-    from pipeline.sim.run import Recording
 
     growth = _bush_growth(tmp_path)
     with h5py.File(growth) as src:
@@ -705,20 +728,8 @@ def test_flowers_that_cross_blooming_apart_bloom_together(tmp_path, monkeypatch)
     # each petal's flower's axis: the two lilies lean their own ways
     np.testing.assert_array_equal(both.flower_axis, axes[[0] * 5 + [1] * 5])
     assert np.degrees(np.arccos(np.clip(axes[0, 3:] @ axes[1, 3:], -1, 1))) > 5.0
-    original = problem.problem
-
-    def pushed(part, job, ckpt, label=""):  # (the push in the flower's own units, ~1)
-        run = original(part, job, ckpt, label)
-        if label != "flower 1":
-            return run
-        frames = [np.asarray(X) + (into if 0 < i < len(run.rec.positions) - 1 else 0.0)
-                  for i, X in enumerate(run.rec.positions)]
-        return dataclasses.replace(run, rec=Recording(list(run.rec.time), frames,
-                                                      run.rec.diagnostics))
-
-    monkeypatch.setattr(problem, "problem", pushed)
-    short = [s.replace("collisions.enabled=false", "collisions.enabled=true")
-             .replace("scene.stagger=2", "scene.stagger=4") for s in SHORT]  # (starts 2, 1, 0)
+    monkeypatch.setattr(problem, "problem", _pushed_into(problem.problem, into))
+    short = SHORT_TOGETHER  # (starts 2, 1, 0)
     out = tmp_path / "s.h5"
     r = CliRunner().invoke(cli, ["simulate", str(growth), "--out", str(out), *short])
     assert r.exit_code == 0, r.output
@@ -835,7 +846,6 @@ def test_flowers_whose_buds_found_apart_cross_are_searched_together(tmp_path, mo
     from pipeline.errors import BloomError
     from pipeline.flower.measure import Start
     from pipeline.sim.build import Prepared
-    from pipeline.sim.run import Recording
 
     growth = _bush_growth(tmp_path)
     with h5py.File(growth) as src:
@@ -845,6 +855,7 @@ def test_flowers_whose_buds_found_apart_cross_are_searched_together(tmp_path, mo
         flower = np.asarray(prep.flower)
         into = 0.6 * (v[flower == 0].mean(axis=0) - v[flower == 1].mean(axis=0))
     original = problem.problem
+    push = _pushed_into(original, into)
     seen = []
 
     def pushed(part, job, ckpt, label=""):
@@ -854,17 +865,10 @@ def test_flowers_whose_buds_found_apart_cross_are_searched_together(tmp_path, mo
                 raise BloomError("effects.collisions: petals 2-7 pass through each other in "
                                  "the bud: contact cannot start from an intersecting bud",
                                  where=job.where)
-        run = original(part, job, ckpt, label)
-        if label != "flower 1":
-            return run
-        frames = [np.asarray(X) + (into if 0 < i < len(run.rec.positions) - 1 else 0.0)
-                  for i, X in enumerate(run.rec.positions)]
-        return dataclasses.replace(run, rec=Recording(list(run.rec.time), frames,
-                                                      run.rec.diagnostics))
+        return push(part, job, ckpt, label)
 
     monkeypatch.setattr(problem, "problem", pushed)
-    short = [s.replace("collisions.enabled=false", "collisions.enabled=true")
-             .replace("scene.stagger=2", "scene.stagger=4") for s in SHORT]
+    short = SHORT_TOGETHER
     out = tmp_path / "s.h5"
     r = CliRunner().invoke(cli, ["simulate", str(growth), "--out", str(out), *short])
     assert r.exit_code == 0, r.output

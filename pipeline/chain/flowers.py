@@ -186,20 +186,21 @@ def _own_where_copies_cross(runs: dict, source: dict, parts: list, prep: Prepare
     the user sees, blooms on its own as well (rounding can pick another branch of its
     path), and keeps the bloom that crosses in fewer frames: ``runs`` and ``positions``
     updated in place, the choice logged. ``whole``: the frames in which flowers cross
-    (:func:`~pipeline.chain.crossing.seen` of them all: a branch has a thousand copies, looked at only
-    where that finds one); returns it, looked at again if a copy changed."""
+    (:func:`~pipeline.chain.crossing.seen` of them all: a branch has a thousand copies,
+    looked at only where that finds one); returns it, looked at again if a copy
+    changed."""
     copied = sorted(k for k in runs if source[k] is not None)
     if not copied or not whole.any():
         return whole
     at = np.flatnonzero(whole)
     boxes = crossing.boxes(positions, parts)
     crossed = {k: n for k in copied
-                if (n := crossing.count(k, positions, parts, prep, starts, boxes, frames=at))}
+               if (n := crossing.count(k, positions, parts, prep, starts, boxes, frames=at))}
     if not crossed:
         return whole
     log.info("%d copied flower(s) pass through a neighbour when moved (%s): each blooms on "
              "its own", len(crossed), ", ".join(f"flower {k} in {n} frame(s)"
-                                                  for k, n in crossed.items()))
+                                                 for k, n in crossed.items()))
     for k, run, why in _bloom_all(parts, job, ckpt, list(crossed)):
         idx = parts[k][1]
         if run is None:
@@ -253,7 +254,8 @@ def _together_where_flowers_cross(runs: dict, parts: list, prep: Prepared, job: 
     count = len(parts)
     at = np.flatnonzero(whole)
     boxes = crossing.boxes(positions, parts)
-    pairs = [(k, int(j)) for k in sorted(runs) for j in crossing.near(k, boxes) if j > k and j in runs
+    pairs = [(k, int(j)) for k in sorted(runs) for j in crossing.near(k, boxes)
+             if j > k and j in runs
              and crossing.seen([k, int(j)], positions, parts, prep, starts, frames=at).any()]
     if not pairs:
         return None
@@ -265,16 +267,23 @@ def _together_where_flowers_cross(runs: dict, parts: list, prep: Prepared, job: 
     cluster = np.arange(count)
     names = job.names if "collisions" in job.names else [*job.names, "collisions"]
     together = dataclasses.replace(job, names=names)
+    # each cluster judged where it can change anything: its flowers and those whose boxes
+    # meet theirs (by the whole file's frames, one cluster of a branch's many could never
+    # leave fewer: the others cross in the same frames)
+    regions = [sorted({*members, *(int(j) for k in members for j in crossing.near(k, boxes))})
+               for members in clusters.values()]
+
+    def joining(members):  # (the clusters so far, and these flowers as one)
+        joined = cluster.copy()
+        joined[members] = members[0]
+        return joined
+
     # the clusters that need a solve (bloomed apart but started together, they still
     # cross) solved first, side by side: each problem is its own, so the same bits as
     # one after another; judged below in order, as neighbours change
-    unsynced = []
-    for c, members in enumerate(clusters.values()):
-        joined = cluster.copy()
-        joined[members] = members[0]
-        region = sorted({*members, *(int(j) for k in members for j in crossing.near(k, boxes))})
-        if crossing.seen(region, positions, parts, prep, stagger.together(starts, joined)).any():
-            unsynced.append((c, members))
+    unsynced = [(c, members) for c, members in enumerate(clusters.values())
+                if crossing.seen(regions[c], positions, parts, prep,
+                                 stagger.together(starts, joining(members))).any()]
     # buds found apart that pass through each other: the bloom together cannot start from
     # them, so those clusters' buds are searched together at once
     buds = np.asarray(prep.vertices, dtype=np.float64)[None].copy()
@@ -284,18 +293,13 @@ def _together_where_flowers_cross(runs: dict, parts: list, prep: Prepared, job: 
     solved = _solved_together(prep, unsynced, together, ckpt, tangled)
     for c, members in enumerate(clusters.values()):
         label = "flowers " + ", ".join(map(str, members))
-        # judged where it can change anything: these flowers and those whose boxes meet
-        # theirs (by the whole file's frames, one cluster of a branch's many could never
-        # leave fewer: the others cross in the same frames)
-        region = sorted({*members, *(int(j) for k in members for j in crossing.near(k, boxes))})
-        joined = cluster.copy()
-        joined[members] = members[0]
+        region, joined = regions[c], joining(members)
         before = crossing.seen(region, positions, parts, prep,
-                                stagger.together(starts, cluster)).sum()
+                               stagger.together(starts, cluster)).sum()
         # first, bloomed apart but started together (no solve: each ends on its model,
         # and in step they may keep apart where staggered they crossed)
         synced = crossing.seen(region, positions, parts, prep,
-                                stagger.together(starts, joined)).sum()
+                               stagger.together(starts, joined)).sum()
         if synced == 0:
             log.info("%s pass through each other blooming apart, staggered (%d frame(s) with "
                      "their neighbours): started together, they cross in none", label,
@@ -323,7 +327,7 @@ def _together_where_flowers_cross(runs: dict, parts: list, prep: Prepared, job: 
             kept = positions[:, idx].copy()
             positions[:, idx] = np.asarray(run.rec.positions)
             after = crossing.seen(region, positions, parts, prep,
-                                   stagger.together(starts, joined)).sum()
+                                  stagger.together(starts, joined)).sum()
             if after < min(before, synced):
                 log.info("%s bloom together: they and their neighbours cross in %d frame(s), "
                          "%d apart", label, int(after), int(before))

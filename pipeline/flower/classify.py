@@ -465,11 +465,11 @@ def _whole_parts(units: list[_Shape], candidates: list[int], owner: list[int]) -
              and (ring := _ring(units, ks)) is not None}
     if len(rings) < 2:
         return {}
+    from scipy.spatial import cKDTree
+
     found = sorted(rings)
     centre = np.array([rings[i].base_point() for i in found])
     reach = COAXIAL * np.array([rings[i].length for i in found])
-    from scipy.spatial import cKDTree
-
     flower = {i: i for i in found}
     # (whorls of one flower lie within a petal length of each other along the axis)
     for a, b in sorted(cKDTree(centre).query_pairs(2.0 * float(reach.max()) / COAXIAL)):

@@ -167,8 +167,8 @@ def flowers(points: np.ndarray, label: np.ndarray, link: float = LINK,
     if whole is not None:  # (each known flower's petals chained, first to each)
         known = np.asarray(whole, dtype=np.int64)
         at = np.flatnonzero(known >= 0)
-        _, first = np.unique(known[at], return_index=True)
-        lead = at[first][np.searchsorted(np.unique(known[at]), known[at])]
+        _, first, which = np.unique(known[at], return_index=True, return_inverse=True)
+        lead = at[first][which]
         hubs += [(int(a), int(b)) for a, b in zip(lead, at, strict=True) if a != b]
     if hubs:
         pairs = np.vstack([pairs, np.asarray(hubs, dtype=np.int64)])
