@@ -443,3 +443,46 @@ def test_petals_left_through_each_other_pair_by_pair_keep_contact_with_the_rest(
     for i, j in rng.integers(len(v), size=(500, 2)):
         a, b = sorted((petal[i], petal[j]))
         assert keep.filter(int(i), int(j)) == (a != b and (a, b) not in {(0, 1), (1, 2)})
+
+
+def test_the_exact_test_leaves_out_only_the_pairs_left_as_modelled(monkeypatch):
+    """Three petals of two sheets each; petals 0 and 1 are left through each other as
+    modelled. A frame counts as intersecting where a petal crosses itself (free or of
+    a pair) or another petal not its pair, and not where only the pair crosses: the
+    whole mesh is tested once with the pair left out (and its petals from themselves,
+    :class:`~pipeline.mesh.ipc.Filter` ``selves=False``), then the pair's petals each
+    alone. Spread over worker processes, the same answers."""
+    from pipeline.sim.terms import contact
+
+    va, fa = _grid(4, 4, 0.0)
+    sheets = 6  # (petal p: sheets 2p and 2p + 1)
+    faces = np.concatenate([fa + k * len(va) for k in range(sheets)])
+    petal = np.repeat(np.arange(sheets) // 2, len(va))
+    upright = va[:, [0, 2, 1]] + [0.0, 1.5, -1.5]  # (a sheet standing through another)
+
+    def frame(crossed=None):
+        X = np.concatenate([va + [0.0, 0.0, 10.0 * k] for k in range(sheets)])
+        if crossed is not None:
+            a, b = crossed  # (sheet a stands through sheet b)
+            X[a * len(va):(a + 1) * len(va)] = upright + [0.0, 0.0, 10.0 * b]
+        return X
+
+    cases = {None: False, (0, 2): False, (4, 5): True, (0, 1): True, (4, 0): True,
+             (2, 3): True}  # (the pair; petal 2 itself; petal 0 itself, 2 with 0, 1 itself)
+    frames = [frame(c) for c in cases] * 3
+    left = np.array([(1, 0)])
+    expect = list(cases.values()) * 3
+    assert frame_intersections(frames, faces) == [c is not None for c in cases] * 3
+    assert frame_intersections(frames, faces, petal, left) == expect
+    keep = ipc.Filter(petal=petal, pairs=[(0, 1)], selves=False)
+    rng = np.random.default_rng(1)
+    for i, j in rng.integers(len(petal), size=(500, 2)):
+        a, b = sorted((petal[i], petal[j]))
+        assert keep.filter(int(i), int(j)) == (i != j and (a, b) not in {(0, 0), (0, 1), (1, 1)})
+    monkeypatch.setattr(contact, "SPREAD_WORK", 0)
+    assert frame_intersections(frames, faces, petal, left, workers=2) == expect
+    group = np.repeat(np.arange(sheets), len(va))  # (each sheet a group: a frame's sheets)
+    between = contact.crossings_between(frames, faces, group, workers=2)
+    assert between == [c is not None for c in cases] * 3
+    assert contact.crossings_between(frames, faces, group, first=True) == [False, True] + \
+        [False] * (len(frames) - 2)

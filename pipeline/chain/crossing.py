@@ -12,10 +12,13 @@ from pipeline.sim.terms.contact import crossings_between
 
 
 def seen(members: list, positions, parts: list, prep: Prepared, starts,
-         against_first: bool = False, frames=None) -> np.ndarray:
+         against_first: bool = False, frames=None, workers: int = 1,
+         first: bool = False) -> np.ndarray:
     """``(T',)`` whether a flower of ``members`` passes through another of them in each
     frame the user sees (staggered by ``starts``; ``frames``: only those), on their
-    vertices only. ``against_first``: only the first against the others."""
+    vertices only. ``against_first``: only the first against the others; ``workers``:
+    processes a large test is spread over; ``first``: only up to the first frame that
+    crosses (enough for ``.any()``; the frames after it are False)."""
     sub = np.concatenate([parts[j][1] for j in members])
     local = np.repeat(np.arange(len(members)), [len(parts[j][1]) for j in members])
     new = np.full(len(prep.vertices), -1, dtype=np.int64)
@@ -28,7 +31,8 @@ def seen(members: list, positions, parts: list, prep: Prepared, starts,
     if frames is not None:  # (frames of the whole: past this one's last, it holds it)
         shown = shown[np.minimum(frames, len(shown) - 1)]
     return np.asarray(crossings_between(shown, faces, local != 0 if against_first else local,
-                                        petal=np.asarray(prep.petal)[sub], left=prep.left),
+                                        petal=np.asarray(prep.petal)[sub], left=prep.left,
+                                        workers=workers, first=first),
                       dtype=bool)
 
 

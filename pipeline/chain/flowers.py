@@ -219,7 +219,8 @@ def _own_where_copies_cross(runs: dict, source: dict, parts: list, prep: Prepare
             log.info("flower %d blooms as flower %d, moved: on its own it crosses a "
                      "neighbour in %d frame(s), %d as a copy", k, source[k][0], own,
                      crossed[k])
-    return crossing.seen(list(range(len(parts))), positions, parts, prep, starts)
+    return crossing.seen(list(range(len(parts))), positions, parts, prep, starts,
+                         workers=workers(job.cfg["simulate.workers"]))
 
 
 #: flowers that cross blooming apart bloom together only if that ends near the model (an
@@ -256,7 +257,8 @@ def _together_where_flowers_cross(runs: dict, parts: list, prep: Prepared, job: 
     boxes = crossing.boxes(positions, parts)
     pairs = [(k, int(j)) for k in sorted(runs) for j in crossing.near(k, boxes)
              if j > k and j in runs
-             and crossing.seen([k, int(j)], positions, parts, prep, starts, frames=at).any()]
+             and crossing.seen([k, int(j)], positions, parts, prep, starts, frames=at,
+                               first=True).any()]
     if not pairs:
         return None
     label_of = components(np.asarray(pairs, dtype=np.int64), count)
@@ -283,7 +285,7 @@ def _together_where_flowers_cross(runs: dict, parts: list, prep: Prepared, job: 
     # one after another; judged below in order, as neighbours change
     unsynced = [(c, members) for c, members in enumerate(clusters.values())
                 if crossing.seen(regions[c], positions, parts, prep,
-                                 stagger.together(starts, joining(members))).any()]
+                                 stagger.together(starts, joining(members)), first=True).any()]
     # buds found apart that pass through each other: the bloom together cannot start from
     # them, so those clusters' buds are searched together at once
     buds = np.asarray(prep.vertices, dtype=np.float64)[None].copy()
@@ -449,7 +451,8 @@ def flowers_apart(prep: Prepared, job: Job, ckpt: Path, starts) -> Result:
     for run_, idx in runs.values():
         positions[:, idx] = np.asarray(run_.rec.positions)
     # what the user sees: flowers through each other, staggered
-    whole = crossing.seen(list(range(count)), positions, parts, prep, starts)
+    whole = crossing.seen(list(range(count)), positions, parts, prep, starts,
+                          workers=workers(job.cfg["simulate.workers"]))
     whole = _own_where_copies_cross(runs, source, parts, prep, job, ckpt, positions, starts,
                                     whole)
     together = _together_where_flowers_cross(runs, parts, prep, job, ckpt, positions, starts,

@@ -25,6 +25,7 @@ from pipeline.config import Config
 from pipeline.errors import BloomError
 from pipeline.flower import stagger
 from pipeline.flower.measure import Start, bloom_start, petals_within_reach
+from pipeline.forks import workers
 from pipeline.review import report
 from pipeline.sim import checkpoint
 from pipeline.sim.build import Prepared
@@ -132,8 +133,9 @@ def run(growth_h5: str | Path, out: str | Path, cfg: Config, *, overwrite: bool 
                                  distance_to_model=attrs.get("distance_to_model"),
                                  bud_closed=attrs.get("bud_closed"),
                                  petal_names=names, petal=petal, left=prep.left,
-                                 intersecting=frame_intersections(seen, prep.faces, petal,
-                                                                  prep.left),
+                                 intersecting=frame_intersections(
+                                     seen, prep.faces, petal, prep.left,
+                                     workers=workers(cfg["simulate.workers"])),
                                  held_flowers=result.held,
                                  stopped=attrs.get("bloom_stopped_at"),
                                  flower=src["flower/petal_flower"][:]

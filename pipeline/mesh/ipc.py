@@ -40,9 +40,13 @@ class Filter:
     coloured so that no petal is in two pairs of one colour (greedy: at most twice the
     most pairs of one petal), and each colour is one patches filter: two petals are kept
     apart exactly where they are not a pair, not where a chain of pairs joins them. The
-    arrays the filters read live with this object: keep it as long as the mesh."""
+    arrays the filters read live with this object: keep it as long as the mesh.
 
-    def __init__(self, *labels, petal=None, pairs=()):
+    ``selves=False``: a petal in no pair of a colour may collide with itself in that
+    colour's filter (each of its vertices a patch of its own), so that only the petals of
+    the pairs are kept from themselves (the report's exact test looks at those alone)."""
+
+    def __init__(self, *labels, petal=None, pairs=(), selves: bool = True):
         self.arrays = [np.ascontiguousarray(a, dtype=np.int32) for a in labels]
         pairs = sorted({(min(int(a), int(b)), max(int(a), int(b))) for a, b in pairs})
         if pairs:
@@ -59,11 +63,17 @@ class Filter:
                 if c == len(colours):
                     colours.append([])
                 colours[c].append((a, b))
+            own = count + np.arange(len(petal))  # (a vertex's patch of its own)
             for matching in colours:
                 label = np.arange(count, dtype=np.int64)
                 for a, b in matching:
                     label[b] = a
-                self.arrays.append(np.ascontiguousarray(label[petal], dtype=np.int32))
+                patch = label[petal]
+                if not selves:
+                    paired = np.zeros(count, dtype=bool)
+                    paired[np.asarray(matching).ravel()] = True
+                    patch = np.where(paired[petal], patch, own)
+                self.arrays.append(np.ascontiguousarray(patch, dtype=np.int32))
         self._combine()
 
     def _combine(self) -> None:
