@@ -417,7 +417,9 @@ def test_petals_left_through_each_other_pair_by_pair_keep_contact_with_the_rest(
     0's move down through sheet 1 is not cut, nor is sheet 1's through 2; but sheet 0 and
     sheet 2, joined only through the chain, keep contact: sheet 0 moved down through both
     is stopped at sheet 2. (Joined in one group, as the pairs were before, the whole
-    stack had no contact.) The filter answers, pair of vertices by pair, as the pairs say."""
+    stack had no contact.) A petal in no pair keeps off itself (until 2026-12-03 one pair
+    left so took every petal's own contact away). The filter answers, pair of vertices
+    by pair, as the pairs say."""
     va, fa = _grid(5, 5, 0.0)
     v = np.concatenate([va + [0, 0, 10 * GAP], va + [0, 0, 5 * GAP], va])
     faces = np.concatenate([fa, fa + len(va), fa + 2 * len(va)])
@@ -438,6 +440,18 @@ def test_petals_left_through_each_other_pair_by_pair_keep_contact_with_the_rest(
     pushback = fx.Collisions.build(v, faces, petal, offset=0.001, max_edge=1.5, thickness=GAP,
                                    left=np.array([(0, 1), (2, 1)]))
     assert np.all(pushback.vertex_petal == 0) and np.array_equal(pushback.petal, petal)
+    # a fourth petal, in no pair, keeps off itself: its two strips, one 3 gaps above the
+    # other, pressed through each other are stopped
+    vb, fb = _grid(5, 2, 0.0)
+    fold = np.concatenate([vb, vb + [0, 0, 3 * GAP]])
+    fold_faces = np.concatenate([fb, fb + len(vb)])
+    v4 = np.concatenate([v, fold + [0, 20, 0]])
+    f4 = np.concatenate([faces, fold_faces + len(v)])
+    p4 = np.concatenate([petal, np.full(len(fold), 3)])
+    c4 = Contact.build(v4, f4, p4, gap=GAP, stiffness=0.1, left=[(0, 1), (2, 1)])
+    pressed = v4.copy()
+    pressed[len(v) + len(vb):, 2] -= 6 * GAP  # (its upper half down through its lower)
+    assert c4.max_step(v4, pressed) < 0.5
     keep = ipc.Filter(petal, petal=petal, pairs=[(0, 1), (1, 2)])
     rng = np.random.default_rng(0)
     for i, j in rng.integers(len(v), size=(500, 2)):

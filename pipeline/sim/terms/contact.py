@@ -20,7 +20,10 @@ collision detection (:meth:`Contact.max_step`), so no iterate ever comes closer 
   between them; each keeps it with every other petal (the pairs are left out of ipctk's
   filter one by one, :class:`pipeline.mesh.ipc.Filter`, not joined in groups: on the
   rose bed, groups joined by chains of such pairs took in whole roses, and their petals
-  passed through each other in 931 pairs more than modelled).
+  passed through each other in 931 pairs more than modelled). The petals of such a pair
+  have no contact with themselves either (ipctk's filter keeps apart vertices of one
+  patch, and a pair is one patch); every other petal keeps off itself. (Until
+  2026-12-03 one pair left so took every petal's own contact away.)
 - ``gap`` is the key ``effects.collisions.thickness``; the band over which the barrier
   acts is as wide again, so petals feel each other from ``2 gap`` on.
 - ``kappa`` makes the barrier as stiff, at the middle of its band, as the stiffest
@@ -141,7 +144,9 @@ class Contact(Term):
         petal = np.ascontiguousarray(np.asarray(petal)[:count], dtype=np.int32)
         left = None if left is None or not len(left) else np.asarray(left, dtype=np.int64)
         pairs = () if left is None else left.tolist()
-        apart = Filter(petal=petal, pairs=pairs)  # (every pair but those left)
+        # every pair of petals but those left, and each petal off itself but the pairs'
+        # (a patch filter keeps a pair's two petals from each other and from themselves)
+        apart = Filter(petal=petal, pairs=pairs, selves=False)
         apart.apply(mesh)
         patches = _own_contact(mesh, X, petal, 2.0 * gap)
         keep = apart if patches is None else apart.also(patches)
