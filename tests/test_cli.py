@@ -388,7 +388,7 @@ def test_petals_closer_than_the_gap_keep_half_their_distance(chain, tmp_path):
     the pairs and the key, and no frame has an intersection. (The paper's springs: their
     gap is in mesh units. The shell's, in units of the petal size, is at most 0.02 of it,
     and this bud's petals start further apart than that.)"""
-    from pipeline.sim.terms.contact import frame_intersections
+    from pipeline.mesh.intersect import frame_intersections
 
     out = tmp_path / "sim.h5"
     r = CliRunner().invoke(cli, ["simulate", str(chain["growth"]), "--out", str(out),
@@ -515,7 +515,8 @@ def test_a_bud_grown_shut_has_no_intersecting_frame_with_contact(chain, tmp_path
     the barrier), no frame of sim.h5 has two intersecting triangles (ipctk's exact
     test), and the petals end at least the gap apart."""
     from pipeline.config import KEYS
-    from pipeline.sim.terms.contact import Contact, frame_intersections
+    from pipeline.mesh.intersect import frame_intersections
+    from pipeline.sim.terms.contact import Contact
     from pipeline.sim.terms.shell import petal_size
 
     growth = tmp_path / "growth.h5"

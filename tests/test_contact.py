@@ -8,12 +8,13 @@ import numpy as np
 import pytest
 
 from pipeline.mesh import ipc
+from pipeline.mesh.intersect import frame_intersections
 from pipeline.mesh.ipc import ipctk as one_thread
 from pipeline.sim import effects as fx
 from pipeline.sim.model import Control, Model, State
 from pipeline.sim.run import run
 from pipeline.sim.solver.quasistatic import QuasiStatic
-from pipeline.sim.terms.contact import Contact, barrier_curvature, frame_intersections
+from pipeline.sim.terms.contact import Contact, barrier_curvature
 from tests.conftest import min_distance
 
 GAP = 0.01
@@ -466,7 +467,7 @@ def test_the_exact_test_leaves_out_only_the_pairs_left_as_modelled(monkeypatch):
     whole mesh is tested once with the pair left out (and its petals from themselves,
     :class:`~pipeline.mesh.ipc.Filter` ``selves=False``), then the pair's petals each
     alone. Spread over worker processes, the same answers."""
-    from pipeline.sim.terms import contact
+    from pipeline.mesh import intersect
 
     va, fa = _grid(4, 4, 0.0)
     sheets = 6  # (petal p: sheets 2p and 2p + 1)
@@ -493,10 +494,10 @@ def test_the_exact_test_leaves_out_only_the_pairs_left_as_modelled(monkeypatch):
     for i, j in rng.integers(len(petal), size=(500, 2)):
         a, b = sorted((petal[i], petal[j]))
         assert keep.filter(int(i), int(j)) == (i != j and (a, b) not in {(0, 0), (0, 1), (1, 1)})
-    monkeypatch.setattr(contact, "SPREAD_WORK", 0)
+    monkeypatch.setattr(intersect, "SPREAD_WORK", 0)
     assert frame_intersections(frames, faces, petal, left, workers=2) == expect
     group = np.repeat(np.arange(sheets), len(va))  # (each sheet a group: a frame's sheets)
-    between = contact.crossings_between(frames, faces, group, workers=2)
+    between = intersect.crossings_between(frames, faces, group, workers=2)
     assert between == [c is not None for c in cases] * 3
-    assert contact.crossings_between(frames, faces, group, first=True) == [False, True] + \
+    assert intersect.crossings_between(frames, faces, group, first=True) == [False, True] + \
         [False] * (len(frames) - 2)

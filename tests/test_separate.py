@@ -14,8 +14,9 @@ from click.testing import CliRunner
 
 from pipeline.mesh import procedural
 from pipeline.mesh.clean import mean_edge_length
+from pipeline.mesh.intersect import crossings_between, frame_intersections
 from pipeline.mesh.separate import SeparationError, separate
-from pipeline.sim.terms.contact import Contact, crossings_between, frame_intersections
+from pipeline.sim.terms.contact import Contact
 from stages.cli import cli
 from tests.conftest import min_distance
 

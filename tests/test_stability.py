@@ -50,7 +50,7 @@ def test_hard_case_is_stable_or_stops_cleanly(case, runs):
             contact = (h5.attrs["integrator"] == "quasi-static"
                        and "collisions" in str(h5.attrs["effects"]))
             if contact:  # (the dense 12-petal bud): no frame has an intersection
-                from pipeline.sim.terms.contact import frame_intersections
+                from pipeline.mesh.intersect import frame_intersections
 
                 frames = h5["frames/positions"][()]
                 assert not any(frame_intersections(frames, h5["mesh/faces"][()]))

@@ -7,8 +7,8 @@ from __future__ import annotations
 import numpy as np
 
 from pipeline.flower import stagger
+from pipeline.mesh.intersect import crossings_between
 from pipeline.sim.build import Prepared
-from pipeline.sim.terms.contact import crossings_between
 
 
 def seen(members: list, positions, parts: list, prep: Prepared, starts,

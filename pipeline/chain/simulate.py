@@ -26,11 +26,12 @@ from pipeline.errors import BloomError
 from pipeline.flower import stagger
 from pipeline.flower.measure import Start, bloom_start, petals_within_reach
 from pipeline.forks import workers
+from pipeline.mesh.intersect import frame_intersections
 from pipeline.review import report
 from pipeline.sim import checkpoint
 from pipeline.sim.build import Prepared
 from pipeline.sim.reverse import petal_lengths
-from pipeline.sim.terms.contact import frame_intersections, own_spots
+from pipeline.sim.terms.contact import own_spots
 
 log = logging.getLogger("bloom")
 

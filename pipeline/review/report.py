@@ -18,9 +18,9 @@ import numpy as np
 from pipeline.flower import measure
 from pipeline.io import binding, userasset
 from pipeline.mesh import topology
+from pipeline.mesh.intersect import frame_intersections
 from pipeline.mesh.remesh import boundary_loops
 from pipeline.sim.explicit.pushback import build_face_grid, edges_through_faces
-from pipeline.sim.terms.contact import frame_intersections
 
 #: what the report reads from sim.h5 beyond what every sim.h5 holds
 NEEDS = ("mesh/petal", "growth/hinges", "axis/s", "axis/x", "diagnostics/opening_angle_per_petal")
@@ -98,7 +98,7 @@ def soundness(positions: np.ndarray, faces: np.ndarray, opening_per_petal: np.nd
     intersecting : whether each frame has an intersection, if already checked (of the
         frames as the user gets them: a file of staggered flowers has more than T); else
         checked here on ``positions``, exactly
-        (:func:`pipeline.sim.contact.frame_intersections`).
+        (:func:`pipeline.mesh.intersect.frame_intersections`).
     petal, left : (V,) each vertex's petal and (K, 2) the petal pairs left through each
         other as modelled (sim.h5's ``mesh/petal`` and ``mesh/left``), or None: those
         pairs' crossings are not counted (``left`` of the result: the pairs, named).

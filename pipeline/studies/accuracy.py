@@ -30,13 +30,13 @@ import numpy as np
 from pipeline.artifact import atomic_path
 from pipeline.flower.measure import PetalFrames
 from pipeline.mesh import procedural, topology
+from pipeline.mesh.intersect import frame_intersections
 from pipeline.mesh.remesh import isotropic, target_for_vertices
 from pipeline.mesh.symmetry import closest_points, mirror_pairs, reflect
 from pipeline.sim.build import Prepared
 from pipeline.sim.effects import Params
 from pipeline.sim.integrators import make_integrator
 from pipeline.sim.model import Control, Model, State
-from pipeline.sim.terms.contact import frame_intersections
 
 #: the ``effects`` section of a scene at its defaults
 DEFAULT_EFFECTS = Params.defaults()

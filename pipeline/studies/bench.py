@@ -19,11 +19,11 @@ from pipeline.flower.petals import prepare_parts
 from pipeline.forks import workers
 from pipeline.io.meshfile import MeshFile, Part
 from pipeline.mesh import procedural, topology
+from pipeline.mesh.intersect import frame_intersections
 from pipeline.sim.build import Prepared
 from pipeline.sim.effects import Params
 from pipeline.sim.explicit.semi_implicit import SemiImplicit
 from pipeline.sim.model import Control, State
-from pipeline.sim.terms.contact import frame_intersections
 from pipeline.studies import models
 
 #: the ``effects`` section of a scene at its defaults, connecting rims up to 3 edges away

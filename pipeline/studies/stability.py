@@ -24,8 +24,8 @@ from scipy.spatial import Delaunay, cKDTree
 from pipeline.chain import run_scene
 from pipeline.errors import BloomError
 from pipeline.mesh import procedural
+from pipeline.mesh.intersect import frame_intersections
 from pipeline.mesh.topology import unique_edges
-from pipeline.sim.terms.contact import frame_intersections
 
 #: a finished case passes when these hold
 MAX_ESCAPE = 3.0  #: no vertex further from the receptacle than 3x the bud's initial reach
