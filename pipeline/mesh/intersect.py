@@ -47,6 +47,15 @@ def _per_frame(make, frames, workers: int = 1) -> list[bool]:
         _TASK = None
 
 
+def _collision_mesh(faces, X0):
+    """ipctk (on one thread), and the faces, edges and collision mesh of ``faces`` at
+    ``X0``: ``(ipctk, F, E, mesh)`` (the caller keeps ``F`` and ``E`` alive with it)."""
+    ipctk = one_thread()
+    F = np.asfortranarray(faces, dtype=np.int32)
+    E = ipctk.edges(F)
+    return ipctk, F, E, ipctk.CollisionMesh(np.asfortranarray(X0, dtype=np.float64), E, F)
+
+
 def crossings_between(frames, faces, group, petal=None, left=None, workers: int = 1,
                       first: bool = False) -> list[bool]:
     """For each frame ``(V, 3)`` of ``frames``, whether a triangle of one group passes
@@ -60,10 +69,7 @@ def crossings_between(frames, faces, group, petal=None, left=None, workers: int 
     pairs = [] if petal is None or left is None else np.asarray(left).reshape(-1, 2).tolist()
 
     def make(X0):
-        ipctk = one_thread()
-        F = np.asfortranarray(faces, dtype=np.int32)
-        E = ipctk.edges(F)
-        mesh = ipctk.CollisionMesh(np.asfortranarray(X0, dtype=np.float64), E, F)
+        ipctk, F, E, mesh = _collision_mesh(faces, X0)
         keep = Filter(group, petal=petal, pairs=pairs)
         keep.apply(mesh)
         # (the arrays the mesh and its filter read live with the checker)
@@ -95,10 +101,7 @@ def frame_intersections(frames, faces, petal=None, left=None, workers: int = 1) 
     pairs = [] if petal is None or left is None else np.asarray(left).reshape(-1, 2).tolist()
 
     def make(X0):
-        ipctk = one_thread()
-        F = np.asfortranarray(faces, dtype=np.int32)
-        E = ipctk.edges(F)
-        mesh = ipctk.CollisionMesh(np.asfortranarray(X0, dtype=np.float64), E, F)
+        ipctk, F, E, mesh = _collision_mesh(faces, X0)
         keep, alone = None, []
         if pairs:
             own = np.asarray(petal)
