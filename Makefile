@@ -56,7 +56,7 @@ stability: $(INSTALLED)  ## the hard cases, slow ones included; prints the READM
 elastic: $(INSTALLED)  ## every default scene with the paper's springs and with the shell, side by side: outputs/elastic/elastic.md, .png (~6 min)
 	$(BLOOM) study elastic --out $(OUT)/elastic
 
-models: $(INSTALLED)  ## real flower models, scene.mesh only, judged; the table into docs/performance.md (~80 min: the rose bed ~28)
+models: $(INSTALLED)  ## real flower models, scene.mesh only, judged; the table into docs/performance.md (~50 min: the rose bed ~28)
 	$(BLOOM) study models --dir $(MODELS) --out $(OUT)/models --timeout 2400 --into docs/performance.md
 
 docs: $(INSTALLED)  ## the key table of docs/guide.md, made anew from the config schema
